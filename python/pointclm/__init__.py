@@ -1,0 +1,22 @@
+"""pointclm: multi-instance point cloud registration (PointCLM, ECCV 2022) on a Rust core.
+
+>>> import pointclm
+>>> from pointclm.datasets import make_scene
+>>> scene = make_scene(seed=0)
+>>> result = pointclm.register(scene.correspondences)
+>>> result.transformations.shape[1:]
+(4, 4)
+"""
+
+from ._core import Instance, RegistrationResult, __version__
+from .config import Config
+from .registration import register, register_batch
+
+__all__ = [
+    "Config",
+    "Instance",
+    "RegistrationResult",
+    "__version__",
+    "register",
+    "register_batch",
+]

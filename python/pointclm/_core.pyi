@@ -1,0 +1,81 @@
+"""Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+class Instance:
+    """One registered copy of the source in the target."""
+
+    @property
+    def transformation(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def inliers(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def correspondence_set(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def fitness(self) -> float: ...
+    @property
+    def inlier_rmse(self) -> float: ...
+    def __len__(self) -> int: ...
+
+class RegistrationResult:
+    """Every instance found in one scene, plus a label per correspondence."""
+
+    @property
+    def instances(self) -> list[Instance]: ...
+    @property
+    def transformations(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def labels(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def kept(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def n_clusters(self) -> int: ...
+    @property
+    def timings(self) -> dict[str, float]: ...
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> Instance: ...
+
+def register(
+    correspondences: npt.NDArray[np.float64],
+    features: npt.NDArray[np.float64] | None = None,
+    config: dict[str, Any] | None = None,
+    seed: int = 0,
+    num_threads: int | None = None,
+) -> RegistrationResult: ...
+def register_batch(
+    scenes: list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]],
+    config: dict[str, Any] | None = None,
+    seed: int = 0,
+    num_threads: int | None = None,
+) -> list[RegistrationResult]: ...
+def spatial_consistency(
+    correspondences: npt.NDArray[np.float64], sigma_d: float
+) -> npt.NDArray[np.float64]: ...
+def density_counts(
+    correspondences: npt.NDArray[np.float64],
+    features: npt.NDArray[np.float64] | None = None,
+    config: dict[str, Any] | None = None,
+    num_threads: int | None = None,
+) -> npt.NDArray[np.int64]: ...
+def normalized_laplacian(affinity: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]: ...
+def eigh(
+    matrix: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+def spectral_clustering(
+    affinity: npt.NDArray[np.float64],
+    n_clusters: int | None = None,
+    max_clusters: int | None = None,
+    assignment: str = "kmeans",
+    restarts: int = 10,
+    seed: int = 0,
+) -> tuple[npt.NDArray[np.int64], int, npt.NDArray[np.float64]]: ...
+def kabsch(
+    source: npt.NDArray[np.float64], target: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]: ...
+def default_config() -> dict[str, Any]: ...
+def validate_config(config: dict[str, Any]) -> None: ...

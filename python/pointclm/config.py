@@ -1,0 +1,96 @@
+"""`Config`: every threshold of the method, mirroring the Rust `pointclm::Config`.
+
+Lengths (`sigma_d`, `affinity_sigma`, `inlier_threshold`) are in the units of your points. The
+defaults are the paper's synthetic settings (shapes in a unit sphere, noise about 0.01); use
+`Config().scaled(f)` when your objects and noise are `f` times larger.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+from typing import Any, Literal
+
+from . import _core
+
+__all__ = ["Config"]
+
+
+@dataclass(frozen=True)
+class Config:
+    """Parameters of `pointclm.register`; checked by the Rust core when constructed.
+
+    Attributes
+    ----------
+    sigma_d : float
+        Length tolerance of spatial consistency ``beta = [1 - d^2 / sigma_d^2]_+``.
+    pruning : {"paper", "authors", "none"}
+        "paper": binarise ``S`` at `tau_s`, keep rows whose sum exceeds `tau_n`.
+        "authors": the authors' code, ``beta > beta_threshold`` (and feature similarity
+        ``> feature_threshold``), keep rows whose count exceeds `min_count`.
+        "none": no pruning (ablation).
+    max_kept : int
+        At most this many pruned correspondences go to the dense eigensolver (the densest).
+    affinity_sigma : float
+        Length scale of the clustering affinity.
+    max_instances : int or None
+        Optional cap on the number of clusters the eigengap may choose.
+    assignment : {"kmeans", "discretize"}
+        k-means++ on the row-normalised embedding, or Yu-Shi discretisation.
+    kmeans_restarts : int
+        Restarts of the label assignment (best objective wins).
+    min_cluster_size : int
+        Clusters and final instances with fewer members are dropped.
+    ransac_iterations : int
+        3-point hypotheses per cluster.
+    inlier_threshold : float
+        A correspondence is an inlier of a pose if ``||R x + t - y||`` is below this.
+    refine : bool
+        Least-squares refit of each pose on its inliers.
+    merge_duplicates : bool
+        Merge instances whose poses place the object at the same spot.
+    """
+
+    sigma_d: float = 0.05
+    pruning: Literal["paper", "authors", "none"] = "paper"
+    tau_s: float = 0.85
+    tau_n: int = 10
+    beta_threshold: float = 0.9
+    feature_threshold: float = 0.8
+    min_count: int = 9
+    max_kept: int = 2000
+    affinity_sigma: float = 0.1
+    max_instances: int | None = None
+    assignment: Literal["kmeans", "discretize"] = "kmeans"
+    kmeans_restarts: int = 10
+    min_cluster_size: int = 10
+    ransac_iterations: int = 50
+    inlier_threshold: float = 0.1
+    refine: bool = True
+    merge_duplicates: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("refine", "merge_duplicates"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"config field {name}: expected True or False")
+        for name in ("tau_n", "min_count", "max_kept", "kmeans_restarts", "min_cluster_size",
+                     "ransac_iterations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"config field {name}: expected an int, got {value!r}")
+        # The Rust core is the single source of truth for valid ranges.
+        _core.validate_config(self.to_dict())
+
+    def to_dict(self) -> dict[str, Any]:
+        """Fields as a plain dict (what the Rust core receives)."""
+        return asdict(self)
+
+    def scaled(self, factor: float) -> Config:
+        """The same settings with every length multiplied by `factor`."""
+        if not factor > 0:
+            raise ValueError(f"scale factor must be > 0, got {factor!r}")
+        return replace(
+            self,
+            sigma_d=self.sigma_d * factor,
+            affinity_sigma=self.affinity_sigma * factor,
+            inlier_threshold=self.inlier_threshold * factor,
+        )

@@ -1,0 +1,45 @@
+"""Shapes and synthetic benchmarks for multi-instance registration.
+
+Why a separate subpackage: the registration core needs only numpy arrays of correspondences;
+everything that *makes* such arrays (shape sampling, the paper's seeded synthetic protocol,
+scale-test scenes) lives here, importable with numpy alone. Mesh files need trimesh
+(``pip install pointclm[io]``) and ModelNet40's HDF5 release needs h5py; both are imported
+only when used.
+"""
+
+from __future__ import annotations
+
+from .procedural import PROCEDURAL_SHAPES, procedural_mesh
+from .shapes import (
+    MESH_SUFFIXES,
+    available_shapes,
+    load_mesh,
+    load_shape,
+    modelnet40_shapes,
+    normalize_unit_sphere,
+    sample_surface,
+)
+from .synthetic import (
+    SyntheticScene,
+    label_correspondences,
+    make_planted_scene,
+    make_scene,
+    make_scenes,
+)
+
+__all__ = [
+    "MESH_SUFFIXES",
+    "PROCEDURAL_SHAPES",
+    "SyntheticScene",
+    "available_shapes",
+    "label_correspondences",
+    "load_mesh",
+    "load_shape",
+    "make_planted_scene",
+    "make_scene",
+    "make_scenes",
+    "modelnet40_shapes",
+    "normalize_unit_sphere",
+    "procedural_mesh",
+    "sample_surface",
+]

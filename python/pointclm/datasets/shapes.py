@@ -1,0 +1,418 @@
+"""Shapes to register: the packaged bunny, procedural meshes, mesh files and ModelNet40.
+
+Why: the synthetic protocol (SPEC section 3) starts from a unit-sphere-normalised 2048-point
+cloud of one object. The paper draws it from ModelNet40's ``ply_hdf5_2048`` release; this
+module offers that (with h5py) and, so that nothing must be downloaded, the packaged Stanford
+bunny (numpy only), a few procedural shapes, and any mesh file trimesh can read.
+
+Clouds are sampled uniformly by surface area (area-weighted triangle choice, then uniform
+barycentric coordinates) from a seeded :class:`numpy.random.Generator`, then centred on their
+centroid and scaled so that the largest norm is 1.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .procedural import PROCEDURAL_SHAPES, procedural_mesh
+
+__all__ = [
+    "MESH_SUFFIXES",
+    "available_shapes",
+    "load_mesh",
+    "load_shape",
+    "modelnet40_shapes",
+    "normalize_unit_sphere",
+    "sample_surface",
+]
+
+_DATA = Path(__file__).resolve().parent / "data"
+_BUNNY = _DATA / "bunny_res4.npz"
+
+#: File suffixes :func:`load_shape` reads (``.npy``/``.npz`` with numpy, the rest with trimesh).
+MESH_SUFFIXES: tuple[str, ...] = (".ply", ".off", ".obj", ".stl", ".npy", ".npz")
+
+#: Clean names for the files of the project's data folder (``data/SOURCES.md``).
+_KNOWN_FILES: dict[str, str] = {
+    "stanford/bunny/reconstruction/bun_zipper_res2.ply": "stanford/bunny-res2",
+    "stanford/bunny/reconstruction/bun_zipper_res3.ply": "stanford/bunny-res3",
+    "stanford/bunny/reconstruction/bun_zipper_res4.ply": "stanford/bunny-res4",
+    "stanford/dragon/dragon_spica_21790v.ply": "stanford/dragon",
+    "stanford/happy/happy_vrip_res3.ply": "stanford/happy",
+    "stanford/armadillo/Armadillo_38294v.ply": "stanford/armadillo",
+    "modelnet/bathtub_0154.ply": "modelnet/bathtub",
+    "modelnet/bed_fmr.off": "modelnet/bed",
+    "stanford/bunny/data/bun000.ply": "stanford/bunny-scan000",
+    "stanford/bunny/data/bun045.ply": "stanford/bunny-scan045",
+    "stanford/bunny/data/bun090.ply": "stanford/bunny-scan090",
+    "stanford/bunny/data/bun315.ply": "stanford/bunny-scan315",
+}
+#: Suffixes :func:`available_shapes` looks for in a data folder (arrays are not listed: a
+#: ``.npy`` there is as likely a pose or a feature file as a cloud).
+_LISTED_SUFFIXES: tuple[str, ...] = (".ply", ".off", ".obj", ".stl")
+
+Rng = np.random.Generator | int | None
+PathLike = str | os.PathLike[str]
+
+
+def normalize_unit_sphere(points: np.ndarray) -> np.ndarray:
+    """Centre a cloud on its centroid and scale it so that its largest norm is 1.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        (N, 3) cloud.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N, 3) float64 copy.
+
+    Raises
+    ------
+    ValueError
+        If the cloud is empty, not (N, 3), not finite, or a single point.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise ValueError(f"expected a non-empty (N, 3) cloud, got shape {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("cloud has non-finite coordinates")
+    pts = pts - pts.mean(axis=0)
+    scale = np.linalg.norm(pts, axis=1).max()
+    if scale <= 0:
+        raise ValueError("cloud is a single point; it cannot be normalised")
+    return pts / scale
+
+
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n_points: int, rng: Rng = 0
+) -> np.ndarray:
+    """Sample points uniformly by area on a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) vertex positions.
+    faces : numpy.ndarray
+        (F, 3) triangle vertex indices.
+    n_points : int
+        Number of samples.
+    rng : numpy.random.Generator or int or None
+        Generator or seed (``None``: fresh entropy).
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_points, 3) float64 samples (not normalised).
+
+    Raises
+    ------
+    ValueError
+        If the mesh has no triangle of positive area or indices out of range.
+    """
+    rng = np.random.default_rng(rng)
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise ValueError(f"expected (F, 3) triangles, got shape {f.shape}")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError("face indices out of range")
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    total = area.sum()
+    if not np.isfinite(total) or total <= 0:
+        raise ValueError("mesh has no triangle of positive, finite area")
+    idx = rng.choice(len(f), size=n_points, p=area / total)
+    r1 = np.sqrt(rng.random(n_points))[:, None]
+    r2 = rng.random(n_points)[:, None]
+    a, b, c = tri[idx, 0], tri[idx, 1], tri[idx, 2]
+    return (1 - r1) * a + r1 * (1 - r2) * b + r1 * r2 * c
+
+
+def _sample_points(points: np.ndarray, n_points: int, rng: np.random.Generator) -> np.ndarray:
+    """Random subset of a point-only cloud (with replacement only if it is too small)."""
+    replace = len(points) < n_points
+    return points[rng.choice(len(points), size=n_points, replace=replace)]
+
+
+def _bunny_mesh() -> tuple[np.ndarray, np.ndarray]:
+    with np.load(_BUNNY) as data:
+        return data["vertices"], data["faces"]
+
+
+def _trimesh() -> Any:
+    try:
+        import trimesh
+    except ImportError as err:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "reading mesh files needs trimesh: pip install pointclm[io]  (or pip install trimesh)"
+        ) from err
+    return trimesh
+
+
+def load_mesh(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a mesh or point-cloud file.
+
+    ``.npy`` holds an (N, 3) cloud; ``.npz`` holds ``vertices`` and optionally ``faces`` (the
+    packaged format); ``.ply``/``.off``/``.obj``/``.stl`` are read with trimesh (lazily
+    imported, ``pip install pointclm[io]``), scenes being merged into one mesh.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File to read.
+
+    Returns
+    -------
+    vertices : numpy.ndarray
+        (V, 3) float64.
+    faces : numpy.ndarray or None
+        (F, 3) int64 triangles, or ``None`` for a point-only file.
+
+    Raises
+    ------
+    ValueError
+        If the file is missing, of an unknown type, unreadable or empty; the message names it.
+    ImportError
+        If trimesh is needed and not installed.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if not p.is_file():
+        raise ValueError(f"{p}: no such file")
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(f"{p}: unsupported file type {suffix!r} (use {', '.join(MESH_SUFFIXES)})")
+    try:
+        if suffix in (".npy", ".npz"):
+            verts, faces = _read_numpy(p)
+        else:
+            verts, faces = _read_trimesh(p, _trimesh())
+    except ImportError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any parser failure becomes a ValueError
+        raise ValueError(f"{p}: cannot read it ({type(err).__name__}: {err})") from err
+    verts = np.asarray(verts, dtype=np.float64)
+    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
+        raise ValueError(f"{p}: no 3D points in the file (vertex array shape {verts.shape})")
+    if not np.all(np.isfinite(verts)):
+        raise ValueError(f"{p}: vertices contain NaN or infinity")
+    if faces is not None:
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if len(faces) == 0:
+            faces = None
+        elif faces.min() < 0 or faces.max() >= len(verts):
+            raise ValueError(f"{p}: face indices out of range")
+    return verts, faces
+
+
+def _read_numpy(p: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    if p.suffix.lower() == ".npy":
+        return np.load(p, allow_pickle=False), None
+    with np.load(p, allow_pickle=False) as data:
+        faces = data["faces"] if "faces" in data.files else None
+        return data["vertices"], faces
+
+
+def _read_trimesh(p: Path, trimesh: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    loaded = trimesh.load(str(p), process=False)
+    # A scene (e.g. an OBJ with several objects) is flattened with its transforms applied.
+    geoms = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
+    verts, faces, offset = [], [], 0
+    for g in geoms:
+        v = np.asarray(getattr(g, "vertices", np.empty((0, 3))), dtype=np.float64)
+        f = getattr(g, "faces", None)
+        if f is not None and len(f):
+            faces.append(np.asarray(f, dtype=np.int64) + offset)
+        verts.append(v.reshape(-1, 3))
+        offset += len(v)
+    if not verts:
+        return np.empty((0, 3)), None
+    return np.vstack(verts), (np.vstack(faces) if faces else None)
+
+
+def _data_files(data_dir: PathLike) -> dict[str, Path]:
+    """Map clean names to the mesh files found under ``data_dir``."""
+    root = Path(data_dir)
+    if not root.is_dir():
+        raise ValueError(f"{root}: data folder does not exist")
+    found: dict[str, Path] = {}
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root).as_posix()
+        if p.suffix.lower() not in _LISTED_SUFFIXES or not p.is_file():
+            continue
+        if any(part.startswith(".") for part in p.relative_to(root).parts):
+            continue
+        name = _KNOWN_FILES.get(rel, rel[: -len(p.suffix)])
+        found.setdefault(name, p)
+    return found
+
+
+def available_shapes(data_dir: PathLike | None = None) -> list[str]:
+    """Names :func:`load_shape` accepts.
+
+    Parameters
+    ----------
+    data_dir : str or os.PathLike, optional
+        A user-supplied data folder (for this project: ``../shared/data``). Mesh and point
+        files under it (``.ply``, ``.off``, ``.obj``, ``.stl``) are listed too; the files of
+        ``data/SOURCES.md`` get clean names such as ``"stanford/dragon"`` or
+        ``"modelnet/bed"``, others their relative path without suffix.
+
+    Returns
+    -------
+    list of str
+        ``"bunny"``, the procedural shapes, then the data folder's shapes (sorted).
+    """
+    names = ["bunny", *PROCEDURAL_SHAPES]
+    if data_dir is not None:
+        names += sorted(_data_files(data_dir))
+    return names
+
+
+def load_shape(
+    name_or_path: PathLike,
+    n_points: int = 2048,
+    rng: Rng = 0,
+    *,
+    data_dir: PathLike | None = None,
+) -> np.ndarray:
+    """Sample a unit-sphere-normalised cloud from a named shape or a file.
+
+    Parameters
+    ----------
+    name_or_path : str or os.PathLike
+        ``"bunny"`` (packaged, numpy only), a procedural shape (``"torus"``, ``"box"``,
+        ``"cylinder"``, ``"cone"``, ``"capsule"``, ``"helix-tube"``), a name from
+        :func:`available_shapes` ``(data_dir)``, or a mesh/point file path.
+    n_points : int, default 2048
+        Number of points.
+    rng : numpy.random.Generator or int or None, default 0
+        Generator or seed of the sampling (``None``: fresh entropy).
+    data_dir : str or os.PathLike, optional
+        Data folder in which to resolve names such as ``"stanford/dragon"``.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_points, 3) float64, centroid at the origin, largest norm 1. Meshes are sampled by
+        area; point-only files by a random subset of their points (with replacement only when
+        they hold fewer than ``n_points``).
+
+    Raises
+    ------
+    ValueError
+        Unknown name, missing or unreadable file (the message names it).
+    ImportError
+        A mesh file needs trimesh and it is not installed.
+    """
+    if n_points < 1:
+        raise ValueError(f"n_points must be positive, got {n_points}")
+    gen = np.random.default_rng(rng)
+    key = os.fspath(name_or_path)
+    if key == "bunny":
+        verts, faces = _bunny_mesh()
+        return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
+    if key in PROCEDURAL_SHAPES:
+        verts, faces = procedural_mesh(key)
+        return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
+    path = Path(key)
+    if data_dir is not None and not path.is_file():
+        files = _data_files(data_dir)
+        if key in files:
+            path = files[key]
+    if not path.is_file():
+        hint = "" if data_dir is not None else " (pass data_dir= to resolve data-folder names)"
+        raise ValueError(
+            f"{key!r} is neither a known shape nor an existing file{hint}; known shapes: "
+            f"{', '.join(available_shapes(data_dir))}"
+        )
+    file_verts, file_faces = load_mesh(path)
+    if file_faces is None:
+        pts = _sample_points(file_verts, n_points, gen)
+    else:
+        try:
+            pts = sample_surface(file_verts, file_faces, n_points, gen)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from err
+    try:
+        return normalize_unit_sphere(pts)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from err
+
+
+def modelnet40_shapes(
+    folder: PathLike, split: str = "test", *, with_labels: bool = False
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Read the clouds of ModelNet40's ``modelnet40_ply_hdf5_2048`` release.
+
+    This is the data the paper's synthetic benchmark is built from. The files are listed by
+    ``{split}_files.txt`` when present, else found as ``ply_data_{split}*.h5`` in numeric order.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The unpacked ``modelnet40_ply_hdf5_2048`` folder.
+    split : {"test", "train"}
+        Which split.
+    with_labels : bool, default False
+        Also return the class labels.
+
+    Returns
+    -------
+    clouds : numpy.ndarray
+        (S, 2048, 3) float64 clouds in file order.
+    labels : numpy.ndarray
+        (S,) int64 class indices, only if ``with_labels``.
+
+    Raises
+    ------
+    ImportError
+        If h5py is not installed.
+    ValueError
+        If the folder holds no file of the split or a file is malformed.
+    """
+    try:
+        import h5py
+    except ImportError as err:  # pragma: no cover - depends on the environment
+        raise ImportError("reading ModelNet40 HDF5 files needs h5py: pip install h5py") from err
+    root = Path(folder)
+    files = _modelnet_files(root, split)
+    clouds, labels = [], []
+    for f in files:
+        try:
+            with h5py.File(f, "r") as h5:
+                data = np.asarray(h5["data"][:], dtype=np.float64)
+                label = np.asarray(h5["label"][:], dtype=np.int64).reshape(-1)
+        except Exception as err:  # noqa: BLE001 - any reader failure becomes a ValueError
+            raise ValueError(f"{f}: cannot read it ({type(err).__name__}: {err})") from err
+        if data.ndim != 3 or data.shape[2] != 3 or len(label) != len(data):
+            raise ValueError(f"{f}: expected data (n, P, 3) and n labels, got {data.shape}")
+        clouds.append(data)
+        labels.append(label)
+    out = np.concatenate(clouds)
+    return (out, np.concatenate(labels)) if with_labels else out
+
+
+def _modelnet_files(root: Path, split: str) -> list[Path]:
+    if split not in ("train", "test"):
+        raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+    listing = root / f"{split}_files.txt"
+    if listing.is_file():
+        names = [ln.strip() for ln in listing.read_text().splitlines() if ln.strip()]
+        files = [root / Path(n).name for n in names]
+    else:
+        files = sorted(
+            root.glob(f"ply_data_{split}*.h5"),
+            key=lambda p: int("".join(ch for ch in p.stem if ch.isdigit()) or 0),
+        )
+    if not files:
+        raise ValueError(f"{root}: no ply_data_{split}*.h5 files (is it modelnet40_ply_hdf5_2048?)")
+    missing = [str(f) for f in files if not f.is_file()]
+    if missing:
+        raise ValueError(f"{root}: files listed in {split}_files.txt are missing: {missing}")
+    return files

@@ -1,0 +1,180 @@
+"""`register` and `register_batch`: input checking and conversion in front of the Rust core."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from . import _core
+from ._core import RegistrationResult
+from .config import Config
+
+__all__ = ["register", "register_batch"]
+
+MIN_CORRESPONDENCES = 3
+
+
+def as_matrix(x: ArrayLike, name: str, columns: int | None) -> np.ndarray:
+    """A C-contiguous float64 (N, columns) copy-if-needed of `x`, or a ValueError naming the
+    problem. The caller's array is never written to."""
+    try:
+        a = np.asarray(x)
+    except Exception as e:  # ragged lists and the like
+        raise ValueError(f"{name} could not be read as an array: {e}") from None
+    if a.dtype == object or not (
+        np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
+    ):
+        raise ValueError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    if a.ndim != 2 or (columns is not None and a.shape[1] != columns):
+        want = f"(N, {columns})" if columns is not None else "(N, D)"
+        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if not np.isfinite(a).all():
+        row = int(np.argwhere(~np.isfinite(a))[0, 0])
+        raise ValueError(f"{name} has a non-finite value (NaN or inf) in row {row}")
+    return a
+
+
+def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.ndarray, bool]:
+    """(N, 6) rows from either (N, 6) correspondences or two (N, 3) point arrays; the flag
+    says whether `second` was consumed as target points."""
+    a = np.asarray(first) if not isinstance(first, np.ndarray) else first
+    if getattr(a, "ndim", 0) == 2 and a.shape[1] == 3:
+        if second is None:
+            raise ValueError(
+                "got (N, 3) points but no target: pass register(source_points, target_points) "
+                "or (N, 6) correspondences"
+            )
+        src = as_matrix(first, "source_points", 3)
+        dst = as_matrix(second, "target_points", 3)
+        if len(src) != len(dst):
+            raise ValueError(
+                f"source_points and target_points must have the same length, "
+                f"got {len(src)} and {len(dst)}"
+            )
+        corr = np.hstack([src, dst])
+        used = True
+    else:
+        corr = as_matrix(first, "correspondences", 6)
+        used = False
+    if len(corr) < MIN_CORRESPONDENCES:
+        raise ValueError(
+            f"need at least {MIN_CORRESPONDENCES} correspondences, got {len(corr)}"
+        )
+    return corr, used
+
+
+def as_features(features: ArrayLike | None, n: int) -> np.ndarray | None:
+    if features is None:
+        return None
+    f = as_matrix(features, "features", None)
+    if len(f) != n:
+        raise ValueError(f"features must have one row per correspondence: {n}, got {len(f)}")
+    if f.shape[1] == 0:
+        raise ValueError("features must have at least one column")
+    return f
+
+
+def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
+    if config is None:
+        return Config().to_dict()
+    if isinstance(config, dict):
+        return Config(**config).to_dict()
+    if isinstance(config, Config):
+        return config.to_dict()
+    raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
+
+
+def register(
+    correspondences: ArrayLike,
+    features: ArrayLike | None = None,
+    config: Config | dict[str, Any] | None = None,
+    seed: int = 0,
+    *,
+    num_threads: int | None = None,
+) -> RegistrationResult:
+    """Find every copy of the source object in the target.
+
+    Parameters
+    ----------
+    correspondences : array_like
+        (N, 6) rows ``(source xyz | target xyz)``; or (N, 3) source points, with the (N, 3)
+        target points as the second argument: ``register(source_points, target_points)``.
+    features : array_like, optional
+        (N, D) per-correspondence features (e.g. the learned embedding, L2-normalised); with
+        them pruning and clustering use ``S = S^F * beta`` instead of ``S = beta``. When the
+        first argument holds points, the second is the target and features go by keyword.
+    config : Config or dict, optional
+        Thresholds; `Config()` by default.
+    seed : int
+        Seeds clustering and RANSAC; the same seed gives the same result whatever
+        `num_threads`.
+    num_threads : int, optional
+        Threads for this call (default: all cores).
+
+    Returns
+    -------
+    RegistrationResult
+        ``instances`` (each with ``transformation`` = T_target_source 4x4, ``fitness``,
+        ``inlier_rmse``, ``correspondence_set``), ``transformations`` (M, 4, 4) and
+        ``labels`` (N,): -1 for outliers, k for instance k.
+    """
+    corr, used = as_correspondences(correspondences, features)
+    if used:
+        features = None
+    feats = as_features(features, len(corr))
+    return _core.register(
+        corr, feats, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
+    )
+
+
+def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+    try:
+        if hasattr(item, "correspondences"):
+            corr, _ = as_correspondences(item.correspondences, None)
+            return corr, as_features(getattr(item, "features", None), len(corr))
+        if isinstance(item, tuple | list) and len(item) == 2 and not np.isscalar(item[0]):
+            corr, used = as_correspondences(item[0], item[1])
+            return corr, None if used else as_features(item[1], len(corr))
+        corr, _ = as_correspondences(item, None)
+        return corr, None
+    except ValueError as e:
+        raise ValueError(f"scene {k}: {e}") from None
+
+
+def register_batch(
+    scenes: Iterable[Any],
+    config: Config | dict[str, Any] | None = None,
+    seed: int = 0,
+    *,
+    num_threads: int | None = None,
+) -> list[RegistrationResult]:
+    """Register many scenes in parallel with the GIL released.
+
+    Each scene is an (N, 6) array, a ``(correspondences, features)`` or ``(source_points,
+    target_points)`` pair, or an object with a ``correspondences`` attribute (and optionally
+    ``features``), such as `pointclm.datasets.SyntheticScene`. Every scene uses the same
+    `seed`, so ``register_batch(s)[i]`` equals ``register(s[i])`` whatever `num_threads`.
+    """
+    items: Sequence[Any] = list(scenes)
+    arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
+    return _core.register_batch(
+        arrays, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
+    )
+
+
+def _as_seed(seed: int) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    return int(seed) & 0xFFFF_FFFF_FFFF_FFFF
+
+
+def _as_threads(num_threads: int | None) -> int | None:
+    if num_threads is None:
+        return None
+    if isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 1:
+        raise ValueError(f"num_threads must be an int >= 1 or None, got {num_threads!r}")
+    return num_threads

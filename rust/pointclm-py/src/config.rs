@@ -1,0 +1,89 @@
+//! Python `Config` (passed as a dict of its fields) -> core `Config`, refusing unknown keys.
+
+use pointclm::{Assignment, Config, Pruning};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
+    let mut c = Config::default();
+    let Some(d) = d else {
+        return Ok(c);
+    };
+    for (k, v) in d.iter() {
+        let key: String = k.extract()?;
+        let bad = |e: PyErr| PyValueError::new_err(format!("config field {key}: {e}"));
+        match key.as_str() {
+            "sigma_d" => c.sigma_d = v.extract().map_err(bad)?,
+            "pruning" => {
+                let s: String = v.extract().map_err(bad)?;
+                c.pruning = match s.as_str() {
+                    "paper" => Pruning::Paper,
+                    "authors" => Pruning::AuthorsCode,
+                    "none" => Pruning::Disabled,
+                    other => {
+                        return Err(PyValueError::new_err(format!(
+                            "config field pruning: expected 'paper', 'authors' or 'none', got {other:?}"
+                        )))
+                    }
+                }
+            }
+            "tau_s" => c.tau_s = v.extract().map_err(bad)?,
+            "tau_n" => c.tau_n = v.extract().map_err(bad)?,
+            "beta_threshold" => c.beta_threshold = v.extract().map_err(bad)?,
+            "feature_threshold" => c.feature_threshold = v.extract().map_err(bad)?,
+            "min_count" => c.min_count = v.extract().map_err(bad)?,
+            "max_kept" => c.max_kept = v.extract().map_err(bad)?,
+            "affinity_sigma" => c.affinity_sigma = v.extract().map_err(bad)?,
+            "max_instances" => c.max_instances = v.extract().map_err(bad)?,
+            "assignment" => c.assignment = assignment(&v.extract::<String>().map_err(bad)?)?,
+            "kmeans_restarts" => c.kmeans_restarts = v.extract().map_err(bad)?,
+            "min_cluster_size" => c.min_cluster_size = v.extract().map_err(bad)?,
+            "ransac_iterations" => c.ransac_iterations = v.extract().map_err(bad)?,
+            "inlier_threshold" => c.inlier_threshold = v.extract().map_err(bad)?,
+            "refine" => c.refine = v.extract().map_err(bad)?,
+            "merge_duplicates" => c.merge_duplicates = v.extract().map_err(bad)?,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown config field {other:?}"
+                )))
+            }
+        }
+    }
+    c.validate().map_err(crate::convert::to_py_err)?;
+    Ok(c)
+}
+
+pub fn assignment(s: &str) -> PyResult<Assignment> {
+    match s {
+        "kmeans" => Ok(Assignment::KMeans),
+        "discretize" => Ok(Assignment::Discretize),
+        other => Err(PyValueError::new_err(format!(
+            "assignment: expected 'kmeans' or 'discretize', got {other:?}"
+        ))),
+    }
+}
+
+/// The defaults, as a dict, so the Python dataclass can be checked against them.
+pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    let c = Config::default();
+    let d = PyDict::new(py);
+    d.set_item("sigma_d", c.sigma_d)?;
+    d.set_item("pruning", "paper")?;
+    d.set_item("tau_s", c.tau_s)?;
+    d.set_item("tau_n", c.tau_n)?;
+    d.set_item("beta_threshold", c.beta_threshold)?;
+    d.set_item("feature_threshold", c.feature_threshold)?;
+    d.set_item("min_count", c.min_count)?;
+    d.set_item("max_kept", c.max_kept)?;
+    d.set_item("affinity_sigma", c.affinity_sigma)?;
+    d.set_item("max_instances", c.max_instances)?;
+    d.set_item("assignment", "kmeans")?;
+    d.set_item("kmeans_restarts", c.kmeans_restarts)?;
+    d.set_item("min_cluster_size", c.min_cluster_size)?;
+    d.set_item("ransac_iterations", c.ransac_iterations)?;
+    d.set_item("inlier_threshold", c.inlier_threshold)?;
+    d.set_item("refine", c.refine)?;
+    d.set_item("merge_duplicates", c.merge_duplicates)?;
+    Ok(d)
+}

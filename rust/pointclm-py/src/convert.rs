@@ -1,0 +1,74 @@
+//! numpy <-> core conversions. The Python layer has already coerced inputs to C-contiguous
+//! float64; these still check shapes so that a direct `_core` caller gets a ValueError too.
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
+use pointclm::{Correspondences, Features};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+pub fn to_py_err(e: pointclm::Error) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+pub fn correspondences(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Correspondences> {
+    let v = a.as_array();
+    if v.ncols() != 6 {
+        return Err(PyValueError::new_err(format!(
+            "correspondences must have shape (N, 6) = (source xyz | target xyz), got {:?}",
+            v.shape()
+        )));
+    }
+    let rows: Vec<[f64; 6]> = v
+        .rows()
+        .into_iter()
+        .map(|r| [r[0], r[1], r[2], r[3], r[4], r[5]])
+        .collect();
+    Correspondences::from_rows(&rows).map_err(to_py_err)
+}
+
+pub fn features(a: Option<&PyReadonlyArray2<'_, f64>>) -> PyResult<Option<Features>> {
+    a.map(|a| {
+        let v = a.as_array();
+        let dim = v.ncols();
+        Features::new(v.iter().copied().collect(), dim).map_err(to_py_err)
+    })
+    .transpose()
+}
+
+pub fn points(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
+    let v = a.as_array();
+    if v.ncols() != 3 {
+        return Err(PyValueError::new_err(format!(
+            "{what} must have shape (N, 3), got {:?}",
+            v.shape()
+        )));
+    }
+    Ok(v.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
+}
+
+pub fn square(a: &PyReadonlyArray2<'_, f64>) -> PyResult<faer::Mat<f64>> {
+    let v = a.as_array();
+    let (r, c) = v.dim();
+    if r != c {
+        return Err(PyValueError::new_err(format!(
+            "expected a square matrix, got shape ({r}, {c})"
+        )));
+    }
+    Ok(faer::Mat::from_fn(r, c, |i, j| v[(i, j)]))
+}
+
+pub fn mat_to_py<'py>(py: Python<'py>, m: faer::MatRef<'_, f64>) -> Bound<'py, PyArray2<f64>> {
+    Array2::from_shape_fn((m.nrows(), m.ncols()), |(i, j)| m[(i, j)]).into_pyarray(py)
+}
+
+pub fn matrix4<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<f64>> {
+    Array2::from_shape_fn((4, 4), |(i, j)| m[i][j]).into_pyarray(py)
+}
+
+pub fn indices<'py>(py: Python<'py>, v: &[usize]) -> Bound<'py, PyArray1<i64>> {
+    v.iter()
+        .map(|&i| i as i64)
+        .collect::<Vec<_>>()
+        .into_pyarray(py)
+}

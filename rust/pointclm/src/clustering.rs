@@ -1,0 +1,133 @@
+//! From the kept correspondences to groups, one per candidate instance.
+
+use faer::MatRef;
+
+use crate::config::{Assignment, Config};
+use crate::correspondences::{Correspondences, Features};
+use crate::discretize::discretize;
+use crate::error::Result;
+use crate::kmeans::kmeans;
+use crate::seeds::{stream, STAGE_CLUSTERING};
+use crate::spectral::{
+    affinity, eigengap, normalized_laplacian, row_normalized_embedding, symmetric_eigen,
+};
+
+/// Spectral clustering of one affinity matrix.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpectralLabels {
+    /// One label per row, `0..n_clusters`, numbered by first appearance.
+    pub labels: Vec<usize>,
+    /// The number of clusters used (the eigengap's choice unless given).
+    pub n_clusters: usize,
+    /// Eigenvalues of the normalised Laplacian, ascending.
+    pub eigenvalues: Vec<f64>,
+}
+
+/// Clusters the rows of a symmetric non-negative affinity. `n_clusters = None` picks the
+/// count by the eigengap (at most `max_clusters` when given).
+pub fn spectral_clustering(
+    a: MatRef<'_, f64>,
+    n_clusters: Option<usize>,
+    max_clusters: Option<usize>,
+    assignment: Assignment,
+    restarts: usize,
+    seed: u64,
+) -> Result<SpectralLabels> {
+    let l = normalized_laplacian(a)?;
+    let (eigenvalues, vectors) = symmetric_eigen(l.as_ref(), true)?;
+    let n = eigenvalues.len();
+    let m = n_clusters
+        .unwrap_or_else(|| eigengap(&eigenvalues, max_clusters))
+        .clamp(n.min(1), n);
+    let Some(vectors) = vectors else {
+        return Ok(SpectralLabels {
+            labels: vec![],
+            n_clusters: 0,
+            eigenvalues,
+        });
+    };
+    let mut rng = stream(seed, STAGE_CLUSTERING, 0);
+    let labels = if m <= 1 {
+        vec![0; n]
+    } else {
+        match assignment {
+            Assignment::KMeans => {
+                let emb = row_normalized_embedding(vectors.as_ref(), m);
+                kmeans(&emb, m, m, restarts, &mut rng)
+            }
+            Assignment::Discretize => discretize(vectors.as_ref(), m, restarts, &mut rng),
+        }
+    };
+    Ok(SpectralLabels {
+        labels,
+        n_clusters: m,
+        eigenvalues,
+    })
+}
+
+/// Groups of correspondence indices (into the full input), largest first; groups smaller
+/// than `config.min_cluster_size` are dropped. Also returns the eigengap's cluster count.
+pub fn cluster_kept(
+    c: &Correspondences,
+    features: Option<&Features>,
+    kept: &[usize],
+    config: &Config,
+    seed: u64,
+) -> Result<(Vec<Vec<usize>>, usize)> {
+    if kept.len() < config.min_cluster_size {
+        return Ok((vec![], 0));
+    }
+    let a = affinity(c, features, kept, config.affinity_sigma)?;
+    let sl = spectral_clustering(
+        a.as_ref(),
+        None,
+        config.max_instances,
+        config.assignment,
+        config.kmeans_restarts,
+        seed,
+    )?;
+    let mut groups = vec![Vec::new(); sl.n_clusters];
+    for (&i, &l) in kept.iter().zip(&sl.labels) {
+        groups[l].push(i);
+    }
+    groups.retain(|g| g.len() >= config.min_cluster_size);
+    // Largest first; equal sizes keep their (deterministic) label order.
+    groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
+    Ok((groups, sl.n_clusters))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pruning::{density_counts, select_kept};
+    use crate::testing::random_scene;
+
+    #[test]
+    fn planted_instances_become_clusters() {
+        let scene = random_scene(1000, 5, 0.03, 17);
+        let config = Config::default();
+        let counts = density_counts(&scene.corr, None, &config).unwrap();
+        let kept = select_kept(&counts, &config);
+        let (groups, _) = cluster_kept(&scene.corr, None, &kept, &config, 0).unwrap();
+        assert_eq!(groups.len(), 5);
+        for g in &groups {
+            let l = scene.labels[g[0]];
+            assert!(l >= 0);
+            let pure = g.iter().filter(|&&i| scene.labels[i] == l).count();
+            assert!(pure as f64 >= 0.95 * g.len() as f64);
+        }
+    }
+
+    #[test]
+    fn both_assignments_agree_on_clean_blocks() {
+        let scene = random_scene(300, 3, 0.1, 2);
+        let kept: Vec<usize> = (0..90).collect();
+        let a = affinity(&scene.corr, None, &kept, 0.1).unwrap();
+        let k = spectral_clustering(a.as_ref(), None, None, Assignment::KMeans, 5, 0).unwrap();
+        let d = spectral_clustering(a.as_ref(), None, None, Assignment::Discretize, 5, 0).unwrap();
+        assert_eq!(k.n_clusters, 3);
+        assert_eq!(k.labels, d.labels);
+        let truth: Vec<usize> = scene.labels[..90].iter().map(|&l| l as usize).collect();
+        assert_eq!(k.labels, crate::kmeans::relabel_by_first_appearance(&truth));
+    }
+}

@@ -1,0 +1,207 @@
+//! Every threshold of the method, named, with the paper's synthetic-scale defaults.
+
+use crate::error::{Error, Result};
+
+/// How density pruning decides that a correspondence lies in a dense (inlier) region.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pruning {
+    /// The paper's form: `S = S^F * beta` (or `S = beta` without features), binarised at
+    /// `tau_s`; keep row `i` if its row sum (itself included) exceeds `tau_n`.
+    Paper,
+    /// The authors' code: count `j` with `beta_ij > beta_threshold` and, with features,
+    /// `S^F_ij > feature_threshold`; keep `i` if the count (itself included) exceeds `min_count`.
+    AuthorsCode,
+    /// No pruning: every correspondence goes to clustering (paper Table 3 ablation).
+    Disabled,
+}
+
+/// How rows of the spectral embedding are turned into cluster labels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Assignment {
+    /// k-means++ with restarts on the row-normalised embedding (Ng, Jordan and Weiss).
+    KMeans,
+    /// Yu and Shi's discretisation, as scikit-learn's `assign_labels="discretize"`
+    /// that the authors' code uses.
+    Discretize,
+}
+
+/// Parameters of the whole pipeline.
+///
+/// Lengths (`sigma_d`, `affinity_sigma`, `inlier_threshold`) are in the units of the points.
+/// The defaults are the paper's synthetic settings, where shapes fit in a unit sphere and the
+/// noise is about 0.01; [`Config::scaled`] multiplies every length for data at another scale.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// Length tolerance of spatial consistency `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`.
+    pub sigma_d: f64,
+    /// Pruning rule; see [`Pruning`].
+    pub pruning: Pruning,
+    /// Paper rule: binarisation threshold on `S`.
+    pub tau_s: f64,
+    /// Paper rule: a row must have more than this many entries above `tau_s`.
+    pub tau_n: usize,
+    /// Authors'-code rule: threshold on `beta`.
+    pub beta_threshold: f64,
+    /// Authors'-code rule: threshold on the feature similarity `S^F` (ignored without features).
+    pub feature_threshold: f64,
+    /// Authors'-code rule: a row must count more than this many consistent correspondences.
+    pub min_count: usize,
+    /// Upper bound on the kept set handed to the dense eigensolver: when pruning keeps more,
+    /// the densest `max_kept` rows are clustered (memory and time grow as its square and cube).
+    pub max_kept: usize,
+    /// Length scale of the clustering affinity `[1 - d_ij^2 / affinity_sigma^2]_+`.
+    pub affinity_sigma: f64,
+    /// Optional cap on the number of clusters the eigengap may choose.
+    pub max_instances: Option<usize>,
+    /// Label assignment on the spectral embedding.
+    pub assignment: Assignment,
+    /// Restarts of k-means (best inertia wins) or of the discretisation.
+    pub kmeans_restarts: usize,
+    /// Clusters, and final instances, with fewer members are dropped.
+    pub min_cluster_size: usize,
+    /// RANSAC hypotheses (3-point Kabsch) per cluster.
+    pub ransac_iterations: usize,
+    /// A correspondence is an inlier of a pose if `||R x + t - y||` is below this.
+    pub inlier_threshold: f64,
+    /// Refit each pose by least squares on its inliers (the authors' code does not).
+    pub refine: bool,
+    /// Merge instances whose poses place the object at the same spot (the authors' code
+    /// returns such duplicates).
+    pub merge_duplicates: bool,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            sigma_d: 0.05,
+            pruning: Pruning::Paper,
+            tau_s: 0.85,
+            tau_n: 10,
+            beta_threshold: 0.9,
+            feature_threshold: 0.8,
+            min_count: 9,
+            max_kept: 2000,
+            affinity_sigma: 0.1,
+            max_instances: None,
+            assignment: Assignment::KMeans,
+            kmeans_restarts: 10,
+            min_cluster_size: 10,
+            ransac_iterations: 50,
+            inlier_threshold: 0.1,
+            refine: true,
+            merge_duplicates: true,
+        }
+    }
+}
+
+fn invalid(field: &'static str, value: impl ToString, reason: &'static str) -> Error {
+    Error::InvalidConfig {
+        field,
+        value: value.to_string(),
+        reason,
+    }
+}
+
+fn positive_length(field: &'static str, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(field, v, "must be a finite length > 0"))
+    }
+}
+
+impl Config {
+    /// The same settings with every length multiplied by `factor` (for data whose noise and
+    /// object size are `factor` times the synthetic benchmark's).
+    pub fn scaled(&self, factor: f64) -> Self {
+        Self {
+            sigma_d: self.sigma_d * factor,
+            affinity_sigma: self.affinity_sigma * factor,
+            inlier_threshold: self.inlier_threshold * factor,
+            ..self.clone()
+        }
+    }
+
+    /// Checks every field; the pipeline calls this before touching any data.
+    pub fn validate(&self) -> Result<()> {
+        positive_length("sigma_d", self.sigma_d)?;
+        positive_length("affinity_sigma", self.affinity_sigma)?;
+        positive_length("inlier_threshold", self.inlier_threshold)?;
+        if !(self.tau_s.is_finite() && (-1.0..1.0).contains(&self.tau_s)) {
+            return Err(invalid("tau_s", self.tau_s, "must lie in [-1, 1)"));
+        }
+        if !(self.beta_threshold.is_finite() && (0.0..1.0).contains(&self.beta_threshold)) {
+            return Err(invalid(
+                "beta_threshold",
+                self.beta_threshold,
+                "must lie in [0, 1)",
+            ));
+        }
+        if !(self.feature_threshold.is_finite() && (-1.0..1.0).contains(&self.feature_threshold)) {
+            return Err(invalid(
+                "feature_threshold",
+                self.feature_threshold,
+                "must lie in [-1, 1)",
+            ));
+        }
+        if self.min_cluster_size < 3 {
+            return Err(invalid(
+                "min_cluster_size",
+                self.min_cluster_size,
+                "must be >= 3 (a rigid pose needs 3 points)",
+            ));
+        }
+        if self.max_kept < self.min_cluster_size {
+            return Err(invalid(
+                "max_kept",
+                self.max_kept,
+                "must be >= min_cluster_size",
+            ));
+        }
+        if self.max_instances == Some(0) {
+            return Err(invalid("max_instances", 0, "must be >= 1 or None"));
+        }
+        if self.kmeans_restarts == 0 {
+            return Err(invalid("kmeans_restarts", 0, "must be >= 1"));
+        }
+        if self.ransac_iterations == 0 {
+            return Err(invalid("ransac_iterations", 0, "must be >= 1"));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_is_valid() {
+        Config::default().validate().unwrap();
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        let c = Config {
+            sigma_d: f64::NAN,
+            ..Config::default()
+        };
+        match c.validate() {
+            Err(Error::InvalidConfig { field, .. }) => assert_eq!(field, "sigma_d"),
+            other => panic!("{other:?}"),
+        }
+        let c = Config {
+            min_cluster_size: 2,
+            ..Config::default()
+        };
+        assert!(c.validate().is_err());
+    }
+
+    #[test]
+    fn scaled_multiplies_lengths_only() {
+        let c = Config::default().scaled(10.0);
+        assert!((c.sigma_d - 0.5).abs() < 1e-12);
+        assert!((c.inlier_threshold - 1.0).abs() < 1e-12);
+        assert_eq!(c.tau_n, 10);
+    }
+}

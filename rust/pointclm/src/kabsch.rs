@@ -1,0 +1,140 @@
+//! Least-squares rigid alignment (Kabsch / Umeyama without scale).
+
+use nalgebra::{Matrix3, Matrix4, Vector3};
+
+use crate::correspondences::Correspondences;
+
+/// A rigid motion `p -> R p + t`; as a 4x4 matrix it is `T_target_source`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigidTransform {
+    pub rotation: Matrix3<f64>,
+    pub translation: Vector3<f64>,
+}
+
+impl RigidTransform {
+    /// The identity motion.
+    pub fn identity() -> Self {
+        Self {
+            rotation: Matrix3::identity(),
+            translation: Vector3::zeros(),
+        }
+    }
+
+    /// `R p + t`.
+    #[inline]
+    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        let q = self.rotation * Vector3::from(p) + self.translation;
+        [q.x, q.y, q.z]
+    }
+
+    /// `||R x + t - y||^2`.
+    #[inline]
+    pub fn residual_sq(&self, x: [f64; 3], y: [f64; 3]) -> f64 {
+        let q = self.apply(x);
+        (q[0] - y[0]).powi(2) + (q[1] - y[1]).powi(2) + (q[2] - y[2]).powi(2)
+    }
+
+    /// Homogeneous 4x4 matrix, row-major.
+    pub fn to_matrix(&self) -> [[f64; 4]; 4] {
+        let mut m = Matrix4::identity();
+        m.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.rotation);
+        m.fixed_view_mut::<3, 1>(0, 3).copy_from(&self.translation);
+        let mut out = [[0.0; 4]; 4];
+        for (r, row) in out.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = m[(r, c)];
+            }
+        }
+        out
+    }
+}
+
+/// The rotation and translation minimising `sum ||R x_i + t - y_i||^2` over `indices`, or
+/// `None` when the points do not fix a rotation (fewer than 3, or all collinear).
+pub fn kabsch(c: &Correspondences, indices: &[usize]) -> Option<RigidTransform> {
+    if indices.len() < 3 {
+        return None;
+    }
+    let inv_n = 1.0 / indices.len() as f64;
+    let (mut cx, mut cy) = (Vector3::zeros(), Vector3::zeros());
+    for &i in indices {
+        cx += Vector3::from(c.source(i));
+        cy += Vector3::from(c.target(i));
+    }
+    cx *= inv_n;
+    cy *= inv_n;
+    let mut h = Matrix3::zeros();
+    let mut spread = 0.0;
+    for &i in indices {
+        let x = Vector3::from(c.source(i)) - cx;
+        let y = Vector3::from(c.target(i)) - cy;
+        h += x * y.transpose();
+        spread += x.norm_squared();
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    // Rank below 2: the points lie on a line (or a point) and the rotation about it is free.
+    let mut s: Vec<f64> = svd.singular_values.iter().copied().collect();
+    s.sort_by(|a, b| b.total_cmp(a));
+    if !(spread > 0.0) || s[1] <= 1e-9 * s[0].max(f64::MIN_POSITIVE) {
+        return None;
+    }
+    let v = v_t.transpose();
+    // Fix a reflection: flip the axis of the smallest singular value.
+    let d = (v * u.transpose()).determinant().signum();
+    let fix = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d));
+    let rotation = v * fix * u.transpose();
+    if !rotation.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    Some(RigidTransform {
+        rotation,
+        translation: cy - rotation * cx,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::random_rotation;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn recovers_known_pose() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
+        for _ in 0..20 {
+            let truth = RigidTransform {
+                rotation: random_rotation(&mut rng),
+                translation: Vector3::new(1.0, -2.0, 3.5),
+            };
+            let src: Vec<[f64; 3]> = (0..30)
+                .map(|_| [rng.random(), rng.random(), rng.random()])
+                .collect();
+            let dst: Vec<[f64; 3]> = src.iter().map(|&p| truth.apply(p)).collect();
+            let c = Correspondences::new(&src, &dst).unwrap();
+            let idx: Vec<usize> = (0..30).collect();
+            let est = kabsch(&c, &idx).unwrap();
+            assert!((est.rotation - truth.rotation).abs().max() < 1e-9);
+            assert!((est.translation - truth.translation).abs().max() < 1e-9);
+            assert!((est.rotation.determinant() - 1.0).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn rejects_collinear_and_fixes_reflection() {
+        let src = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        let c = Correspondences::new(&src, &src).unwrap();
+        assert!(kabsch(&c, &[0, 1, 2]).is_none());
+        // a mirrored point set: the best proper rotation, never a reflection
+        let src = [
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 1.0, 1.0],
+        ];
+        let dst: Vec<[f64; 3]> = src.iter().map(|p| [-p[0], p[1], p[2]]).collect();
+        let c = Correspondences::new(&src, &dst).unwrap();
+        let t = kabsch(&c, &[0, 1, 2, 3]).unwrap();
+        assert!((t.rotation.determinant() - 1.0).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,156 @@
+//! Seeded k-means++ with restarts, for the spectral embedding.
+
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+const MAX_ITERATIONS: usize = 300;
+
+/// Clusters `n` rows of `dim` values (row-major `data`) into `k` groups, keeping the best of
+/// `restarts` runs by inertia. Labels are renumbered by first appearance, so equal partitions
+/// give equal labels.
+pub fn kmeans(
+    data: &[f64],
+    dim: usize,
+    k: usize,
+    restarts: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<usize> {
+    let n = if dim == 0 { 0 } else { data.len() / dim };
+    if n == 0 || k == 0 {
+        return vec![0; n];
+    }
+    let k = k.min(n);
+    let mut best: Option<(f64, Vec<usize>)> = None;
+    for _ in 0..restarts.max(1) {
+        let (inertia, labels) = lloyd(data, dim, n, k, rng);
+        if best.as_ref().is_none_or(|(b, _)| inertia < *b) {
+            best = Some((inertia, labels));
+        }
+    }
+    relabel_by_first_appearance(&best.map(|b| b.1).unwrap_or_default())
+}
+
+pub(crate) fn relabel_by_first_appearance(labels: &[usize]) -> Vec<usize> {
+    let mut map = std::collections::HashMap::new();
+    labels
+        .iter()
+        .map(|&l| {
+            let next = map.len();
+            *map.entry(l).or_insert(next)
+        })
+        .collect()
+}
+
+#[inline]
+fn dist_sq(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+fn plus_plus_init(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    let row = |i: usize| &data[i * dim..(i + 1) * dim];
+    let mut centers = Vec::with_capacity(k * dim);
+    centers.extend_from_slice(row(rng.random_range(0..n)));
+    let mut d2: Vec<f64> = (0..n).map(|i| dist_sq(row(i), &centers[..dim])).collect();
+    for _ in 1..k {
+        let total: f64 = d2.iter().sum();
+        let pick = if total > 0.0 {
+            let mut target = rng.random::<f64>() * total;
+            let mut chosen = n - 1;
+            for (i, &w) in d2.iter().enumerate() {
+                if target < w {
+                    chosen = i;
+                    break;
+                }
+                target -= w;
+            }
+            chosen
+        } else {
+            rng.random_range(0..n)
+        };
+        let start = centers.len();
+        centers.extend_from_slice(row(pick));
+        for (i, d) in d2.iter_mut().enumerate() {
+            *d = d.min(dist_sq(row(i), &centers[start..start + dim]));
+        }
+    }
+    centers
+}
+
+fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> (f64, Vec<usize>) {
+    let row = |i: usize| &data[i * dim..(i + 1) * dim];
+    let mut centers = plus_plus_init(data, dim, n, k, rng);
+    let mut labels = vec![usize::MAX; n];
+    let mut inertia = f64::INFINITY;
+    for _ in 0..MAX_ITERATIONS {
+        let mut changed = false;
+        inertia = 0.0;
+        for (i, label) in labels.iter_mut().enumerate() {
+            let (mut bl, mut bd) = (0, f64::INFINITY);
+            for c in 0..k {
+                let d = dist_sq(row(i), &centers[c * dim..(c + 1) * dim]);
+                if d < bd {
+                    (bl, bd) = (c, d);
+                }
+            }
+            inertia += bd;
+            if *label != bl {
+                *label = bl;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+        let mut sums = vec![0.0; k * dim];
+        let mut counts = vec![0usize; k];
+        for (i, &l) in labels.iter().enumerate() {
+            counts[l] += 1;
+            for (s, v) in sums[l * dim..(l + 1) * dim].iter_mut().zip(row(i)) {
+                *s += v;
+            }
+        }
+        for c in 0..k {
+            if counts[c] > 0 {
+                for (dst, s) in centers[c * dim..(c + 1) * dim]
+                    .iter_mut()
+                    .zip(&sums[c * dim..(c + 1) * dim])
+                {
+                    *dst = s / counts[c] as f64;
+                }
+            } else {
+                // An empty cluster takes the point farthest from its own center.
+                let far = (0..n)
+                    .max_by(|&a, &b| {
+                        let da = dist_sq(row(a), &centers[labels[a] * dim..(labels[a] + 1) * dim]);
+                        let db = dist_sq(row(b), &centers[labels[b] * dim..(labels[b] + 1) * dim]);
+                        da.total_cmp(&db)
+                    })
+                    .unwrap_or(0);
+                centers[c * dim..(c + 1) * dim].copy_from_slice(row(far));
+            }
+        }
+    }
+    (inertia, labels)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn separates_well_spaced_groups() {
+        let mut data = vec![];
+        let mut truth = vec![];
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for g in 0..4 {
+            for _ in 0..25 {
+                data.push(g as f64 * 10.0 + rng.random::<f64>());
+                data.push(-(g as f64) * 10.0 + rng.random::<f64>());
+                truth.push(g);
+            }
+        }
+        let labels = kmeans(&data, 2, 4, 5, &mut ChaCha8Rng::seed_from_u64(0));
+        assert_eq!(labels, relabel_by_first_appearance(&truth));
+    }
+}

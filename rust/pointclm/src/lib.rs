@@ -1,0 +1,51 @@
+//! # pointclm
+//!
+//! Multi-instance point cloud registration after PointCLM (ECCV 2022): given putative
+//! correspondences between one object (source) and a scene holding several copies of it
+//! (target), find the pose `T_target_source` of every copy.
+//!
+//! The data flows one way: correspondences -> spatial consistency ([`consistency`]) ->
+//! density pruning ([`pruning`]) -> spectral clustering ([`clustering`], [`spectral`]) ->
+//! per-cluster RANSAC ([`ransac`]) -> instances ([`instances`]). [`register`] runs it all;
+//! each stage is public for staged use.
+//!
+//! ```
+//! use pointclm::{register, Config, Correspondences};
+//!
+//! // Three correspondences of a pure translation by (1, 0, 0), repeated 4 times over.
+//! let src: Vec<[f64; 3]> = (0..12).map(|i| [(i % 4) as f64 * 0.1, (i / 4) as f64 * 0.1, ((i * 7) % 5) as f64 * 0.05]).collect();
+//! let dst: Vec<[f64; 3]> = src.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect();
+//! let corr = Correspondences::new(&src, &dst)?;
+//! let config = Config { min_cluster_size: 5, tau_n: 4, ..Config::default() };
+//! let result = register(&corr, None, &config, 0)?;
+//! assert_eq!(result.instances.len(), 1);
+//! let t = result.instances[0].pose.to_matrix();
+//! assert!((t[0][3] - 1.0).abs() < 1e-9);
+//! # Ok::<(), pointclm::Error>(())
+//! ```
+//!
+//! No Python, no I/O: other crates can depend on this one directly.
+
+pub mod clustering;
+pub mod config;
+pub mod consistency;
+pub mod correspondences;
+pub mod discretize;
+pub mod error;
+pub mod instances;
+pub mod kabsch;
+pub mod kmeans;
+pub mod pipeline;
+pub mod pruning;
+pub mod ransac;
+mod seeds;
+pub mod spectral;
+#[cfg(test)]
+mod testing;
+
+pub use config::{Assignment, Config, Pruning};
+pub use correspondences::{Correspondences, Features, MIN_CORRESPONDENCES};
+pub use error::{Error, Result};
+pub use instances::Instance;
+pub use kabsch::RigidTransform;
+pub use pipeline::{register, register_batch, Registration, Scene, StageTimings};

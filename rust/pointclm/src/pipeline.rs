@@ -1,0 +1,209 @@
+//! The one-call entry points: correspondences -> consistency -> pruning -> clustering ->
+//! poses, for one scene or many in parallel.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::clustering::cluster_kept;
+use crate::config::Config;
+use crate::correspondences::{Correspondences, Features};
+use crate::error::{Error, Result};
+use crate::instances::{finalize, Instance};
+use crate::pruning::{density_counts, select_kept};
+use crate::ransac::ransac;
+use crate::seeds::{stream, STAGE_RANSAC};
+
+/// Wall-clock seconds spent in each stage (for reporting; not part of the result's identity).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimings {
+    /// Spatial consistency and density pruning.
+    pub pruning: f64,
+    /// Affinity, eigendecomposition and label assignment.
+    pub clustering: f64,
+    /// RANSAC, refit, merging and labelling.
+    pub poses: f64,
+}
+
+/// The result of registering one scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Registration {
+    /// Registered instances, most inliers first.
+    pub instances: Vec<Instance>,
+    /// Per correspondence: `-1` for an outlier, `k` for `instances[k]`.
+    pub labels: Vec<i64>,
+    /// Correspondences that survived pruning (ascending indices).
+    pub kept: Vec<usize>,
+    /// Clusters chosen by the eigengap (before dropping small ones and merging).
+    pub n_clusters: usize,
+    /// Time per stage.
+    pub timings: StageTimings,
+}
+
+/// A scene for [`register_batch`].
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub correspondences: Correspondences,
+    pub features: Option<Features>,
+}
+
+/// Finds every instance of the source in the target from putative correspondences.
+///
+/// `features` (one row per correspondence, e.g. the learned embedding) switch pruning and
+/// clustering from `S = beta` to `S = S^F * beta`. Parallel parts run on the current rayon
+/// pool; the result depends only on the inputs and `seed`, never on the thread count.
+pub fn register(
+    c: &Correspondences,
+    features: Option<&Features>,
+    config: &Config,
+    seed: u64,
+) -> Result<Registration> {
+    config.validate()?;
+    if let Some(f) = features {
+        f.check_rows(c.len())?;
+    }
+    let t0 = Instant::now();
+    let counts = density_counts(c, features, config)?;
+    let kept = select_kept(&counts, config);
+    let t1 = Instant::now();
+    let (groups, n_clusters) = cluster_kept(c, features, &kept, config, seed)?;
+    let t2 = Instant::now();
+    let fits: Vec<_> = groups
+        .par_iter()
+        .enumerate()
+        .filter_map(|(k, g)| {
+            let mut rng = stream(seed, STAGE_RANSAC, k as u64);
+            ransac(
+                c,
+                g,
+                config.ransac_iterations,
+                config.inlier_threshold,
+                config.refine,
+                &mut rng,
+            )
+        })
+        .collect();
+    let (instances, labels) = finalize(c, &fits, config);
+    let t3 = Instant::now();
+    Ok(Registration {
+        instances,
+        labels,
+        kept,
+        n_clusters,
+        timings: StageTimings {
+            pruning: (t1 - t0).as_secs_f64(),
+            clustering: (t2 - t1).as_secs_f64(),
+            poses: (t3 - t2).as_secs_f64(),
+        },
+    })
+}
+
+/// Registers many scenes on a private pool of `num_threads` threads (0 = rayon's default,
+/// one per core), every scene with the same `seed`, so each result equals the one
+/// [`register`] gives for that scene alone. One bad scene yields its own `Err` and does not
+/// stop the others.
+pub fn register_batch(
+    scenes: &[Scene],
+    config: &Config,
+    seed: u64,
+    num_threads: usize,
+) -> Result<Vec<Result<Registration>>> {
+    config.validate()?;
+    let pool = thread_pool(num_threads)?;
+    Ok(pool.install(|| {
+        scenes
+            .par_iter()
+            .map(|s| register(&s.correspondences, s.features.as_ref(), config, seed))
+            .collect()
+    }))
+}
+
+/// A private rayon pool (a library must not configure the global one).
+pub fn thread_pool(num_threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(num_threads)
+        .build()
+        .map_err(|e| Error::ThreadPool {
+            threads: num_threads,
+            reason: e.to_string(),
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::random_scene;
+
+    #[test]
+    fn recovers_planted_instances() {
+        let scene = random_scene(1000, 6, 0.025, 4);
+        let reg = register(&scene.corr, None, &Config::default(), 0).unwrap();
+        assert_eq!(reg.instances.len(), 6);
+        for truth in &scene.poses {
+            let found = reg.instances.iter().any(|inst| {
+                (inst.pose.rotation - truth.rotation).abs().max() < 1e-6
+                    && (inst.pose.translation - truth.translation).norm() < 1e-6
+            });
+            assert!(found);
+        }
+        for (i, &l) in reg.labels.iter().enumerate() {
+            if scene.labels[i] >= 0 {
+                assert!(l >= 0);
+            }
+        }
+    }
+
+    #[test]
+    fn same_seed_same_result_whatever_threads() {
+        let scenes: Vec<Scene> = (0..6)
+            .map(|s| Scene {
+                correspondences: random_scene(600, 4, 0.04, s).corr,
+                features: None,
+            })
+            .collect();
+        let config = Config::default();
+        let strip = |r: Registration| (r.instances, r.labels, r.kept, r.n_clusters);
+        let one: Vec<_> = register_batch(&scenes, &config, 7, 1)
+            .unwrap()
+            .into_iter()
+            .map(|r| strip(r.unwrap()))
+            .collect();
+        let two: Vec<_> = register_batch(&scenes, &config, 7, 2)
+            .unwrap()
+            .into_iter()
+            .map(|r| strip(r.unwrap()))
+            .collect();
+        let serial: Vec<_> = scenes
+            .iter()
+            .map(|s| strip(register(&s.correspondences, None, &config, 7).unwrap()))
+            .collect();
+        assert_eq!(one, two);
+        assert_eq!(one, serial);
+    }
+
+    #[test]
+    fn pure_noise_gives_a_valid_empty_result() {
+        let scene = random_scene(500, 0, 0.0, 1);
+        let reg = register(&scene.corr, None, &Config::default(), 0).unwrap();
+        assert!(reg.instances.is_empty());
+        assert!(reg.labels.iter().all(|&l| l == -1));
+    }
+
+    #[test]
+    fn bad_config_is_an_error_not_a_panic() {
+        let scene = random_scene(50, 1, 0.5, 1);
+        let config = Config {
+            ransac_iterations: 0,
+            ..Config::default()
+        };
+        assert!(matches!(
+            register(&scene.corr, None, &config, 0),
+            Err(Error::InvalidConfig { .. })
+        ));
+        let f = Features::new(vec![1.0; 10], 1).unwrap();
+        assert!(matches!(
+            register(&scene.corr, Some(&f), &Config::default(), 0),
+            Err(Error::LengthMismatch { .. })
+        ));
+    }
+}

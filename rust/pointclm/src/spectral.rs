@@ -1,0 +1,238 @@
+//! Spectral clustering of the kept correspondences: affinity, normalised Laplacian, full
+//! symmetric eigendecomposition (faer), eigengap choice of the number of instances and the
+//! row-normalised spectral embedding.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::evd::{
+    self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors, SelfAdjointEvdParams,
+};
+use faer::{Mat, MatRef, Par, Spec};
+
+use crate::consistency::{beta_row_subset, inv_sigma_sq};
+use crate::correspondences::{Correspondences, Features};
+use crate::error::{Error, Result};
+
+/// Added to every affinity entry (as the authors' code does) so the graph is connected and
+/// the degrees never vanish; isolated rows then become their own tiny clusters.
+pub const AFFINITY_FLOOR: f64 = 1e-7;
+
+/// Affinity of the kept set: soft spatial consistency at `sigma`, times the clamped feature
+/// similarity when features are given, plus [`AFFINITY_FLOOR`].
+pub fn affinity(
+    c: &Correspondences,
+    features: Option<&Features>,
+    kept: &[usize],
+    sigma: f64,
+) -> Result<Mat<f64>> {
+    let inv = inv_sigma_sq(sigma)?;
+    let k = kept.len();
+    let mut a = Mat::<f64>::zeros(k, k);
+    let mut row = vec![0.0; k];
+    for (r, &i) in kept.iter().enumerate() {
+        beta_row_subset(c, i, kept, inv, &mut row);
+        for (col, &j) in kept.iter().enumerate() {
+            let s = match features {
+                Some(f) => row[col] * f.similarity(i, j).max(0.0),
+                None => row[col],
+            };
+            a[(r, col)] = s + AFFINITY_FLOOR;
+        }
+    }
+    Ok(a)
+}
+
+/// Checks that `m` is square, finite and symmetric (to a relative 1e-9).
+pub fn check_symmetric(m: MatRef<'_, f64>) -> Result<()> {
+    let n = m.nrows();
+    if m.ncols() != n {
+        return Err(Error::InvalidMatrix(format!(
+            "expected a square matrix, got {} x {}",
+            n,
+            m.ncols()
+        )));
+    }
+    let mut scale = 0.0f64;
+    for j in 0..n {
+        for i in 0..n {
+            let v = m[(i, j)];
+            if !v.is_finite() {
+                return Err(Error::InvalidMatrix(format!(
+                    "non-finite value at ({i}, {j})"
+                )));
+            }
+            scale = scale.max(v.abs());
+        }
+    }
+    for j in 0..n {
+        for i in (j + 1)..n {
+            if (m[(i, j)] - m[(j, i)]).abs() > 1e-9 * scale.max(1.0) {
+                return Err(Error::InvalidMatrix(format!("not symmetric at ({i}, {j})")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `L = I - D^-1/2 A D^-1/2` for a non-negative symmetric affinity `A`.
+pub fn normalized_laplacian(a: MatRef<'_, f64>) -> Result<Mat<f64>> {
+    check_symmetric(a)?;
+    let n = a.nrows();
+    let mut inv_sqrt_deg = vec![0.0; n];
+    for (i, d) in inv_sqrt_deg.iter_mut().enumerate() {
+        let mut deg = 0.0;
+        for j in 0..n {
+            let v = a[(i, j)];
+            if v < 0.0 {
+                return Err(Error::InvalidMatrix(format!(
+                    "affinity must be non-negative, got {v} at ({i}, {j})"
+                )));
+            }
+            deg += v;
+        }
+        *d = if deg > 0.0 { 1.0 / deg.sqrt() } else { 0.0 };
+    }
+    Ok(Mat::from_fn(n, n, |i, j| {
+        let off = a[(i, j)] * inv_sqrt_deg[i] * inv_sqrt_deg[j];
+        if i == j {
+            1.0 - off
+        } else {
+            -off
+        }
+    }))
+}
+
+/// Eigenvalues (ascending) and, if asked, eigenvectors (as columns) of a symmetric matrix.
+///
+/// Runs sequentially on purpose: the pipeline already parallelises across scenes and
+/// clusters, and a fixed order of floating-point operations keeps results identical
+/// whatever the thread count.
+pub fn symmetric_eigen(m: MatRef<'_, f64>, vectors: bool) -> Result<(Vec<f64>, Option<Mat<f64>>)> {
+    check_symmetric(m)?;
+    let n = m.nrows();
+    if n == 0 {
+        return Ok((vec![], vectors.then(|| Mat::zeros(0, 0))));
+    }
+    let par = Par::Seq;
+    let params: Spec<SelfAdjointEvdParams, f64> = Default::default();
+    let compute = if vectors {
+        ComputeEigenvectors::Yes
+    } else {
+        ComputeEigenvectors::No
+    };
+    let mut s = faer::diag::Diag::<f64>::zeros(n);
+    let mut u = vectors.then(|| Mat::<f64>::zeros(n, n));
+    let mut buf = MemBuffer::new(self_adjoint_evd_scratch::<f64>(n, compute, par, params));
+    let stack = MemStack::new(&mut buf);
+    self_adjoint_evd(
+        m,
+        s.as_mut(),
+        u.as_mut().map(|u| u.as_mut()),
+        par,
+        stack,
+        params,
+    )
+    .map_err(|_| Error::EigenNoConvergence { n })?;
+    let values: Vec<f64> = (0..n).map(|i| s[i]).collect();
+    Ok((values, u))
+}
+
+/// Number of clusters from the largest gap of the ascending spectrum:
+/// `M = argmax_k (lambda_{k+1} - lambda_k)`, k = 1..n-1 (1-based), optionally with `M <= cap`.
+pub fn eigengap(eigenvalues: &[f64], cap: Option<usize>) -> usize {
+    let n = eigenvalues.len();
+    if n <= 1 {
+        return n;
+    }
+    let last = cap.map_or(n - 1, |c| c.clamp(1, n - 1));
+    let mut best = (1, f64::NEG_INFINITY);
+    for k in 1..=last {
+        let gap = eigenvalues[k] - eigenvalues[k - 1];
+        if gap > best.1 {
+            best = (k, gap);
+        }
+    }
+    best.0
+}
+
+/// First `m` eigenvectors as rows of an `n x m` row-major matrix, each row scaled to unit
+/// length (Ng, Jordan and Weiss), so points of one cluster sit near one direction.
+pub fn row_normalized_embedding(vectors: MatRef<'_, f64>, m: usize) -> Vec<f64> {
+    let n = vectors.nrows();
+    let mut out = vec![0.0; n * m];
+    for i in 0..n {
+        let row = &mut out[i * m..(i + 1) * m];
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = vectors[(i, k)];
+        }
+        let norm = row.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm > 0.0 {
+            row.iter_mut().for_each(|v| *v /= norm);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `k` dense blocks of the given sizes, weak noise between blocks.
+    pub(crate) fn block_affinity(sizes: &[usize]) -> Mat<f64> {
+        let n: usize = sizes.iter().sum();
+        let mut block = Vec::with_capacity(n);
+        for (b, &s) in sizes.iter().enumerate() {
+            block.extend(std::iter::repeat_n(b, s));
+        }
+        Mat::from_fn(n, n, |i, j| {
+            let same = block[i] == block[j];
+            let jitter =
+                ((i * 31 + j * 17) % 7) as f64 * 0.01 + ((j * 31 + i * 17) % 7) as f64 * 0.01;
+            if same {
+                0.8 + jitter
+            } else {
+                AFFINITY_FLOOR
+            }
+        })
+    }
+
+    #[test]
+    fn eigengap_finds_block_count() {
+        for sizes in [vec![12, 20], vec![10, 15, 30, 11], vec![25; 7]] {
+            let a = block_affinity(&sizes);
+            let l = normalized_laplacian(a.as_ref()).unwrap();
+            let (vals, _) = symmetric_eigen(l.as_ref(), false).unwrap();
+            assert!(vals.windows(2).all(|w| w[0] <= w[1]));
+            assert_eq!(eigengap(&vals, None), sizes.len());
+            assert_eq!(eigengap(&vals, Some(sizes.len() + 3)), sizes.len());
+            assert!(eigengap(&vals, Some(1)) == 1);
+        }
+    }
+
+    #[test]
+    fn eigenpairs_reconstruct() {
+        let a = block_affinity(&[5, 9]);
+        let l = normalized_laplacian(a.as_ref()).unwrap();
+        let (vals, vecs) = symmetric_eigen(l.as_ref(), true).unwrap();
+        let u = vecs.unwrap();
+        let n = l.nrows();
+        for k in 0..n {
+            for i in 0..n {
+                let lu: f64 = (0..n).map(|j| l[(i, j)] * u[(j, k)]).sum();
+                assert!((lu - vals[k] * u[(i, k)]).abs() < 1e-10);
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_asymmetric_and_nonfinite() {
+        let mut a = Mat::<f64>::identity(3, 3);
+        a[(0, 1)] = 0.5;
+        assert!(symmetric_eigen(a.as_ref(), false).is_err());
+        a[(1, 0)] = 0.5;
+        assert!(symmetric_eigen(a.as_ref(), false).is_ok());
+        a[(2, 2)] = f64::NAN;
+        assert!(normalized_laplacian(a.as_ref()).is_err());
+        let rect = Mat::<f64>::zeros(2, 3);
+        assert!(symmetric_eigen(rect.as_ref(), false).is_err());
+    }
+}
