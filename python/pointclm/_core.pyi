@@ -1,12 +1,29 @@
 """Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
 
-from typing import Any
+from typing import Any, final
 
 import numpy as np
 import numpy.typing as npt
 
+__all__ = [
+    "__version__",
+    "Instance",
+    "RegistrationResult",
+    "default_config",
+    "density_counts",
+    "eigh",
+    "kabsch",
+    "normalized_laplacian",
+    "register",
+    "register_batch",
+    "spatial_consistency",
+    "spectral_clustering",
+    "validate_config",
+]
+
 __version__: str
 
+@final
 class Instance:
     """One registered copy of the source in the target."""
 
@@ -22,6 +39,7 @@ class Instance:
     def inlier_rmse(self) -> float: ...
     def __len__(self) -> int: ...
 
+@final
 class RegistrationResult:
     """Every instance found in one scene, plus a label per correspondence."""
 
@@ -38,7 +56,7 @@ class RegistrationResult:
     @property
     def timings(self) -> dict[str, float]: ...
     def __len__(self) -> int: ...
-    def __getitem__(self, index: int) -> Instance: ...
+    def __getitem__(self, index: int, /) -> Instance: ...
 
 def register(
     correspondences: npt.NDArray[np.float64],

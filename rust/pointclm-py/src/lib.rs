@@ -173,12 +173,11 @@ fn normalized_laplacian<'py>(
     Ok(mat_to_py(py, l.as_ref()))
 }
 
+type Eigenpairs<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
+
 /// Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, via faer.
 #[pyfunction]
-fn eigh<'py>(
-    py: Python<'py>,
-    matrix: PyReadonlyArray2<'py, f64>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+fn eigh<'py>(py: Python<'py>, matrix: PyReadonlyArray2<'py, f64>) -> PyResult<Eigenpairs<'py>> {
     let m = square(&matrix)?;
     let (vals, vecs) = guarded(py, move || {
         pointclm::spectral::symmetric_eigen(m.as_ref(), true)

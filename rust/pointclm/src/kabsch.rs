@@ -76,7 +76,7 @@ pub fn kabsch(c: &Correspondences, indices: &[usize]) -> Option<RigidTransform> 
     // Rank below 2: the points lie on a line (or a point) and the rotation about it is free.
     let mut s: Vec<f64> = svd.singular_values.iter().copied().collect();
     s.sort_by(|a, b| b.total_cmp(a));
-    if !(spread > 0.0) || s[1] <= 1e-9 * s[0].max(f64::MIN_POSITIVE) {
+    if spread <= 0.0 || s[1] <= 1e-9 * s[0].max(f64::MIN_POSITIVE) {
         return None;
     }
     let v = v_t.transpose();

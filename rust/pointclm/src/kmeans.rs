@@ -15,7 +15,7 @@ pub fn kmeans(
     restarts: usize,
     rng: &mut ChaCha8Rng,
 ) -> Vec<usize> {
-    let n = if dim == 0 { 0 } else { data.len() / dim };
+    let n = data.len().checked_div(dim).unwrap_or(0);
     if n == 0 || k == 0 {
         return vec![0; n];
     }
