@@ -94,47 +94,5 @@ pub fn kabsch(c: &Correspondences, indices: &[usize]) -> Option<RigidTransform> 
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::testing::random_rotation;
-    use rand::{Rng, SeedableRng};
-
-    #[test]
-    fn recovers_known_pose() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
-        for _ in 0..20 {
-            let truth = RigidTransform {
-                rotation: random_rotation(&mut rng),
-                translation: Vector3::new(1.0, -2.0, 3.5),
-            };
-            let src: Vec<[f64; 3]> = (0..30)
-                .map(|_| [rng.random(), rng.random(), rng.random()])
-                .collect();
-            let dst: Vec<[f64; 3]> = src.iter().map(|&p| truth.apply(p)).collect();
-            let c = Correspondences::new(&src, &dst).unwrap();
-            let idx: Vec<usize> = (0..30).collect();
-            let est = kabsch(&c, &idx).unwrap();
-            assert!((est.rotation - truth.rotation).abs().max() < 1e-9);
-            assert!((est.translation - truth.translation).abs().max() < 1e-9);
-            assert!((est.rotation.determinant() - 1.0).abs() < 1e-9);
-        }
-    }
-
-    #[test]
-    fn rejects_collinear_and_fixes_reflection() {
-        let src = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
-        let c = Correspondences::new(&src, &src).unwrap();
-        assert!(kabsch(&c, &[0, 1, 2]).is_none());
-        // a mirrored point set: the best proper rotation, never a reflection
-        let src = [
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, 0.0, 1.0],
-            [1.0, 1.0, 1.0],
-        ];
-        let dst: Vec<[f64; 3]> = src.iter().map(|p| [-p[0], p[1], p[2]]).collect();
-        let c = Correspondences::new(&src, &dst).unwrap();
-        let t = kabsch(&c, &[0, 1, 2, 3]).unwrap();
-        assert!((t.rotation.determinant() - 1.0).abs() < 1e-9);
-    }
-}
+#[path = "tests/kabsch.rs"]
+mod tests;

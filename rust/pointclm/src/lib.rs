@@ -41,6 +41,7 @@ pub mod ransac;
 mod seeds;
 pub mod spectral;
 #[cfg(test)]
+#[path = "tests/support.rs"]
 mod testing;
 
 pub use config::{Assignment, Config, Pruning};

@@ -1,0 +1,71 @@
+//! Unit tests of `pruning`.
+
+use super::*;
+use crate::consistency::spatial_consistency;
+use crate::testing::random_scene;
+
+fn features_for(n: usize, seed: u64) -> Features {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut data = Vec::with_capacity(n * 8);
+    for _ in 0..n {
+        let v: Vec<f64> = (0..8).map(|_| rng.random::<f64>() - 0.3).collect();
+        let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        data.extend(v.iter().map(|x| x / norm));
+    }
+    Features::new(data, 8).unwrap()
+}
+
+#[test]
+fn blocked_and_dense_counts_agree_exactly() {
+    // 301 rows: not a multiple of the block size
+    let scene = random_scene(301, 3, 0.2, 5);
+    let n = scene.corr.len();
+    let feats = features_for(n, 1);
+    for pruning in [Pruning::Paper, Pruning::AuthorsCode, Pruning::Disabled] {
+        let config = Config {
+            pruning,
+            ..Config::default()
+        };
+        let beta = spatial_consistency(&scene.corr, config.sigma_d).unwrap();
+        for f in [None, Some(&feats)] {
+            let blocked = density_counts(&scene.corr, f, &config).unwrap();
+            let dense = density_counts_dense(&beta, n, f, &config);
+            assert_eq!(blocked, dense, "{pruning:?} features={}", f.is_some());
+        }
+    }
+}
+
+#[test]
+fn inliers_survive_and_outliers_go() {
+    let scene = random_scene(1000, 4, 0.04, 9);
+    let config = Config::default();
+    let counts = density_counts(&scene.corr, None, &config).unwrap();
+    let kept = select_kept(&counts, &config);
+    let kept_inliers = kept.iter().filter(|&&i| scene.labels[i] >= 0).count();
+    let inliers = scene.labels.iter().filter(|&&l| l >= 0).count();
+    assert!(kept_inliers as f64 >= 0.9 * inliers as f64);
+    assert!(
+        kept.len() - kept_inliers <= 20,
+        "{} outliers kept",
+        kept.len() - kept_inliers
+    );
+}
+
+#[test]
+fn cap_keeps_the_densest() {
+    let counts = vec![50, 12, 40, 11, 30];
+    let config = Config {
+        max_kept: 10.max(Config::default().min_cluster_size),
+        ..Config::default()
+    };
+    assert_eq!(select_kept(&counts, &config), vec![0, 1, 2, 3, 4]);
+    let config = Config {
+        max_kept: 10,
+        min_cluster_size: 3,
+        ..Config::default()
+    };
+    let many: Vec<u32> = (0..20).map(|i| 11 + i).collect();
+    let kept = select_kept(&many, &config);
+    assert_eq!(kept, (10..20).collect::<Vec<_>>());
+}
