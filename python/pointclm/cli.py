@@ -88,6 +88,29 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    try:
+        from .training import TrainConfig, train
+    except ImportError as e:
+        print(f"pointclm train needs torch: pip install 'pointclm[train]' ({e})", file=sys.stderr)
+        return 2
+    overrides = {k: v for k, v in (("data_dir", args.data_dir), ("shape_bank", args.shape_bank),
+                                   ("iterations", args.iterations),
+                                   ("num_workers", args.num_workers)) if v is not None}
+    if args.config:
+        cfg = TrainConfig.from_file(args.config, **overrides)
+    else:
+        cfg = TrainConfig.preset(args.preset, **overrides)
+    result = train(cfg, args.out, device=args.device, resume=args.resume,
+                   max_minutes=args.max_minutes, progress=not args.quiet)
+    best = result["best"] or {}
+    print(json.dumps({"iteration": result["iteration"], "finished": result["finished"],
+                      "seconds": round(result["seconds"], 1),
+                      "best_iteration": best.get("iteration"),
+                      "best_validation": best.get("metrics")}, indent=2))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pointclm", description=__doc__)
     p.add_argument("--version", action="version", version=f"pointclm {__version__}")
@@ -109,6 +132,20 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_config_flags(e)
     e.set_defaults(func=cmd_eval)
+
+    t = sub.add_parser("train", help="train the correspondence embedding (needs torch)")
+    t.add_argument("--config", help="JSON file of TrainConfig fields (\"preset\" to start from)")
+    t.add_argument("--preset", default="cpu", help="cpu (default), compact-gpu, paper, smoke")
+    t.add_argument("--out", required=True, help="output folder (weights, checkpoints, log)")
+    t.add_argument("--device", default="cpu", help="cpu or cuda")
+    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    t.add_argument("--max-minutes", type=float, help="stop after a checkpoint past this time")
+    t.add_argument("--iterations", type=int)
+    t.add_argument("--num-workers", type=int, dest="num_workers")
+    t.add_argument("--data-dir", help="folder with the training meshes (e.g. ../shared/data)")
+    t.add_argument("--shape-bank", help="a shape_bank.npz from an earlier run (no meshes needed)")
+    t.add_argument("--quiet", action="store_true")
+    t.set_defaults(func=cmd_train)
     return p
 
 

@@ -1,0 +1,38 @@
+"""Inference: correspondences -> L2-normalised embeddings with a trained network."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .weights import DEFAULT_WEIGHTS, load_model
+
+__all__ = ["embed", "resolve_model"]
+
+
+@lru_cache(maxsize=4)
+def _cached(path: str, device: str) -> Any:
+    return load_model(path, device=device)
+
+
+def resolve_model(model: Any, device: str = "cpu") -> Any:
+    """"default" -> the shipped network; a path -> that file; a module -> itself."""
+    if isinstance(model, str) and model == "default":
+        return _cached(str(DEFAULT_WEIGHTS), device)
+    if isinstance(model, str | Path):
+        return _cached(str(Path(model).resolve()), device)
+    return model
+
+
+def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cpu") -> np.ndarray:
+    """(N, 6) float64 correspondences -> (N, C) float64 unit embeddings."""
+    import torch
+
+    net = resolve_model(model, device)
+    with torch.no_grad():
+        corr = torch.as_tensor(correspondences, dtype=torch.float32, device=device)[None]
+        feats = net(corr)[0]
+    return feats.double().cpu().numpy()

@@ -1,0 +1,75 @@
+"""Weight files: a safetensors file of the state dict beside a JSON of the architecture.
+
+safetensors is a plain, documented format (8-byte header length, JSON header, raw tensors)
+that the Rust core can read too, and loading it never executes code (unlike pickle).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .network import EmbeddingConfig, SCNonlocal
+
+__all__ = ["DEFAULT_WEIGHTS", "load_model", "save_model"]
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "weights" / "default.safetensors"
+
+
+def _torch() -> Any:
+    try:
+        import torch
+    except ImportError:
+        raise ImportError(
+            "the learned embedding needs torch: pip install 'pointclm[train]' "
+            "(or use model=None for the training-free pipeline)"
+        ) from None
+    return torch
+
+
+def _config_path(path: Path) -> Path:
+    return path.with_suffix(".json")
+
+
+def save_model(model: SCNonlocal, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
+    """Write `path` (.safetensors) and `path` with .json (architecture + `extra` metadata)."""
+    from safetensors.torch import save_file
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    save_file(state, str(path))
+    meta = {"architecture": model.config.as_dict(), **(extra or {})}
+    _config_path(path).write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonlocal:
+    """The network stored at `path` (default: the shipped weights), in eval mode.
+
+    Raises ValueError when the file is missing or does not match its architecture.
+    """
+    torch = _torch()
+    from safetensors.torch import load_file
+
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    cfg_path = _config_path(path)
+    if not path.is_file() or not cfg_path.is_file():
+        raise ValueError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
+    try:
+        arch = json.loads(cfg_path.read_text())["architecture"]
+        model = SCNonlocal(EmbeddingConfig(**arch))
+        state = load_file(str(path), device=device)
+    except (KeyError, TypeError, json.JSONDecodeError, OSError) as e:
+        raise ValueError(f"unreadable weights {path}: {e}") from None
+    except Exception as e:  # safetensors raises its own error type on corrupt files
+        raise ValueError(f"unreadable weights {path}: {e}") from None
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as e:
+        raise ValueError(f"weights {path} do not match architecture {arch}: {e}") from None
+    model.to(device).eval()
+    with torch.no_grad():
+        pass
+    return model
