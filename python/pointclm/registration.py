@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -95,6 +96,7 @@ def register(
     seed: int = 0,
     *,
     num_threads: int | None = None,
+    model: Any = None,
 ) -> RegistrationResult:
     """Find every copy of the source object in the target.
 
@@ -114,6 +116,11 @@ def register(
         `num_threads`.
     num_threads : int, optional
         Threads for this call (default: all cores).
+    model : str, path or torch module, optional
+        The learned embedding computes `features` (PointCLM proper): "default" (compact,
+        shipped), "paper" (paper-size, shipped), a weight file, or a network. Needs torch.
+        Without a `config`, the pruning thresholds chosen with that network on its validation
+        shapes are used. None (default) is the training-free pipeline.
 
     Returns
     -------
@@ -126,9 +133,30 @@ def register(
     if used:
         features = None
     feats = as_features(features, len(corr))
+    if model is not None:
+        if feats is not None:
+            raise ValueError("pass either features or model, not both")
+        feats = _embed(corr, model)
+        config = _model_config(model, config)
     return _core.register(
         corr, feats, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
     )
+
+
+def _embed(corr: np.ndarray, model: Any) -> np.ndarray:
+    from .model import embed  # torch is imported only when a model is asked for
+
+    return embed(corr, model)
+
+
+def _model_config(model: Any, config: Config | dict[str, Any] | None) -> Any:
+    """The caller's config, else the shipped or saved network's recommended thresholds (a bare
+    torch module carries none: the defaults apply)."""
+    if config is not None or not isinstance(model, str | os.PathLike):
+        return config
+    from .model import load_metadata
+
+    return Config(**load_metadata(model).get("recommended_config", {}))
 
 
 def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:
@@ -151,6 +179,7 @@ def register_batch(
     seed: int = 0,
     *,
     num_threads: int | None = None,
+    model: Any = None,
 ) -> list[RegistrationResult]:
     """Register many scenes in parallel with the GIL released.
 
@@ -158,9 +187,15 @@ def register_batch(
     target_points)`` pair, or an object with a ``correspondences`` attribute (and optionally
     ``features``), such as `pointclm.datasets.SyntheticScene`. Every scene uses the same
     `seed`, so ``register_batch(s)[i]`` equals ``register(s[i])`` whatever `num_threads`.
+    With `model`, the embedding of every scene is computed first (torch), as in `register`.
     """
     items: Sequence[Any] = list(scenes)
     arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
+    if model is not None:
+        if any(f is not None for _, f in arrays):
+            raise ValueError("pass either per-scene features or model, not both")
+        arrays = [(c, _embed(c, model)) for c, _ in arrays]
+        config = _model_config(model, config)
     return _core.register_batch(
         arrays, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
     )

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .weights import DEFAULT_WEIGHTS, load_model
+from .weights import load_model, weights_path
 
 __all__ = ["embed", "resolve_model"]
 
@@ -19,11 +19,10 @@ def _cached(path: str, device: str) -> Any:
 
 
 def resolve_model(model: Any, device: str = "cpu") -> Any:
-    """"default" -> the shipped network; a path -> that file; a module -> itself."""
-    if isinstance(model, str) and model == "default":
-        return _cached(str(DEFAULT_WEIGHTS), device)
+    """A shipped name ("default", "paper") or a path -> that network (loaded once and cached);
+    a torch module -> itself."""
     if isinstance(model, str | Path):
-        return _cached(str(Path(model).resolve()), device)
+        return _cached(str(weights_path(model).resolve()), device)
     return model
 
 
@@ -33,6 +32,6 @@ def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cp
 
     net = resolve_model(model, device)
     with torch.no_grad():
-        corr = torch.as_tensor(correspondences, dtype=torch.float32, device=device)[None]
+        corr = torch.tensor(correspondences, dtype=torch.float32, device=device)[None]
         feats = net(corr)[0]
     return feats.double().cpu().numpy()

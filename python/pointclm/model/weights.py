@@ -12,9 +12,31 @@ from typing import Any
 
 from .network import EmbeddingConfig, SCNonlocal
 
-__all__ = ["DEFAULT_WEIGHTS", "load_model", "save_model"]
+__all__ = ["DEFAULT_WEIGHTS", "SHIPPED", "load_metadata", "load_model", "save_model",
+           "weights_path"]
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "weights" / "default.safetensors"
+WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
+# Shipped networks by name: "default" is the compact one (fast on a CPU), "paper" the
+# paper-size one (12 x 128). See MODEL_CARD.md.
+SHIPPED = {"default": WEIGHTS_DIR / "default.safetensors",
+           "paper": WEIGHTS_DIR / "paper.safetensors"}
+DEFAULT_WEIGHTS = SHIPPED["default"]
+
+
+def weights_path(model: str | Path) -> Path:
+    """A shipped name ("default", "paper") or a path -> the .safetensors path."""
+    if isinstance(model, str) and model in SHIPPED:
+        return SHIPPED[model]
+    return Path(model)
+
+
+def load_metadata(path: str | Path) -> dict[str, Any]:
+    """The JSON beside a weight file (architecture, training config, metrics)."""
+    cfg = weights_path(path).with_suffix(".json")
+    try:
+        return dict(json.loads(cfg.read_text()))
+    except (OSError, json.JSONDecodeError) as e:
+        raise ValueError(f"unreadable weight metadata {cfg}: {e}") from None
 
 
 def _torch() -> Any:
@@ -46,14 +68,15 @@ def save_model(model: SCNonlocal, path: str | Path, extra: dict[str, Any] | None
 
 
 def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonlocal:
-    """The network stored at `path` (default: the shipped weights), in eval mode.
+    """The network stored at `path` or shipped under that name (default: "default"), in eval
+    mode.
 
     Raises ValueError when the file is missing or does not match its architecture.
     """
-    torch = _torch()
+    _torch()
     from safetensors.torch import load_file
 
-    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    path = weights_path(path) if path is not None else DEFAULT_WEIGHTS
     cfg_path = _config_path(path)
     if not path.is_file() or not cfg_path.is_file():
         raise ValueError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
@@ -70,6 +93,4 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
     except RuntimeError as e:
         raise ValueError(f"weights {path} do not match architecture {arch}: {e}") from None
     model.to(device).eval()
-    with torch.no_grad():
-        pass
     return model
