@@ -49,17 +49,19 @@ def evaluate(
     max_translation: float = 0.1,
     max_rotation_deg: float = 15.0,
     progress: Any = None,
+    model: Any = None,
 ) -> Evaluation:
     """Register each scene (objects with `correspondences` and `poses`) and score it.
 
-    `progress` wraps the scene iterable (e.g. `tqdm.tqdm`) when given.
+    `progress` wraps the scene iterable (e.g. `tqdm.tqdm`) when given; `model` is passed to
+    `register` (the learned embedding; its time counts in the per-scene time).
     """
     it = progress(scenes) if progress is not None else scenes
     scores, seconds = [], []
     for scene in it:
         t0 = time.perf_counter()
         result = register(scene.correspondences, config=config, seed=seed,
-                          num_threads=num_threads)
+                          num_threads=num_threads, model=model)
         seconds.append(time.perf_counter() - t0)
         scores.append(score_scene(result.transformations, scene.poses,
                                   max_rotation_deg=max_rotation_deg,

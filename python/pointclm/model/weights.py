@@ -7,6 +7,7 @@ that the Rust core can read too, and loading it never executes code (unlike pick
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -23,14 +24,14 @@ SHIPPED = {"default": WEIGHTS_DIR / "default.safetensors",
 DEFAULT_WEIGHTS = SHIPPED["default"]
 
 
-def weights_path(model: str | Path) -> Path:
+def weights_path(model: str | os.PathLike[str]) -> Path:
     """A shipped name ("default", "paper") or a path -> the .safetensors path."""
     if isinstance(model, str) and model in SHIPPED:
         return SHIPPED[model]
     return Path(model)
 
 
-def load_metadata(path: str | Path) -> dict[str, Any]:
+def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The JSON beside a weight file (architecture, training config, metrics)."""
     cfg = weights_path(path).with_suffix(".json")
     try:

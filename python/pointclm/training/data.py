@@ -34,7 +34,7 @@ class ShapeBank:
             return cls({k: z[k] for k in z.files})
 
     def save(self, path: str | Path) -> None:
-        np.savez_compressed(path, **self.clouds)
+        np.savez_compressed(path, **self.clouds)  # type: ignore[arg-type]
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self.clouds:
@@ -68,7 +68,7 @@ def make_batch(
     rng = np.random.default_rng(seed)
     corrs, labels = [], []
     for _ in range(batch_size):
-        cloud = bank[shapes[rng.integers(len(shapes))]]
+        cloud = bank[shapes[int(rng.integers(len(shapes)))]]
         # new points and proportions every scene: the protocol uses the cloud's first 256
         cloud = cloud[rng.permutation(len(cloud))] * rng.uniform(0.6, 1.4, 3)
         scene = make_scene(int(rng.integers(2**62)), shape=cloud, n_keep=n_corr,

@@ -9,7 +9,7 @@ import os
 import platform
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -119,8 +119,9 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume:
         opt, lambda i: 0.5 * (1 + math.cos(math.pi * min(i, cfg.iterations) / cfg.iterations)),
         last_epoch=start - 1)
     val_scenes = validation_scenes(cfg, bank)
-    loader = torch.utils.data.DataLoader(
-        torch.utils.data.Subset(_Batches(cfg, bank), range(start, cfg.iterations)),
+    loader: Any = torch.utils.data.DataLoader(
+        # any object with __len__/__getitem__ serves as a map-style dataset
+        torch.utils.data.Subset(cast(Any, _Batches(cfg, bank)), range(start, cfg.iterations)),
         batch_size=None, shuffle=False, num_workers=cfg.num_workers,
         multiprocessing_context="spawn" if cfg.num_workers > 0 else None,
         persistent_workers=False,
