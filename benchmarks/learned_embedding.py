@@ -84,8 +84,13 @@ def main() -> None:
         t = time.perf_counter()
         pointclm.register(s.correspondences)
         t_free.append(time.perf_counter() - t)
-    print(row("training-free", score(test, [None] * len(test), pointclm.Config()),
-              f" - | {1e3 * np.median(t_free):.1f} |"))
+    print(
+        row(
+            "training-free",
+            score(test, [None] * len(test), pointclm.Config()),
+            f" - | {1e3 * np.median(t_free):.1f} |",
+        )
+    )
     for name in ("default", "paper"):
         model = load_model(name)
         config = pointclm.Config(**load_metadata(name)["recommended_config"])
@@ -98,8 +103,13 @@ def main() -> None:
         arch = model.config
         label = f"{name} ({arch.depth}x{arch.width})"
         pipeline_ms = 1e3 * np.median(fwd + np.asarray(total))
-        print(row(label, score(test, feats, config),
-                  f" {1e3 * np.median(fwd):.1f} | {pipeline_ms:.1f} |"))
+        print(
+            row(
+                label,
+                score(test, feats, config),
+                f" {1e3 * np.median(fwd):.1f} | {pipeline_ms:.1f} |",
+            )
+        )
 
 
 if __name__ == "__main__":

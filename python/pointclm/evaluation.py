@@ -60,12 +60,18 @@ def evaluate(
     scores, seconds = [], []
     for scene in it:
         t0 = time.perf_counter()
-        result = register(scene.correspondences, config=config, seed=seed,
-                          num_threads=num_threads, model=model)
+        result = register(
+            scene.correspondences, config=config, seed=seed, num_threads=num_threads, model=model
+        )
         seconds.append(time.perf_counter() - t0)
-        scores.append(score_scene(result.transformations, scene.poses,
-                                  max_rotation_deg=max_rotation_deg,
-                                  max_translation=max_translation))
+        scores.append(
+            score_scene(
+                result.transformations,
+                scene.poses,
+                max_rotation_deg=max_rotation_deg,
+                max_translation=max_translation,
+            )
+        )
     if not scores:
         raise ValueError("no scenes to evaluate")
     return Evaluation(summarize(scores), scores, np.asarray(seconds))

@@ -55,14 +55,10 @@ def contrastive_loss(
     pos = same & ~eye
     zero = features.new_zeros(())
     n_pos = pos.sum()
-    pos_term = (
-        (torch.relu(dist - margin_pos) ** 2)[pos].sum() / n_pos if n_pos > 0 else zero
-    )
+    pos_term = (torch.relu(dist - margin_pos) ** 2)[pos].sum() / n_pos if n_pos > 0 else zero
     neg_dist, valid = negative_distances(dist, labels, negatives, generator)
     n_neg = valid.sum()
-    neg_term = (
-        (torch.relu(margin_neg - neg_dist) ** 2)[valid].sum() / n_neg if n_neg > 0 else zero
-    )
+    neg_term = (torch.relu(margin_neg - neg_dist) ** 2)[valid].sum() / n_neg if n_neg > 0 else zero
     with torch.no_grad():
         stats = {
             "pos_dist": dist[pos].mean() if n_pos > 0 else zero,

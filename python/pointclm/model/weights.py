@@ -13,14 +13,22 @@ from typing import Any
 
 from .network import EmbeddingConfig, SCNonlocal
 
-__all__ = ["DEFAULT_WEIGHTS", "SHIPPED", "load_metadata", "load_model", "save_model",
-           "weights_path"]
+__all__ = [
+    "DEFAULT_WEIGHTS",
+    "SHIPPED",
+    "load_metadata",
+    "load_model",
+    "save_model",
+    "weights_path",
+]
 
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 # Shipped networks by name: "default" is the compact one (fast on a CPU), "paper" the
 # paper-size one (12 x 128). See MODEL_CARD.md.
-SHIPPED = {"default": WEIGHTS_DIR / "default.safetensors",
-           "paper": WEIGHTS_DIR / "paper.safetensors"}
+SHIPPED = {
+    "default": WEIGHTS_DIR / "default.safetensors",
+    "paper": WEIGHTS_DIR / "paper.safetensors",
+}
 DEFAULT_WEIGHTS = SHIPPED["default"]
 
 

@@ -12,8 +12,15 @@ __all__ = ["PRESETS", "TrainConfig"]
 # Shapes are split by identity: the synthetic benchmark's bunny is never trained on, and
 # validation uses shapes that training never sees either.
 TRAIN_SHAPES = (
-    "torus", "box", "cylinder", "cone", "capsule", "helix-tube",
-    "stanford/dragon", "stanford/happy", "modelnet/bathtub",
+    "torus",
+    "box",
+    "cylinder",
+    "cone",
+    "capsule",
+    "helix-tube",
+    "stanford/dragon",
+    "stanford/happy",
+    "modelnet/bathtub",
 )
 VAL_SHAPES = ("stanford/armadillo", "modelnet/bed")
 
@@ -51,8 +58,15 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.negatives not in ("hardest", "random"):
             raise ValueError(f"negatives must be 'hardest' or 'random', got {self.negatives!r}")
-        for name in ("iterations", "batch_size", "n_correspondences", "val_every",
-                     "checkpoint_every", "depth", "width"):
+        for name in (
+            "iterations",
+            "batch_size",
+            "n_correspondences",
+            "val_every",
+            "checkpoint_every",
+            "depth",
+            "width",
+        ):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1")
         if set(self.train_shapes) & set(self.val_shapes):
@@ -90,16 +104,43 @@ class TrainConfig:
 
 PRESETS: dict[str, dict[str, Any]] = {
     # Compact network, short schedule: the shipped default when no GPU was available.
-    "cpu": {"depth": 6, "width": 64, "iterations": 1500, "batch_size": 4, "lr": 1e-3,
-            "val_every": 250, "checkpoint_every": 250, "val_scenes": 32},
+    "cpu": {
+        "depth": 6,
+        "width": 64,
+        "iterations": 1500,
+        "batch_size": 4,
+        "lr": 1e-3,
+        "val_every": 250,
+        "checkpoint_every": 250,
+        "val_scenes": 32,
+    },
     # Compact network trained long on a GPU (what ships when one was available).
-    "compact-gpu": {"depth": 6, "width": 64, "iterations": 15000, "batch_size": 16,
-                    "lr": 1e-3, "num_workers": 8},
+    "compact-gpu": {
+        "depth": 6,
+        "width": 64,
+        "iterations": 15000,
+        "batch_size": 16,
+        "lr": 1e-3,
+        "num_workers": 8,
+    },
     # The paper: 12 blocks x 128 channels, batch 16, 15K iterations.
-    "paper": {"depth": 12, "width": 128, "iterations": 15000, "batch_size": 16,
-              "lr": 1e-3, "num_workers": 8},
+    "paper": {
+        "depth": 12,
+        "width": 128,
+        "iterations": 15000,
+        "batch_size": 16,
+        "lr": 1e-3,
+        "num_workers": 8,
+    },
     # A few steps, for tests and CI.
-    "smoke": {"depth": 2, "width": 16, "iterations": 6, "batch_size": 2,
-              "n_correspondences": 200, "val_every": 3, "checkpoint_every": 3,
-              "val_scenes": 2},
+    "smoke": {
+        "depth": 2,
+        "width": 16,
+        "iterations": 6,
+        "batch_size": 2,
+        "n_correspondences": 200,
+        "val_every": 3,
+        "checkpoint_every": 3,
+        "val_scenes": 2,
+    },
 }

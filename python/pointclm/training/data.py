@@ -43,8 +43,13 @@ class ShapeBank:
 
 
 def structured_outliers(
-    corr: np.ndarray, labels: np.ndarray, poses: np.ndarray, source: np.ndarray,
-    fraction: float, rng: np.random.Generator, noise: float = 0.01,
+    corr: np.ndarray,
+    labels: np.ndarray,
+    poses: np.ndarray,
+    source: np.ndarray,
+    fraction: float,
+    rng: np.random.Generator,
+    noise: float = 0.01,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Moves `fraction` of the outliers' targets onto an instance's surface, at the image of
     a wrong source point: consistent-looking distractors that uniform noise never produces."""
@@ -61,8 +66,13 @@ def structured_outliers(
 
 
 def make_batch(
-    bank: ShapeBank, shapes: Sequence[str], seed: int, batch_size: int, n_corr: int,
-    outlier_blocks: int, wrong_fraction: float,
+    bank: ShapeBank,
+    shapes: Sequence[str],
+    seed: int,
+    batch_size: int,
+    n_corr: int,
+    outlier_blocks: int,
+    wrong_fraction: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(B, n_corr, 6) float32 correspondences and (B, n_corr) int64 labels."""
     rng = np.random.default_rng(seed)
@@ -71,10 +81,12 @@ def make_batch(
         cloud = bank[shapes[int(rng.integers(len(shapes)))]]
         # new points and proportions every scene: the protocol uses the cloud's first 256
         cloud = cloud[rng.permutation(len(cloud))] * rng.uniform(0.6, 1.4, 3)
-        scene = make_scene(int(rng.integers(2**62)), shape=cloud, n_keep=n_corr,
-                           n_outlier_blocks=outlier_blocks)
-        c, lab = structured_outliers(scene.correspondences, scene.labels, scene.poses,
-                                     scene.source, wrong_fraction, rng)
+        scene = make_scene(
+            int(rng.integers(2**62)), shape=cloud, n_keep=n_corr, n_outlier_blocks=outlier_blocks
+        )
+        c, lab = structured_outliers(
+            scene.correspondences, scene.labels, scene.poses, scene.source, wrong_fraction, rng
+        )
         corrs.append(c)
         labels.append(lab)
     return np.stack(corrs).astype(np.float32), np.stack(labels)

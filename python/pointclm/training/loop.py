@@ -39,8 +39,15 @@ class _Batches:
 
     def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         c = self.cfg
-        return make_batch(self.bank, c.train_shapes, _seed_for(c.seed, 1, i), c.batch_size,
-                          c.n_correspondences, c.train_outlier_blocks, c.wrong_match_fraction)
+        return make_batch(
+            self.bank,
+            c.train_shapes,
+            _seed_for(c.seed, 1, i),
+            c.batch_size,
+            c.n_correspondences,
+            c.train_outlier_blocks,
+            c.wrong_match_fraction,
+        )
 
 
 def validation_scenes(cfg: TrainConfig, bank: ShapeBank) -> list[Any]:
@@ -49,8 +56,11 @@ def validation_scenes(cfg: TrainConfig, bank: ShapeBank) -> list[Any]:
     for k in range(cfg.val_scenes):
         cloud = bank[cfg.val_shapes[k % len(cfg.val_shapes)]]
         cloud = cloud[rng.permutation(len(cloud))]
-        scenes.append(make_scene(_seed_for(cfg.seed, 3, k), shape=cloud,
-                                 n_outlier_blocks=cfg.val_outlier_blocks))
+        scenes.append(
+            make_scene(
+                _seed_for(cfg.seed, 3, k), shape=cloud, n_outlier_blocks=cfg.val_outlier_blocks
+            )
+        )
     return scenes
 
 
@@ -73,15 +83,26 @@ def validate(model: Any, scenes: list[Any], device: str) -> dict[str, float]:
 def _environment(device: str) -> dict[str, Any]:
     import torch
 
-    env = {"device": device, "torch": torch.__version__, "platform": platform.platform(),
-           "cpu_count": os.cpu_count()}
+    env = {
+        "device": device,
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+        "cpu_count": os.cpu_count(),
+    }
     if device.startswith("cuda") and torch.cuda.is_available():
         env["gpu"] = torch.cuda.get_device_name(0)
     return env
 
 
-def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume: bool = False,
-          max_minutes: float | None = None, progress: bool = True) -> dict[str, Any]:
+def train(
+    cfg: TrainConfig,
+    out_dir: str | Path,
+    *,
+    device: str = "cpu",
+    resume: bool = False,
+    max_minutes: float | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Train, writing to `out_dir`: `train_config.json`, `checkpoint.pt` (resumable),
     `model.safetensors` + `model.json` (best validation weights) and `log.jsonl`.
 
@@ -99,8 +120,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume:
     cfg.save(out / "train_config.json")
     torch.manual_seed(cfg.seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
-    bank = (ShapeBank.load(cfg.shape_bank) if cfg.shape_bank else
-            ShapeBank.build([*cfg.train_shapes, *cfg.val_shapes], cfg.data_dir, cfg.seed))
+    bank = (
+        ShapeBank.load(cfg.shape_bank)
+        if cfg.shape_bank
+        else ShapeBank.build([*cfg.train_shapes, *cfg.val_shapes], cfg.data_dir, cfg.seed)
+    )
     bank.save(out / "shape_bank.npz")
     model = SCNonlocal(EmbeddingConfig(cfg.depth, cfg.width, cfg.sigma_d)).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -116,13 +140,17 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume:
     for group in opt.param_groups:
         group.setdefault("initial_lr", cfg.lr)
     sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda i: 0.5 * (1 + math.cos(math.pi * min(i, cfg.iterations) / cfg.iterations)),
-        last_epoch=start - 1)
+        opt,
+        lambda i: 0.5 * (1 + math.cos(math.pi * min(i, cfg.iterations) / cfg.iterations)),
+        last_epoch=start - 1,
+    )
     val_scenes = validation_scenes(cfg, bank)
     loader: Any = torch.utils.data.DataLoader(
         # any object with __len__/__getitem__ serves as a map-style dataset
         torch.utils.data.Subset(cast(Any, _Batches(cfg, bank)), range(start, cfg.iterations)),
-        batch_size=None, shuffle=False, num_workers=cfg.num_workers,
+        batch_size=None,
+        shuffle=False,
+        num_workers=cfg.num_workers,
         multiprocessing_context="spawn" if cfg.num_workers > 0 else None,
         persistent_workers=False,
     )
@@ -134,15 +162,23 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume:
     for it, (x, y) in enumerate(loader, start=start + 1):
         x, y = torch.as_tensor(x, device=device), torch.as_tensor(y, device=device)
         gen = torch.Generator(device=device).manual_seed(_seed_for(cfg.seed, 4, it) % 2**63)
-        loss, stats = contrastive_loss(model(x), y, margin_pos=cfg.margin_pos,
-                                       margin_neg=cfg.margin_neg, negatives=cfg.negatives,
-                                       generator=gen)
+        loss, stats = contrastive_loss(
+            model(x),
+            y,
+            margin_pos=cfg.margin_pos,
+            margin_neg=cfg.margin_neg,
+            negatives=cfg.negatives,
+            generator=gen,
+        )
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
         sched.step()
-        row: dict[str, Any] = {"iteration": it, "loss": float(loss.detach()),
-                               **{k: float(v) for k, v in stats.items()}}
+        row: dict[str, Any] = {
+            "iteration": it,
+            "loss": float(loss.detach()),
+            **{k: float(v) for k, v in stats.items()},
+        }
         bar.update(1)
         postfix = {"loss": f"{float(loss.detach()):.4f}"}
         if it % cfg.val_every == 0 or it == cfg.iterations:
@@ -151,23 +187,41 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, device: str = "cpu", resume:
             key = (metrics["mean_f1"], metrics["strict_f1"])
             if best is None or key >= tuple(best["key"]):
                 best = {"key": list(key), "iteration": it, "metrics": metrics}
-                save_model(model, out / "model.safetensors", extra={
-                    "iteration": it, "validation": metrics, "train_config": cfg.to_dict(),
-                    "environment": _environment(device),
-                    "train_seconds": time.perf_counter() - t0})
+                save_model(
+                    model,
+                    out / "model.safetensors",
+                    extra={
+                        "iteration": it,
+                        "validation": metrics,
+                        "train_config": cfg.to_dict(),
+                        "environment": _environment(device),
+                        "train_seconds": time.perf_counter() - t0,
+                    },
+                )
             postfix["val_MF"] = f"{100 * metrics['mean_f1']:.2f}"
         bar.set_postfix(postfix)
         log.write(json.dumps(row) + "\n")
         done = it == cfg.iterations
         out_of_time = max_minutes is not None and (time.perf_counter() - t0) > 60 * max_minutes
         if it % cfg.checkpoint_every == 0 or done or out_of_time:
-            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(),
-                        "iteration": it, "best": best,
-                        "elapsed": time.perf_counter() - t0,
-                        "torch_rng": torch.get_rng_state()}, ckpt)
+            torch.save(
+                {
+                    "model": model.state_dict(),
+                    "optimizer": opt.state_dict(),
+                    "iteration": it,
+                    "best": best,
+                    "elapsed": time.perf_counter() - t0,
+                    "torch_rng": torch.get_rng_state(),
+                },
+                ckpt,
+            )
         if out_of_time and not done:
             break
     bar.close()
     log.close()
-    return {"iteration": it, "finished": it >= cfg.iterations, "best": best,
-            "seconds": time.perf_counter() - t0}
+    return {
+        "iteration": it,
+        "finished": it >= cfg.iterations,
+        "best": best,
+        "seconds": time.perf_counter() - t0,
+    }
