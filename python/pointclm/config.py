@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
+import numpy as np
+
 from . import _core
 
 __all__ = ["Config"]
@@ -72,11 +74,27 @@ class Config:
         for name in ("refine", "merge_duplicates"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"config field {name}: expected True or False")
-        for name in ("tau_n", "min_count", "max_kept", "kmeans_restarts", "min_cluster_size",
-                     "ransac_iterations"):
+        for name in (
+            "tau_n",
+            "min_count",
+            "max_kept",
+            "kmeans_restarts",
+            "min_cluster_size",
+            "ransac_iterations",
+        ):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
                 raise ValueError(f"config field {name}: expected an int, got {value!r}")
+            if value < 0:
+                raise ValueError(f"config field {name}: must be >= 0, got {value}")
+            object.__setattr__(self, name, int(value))  # numpy ints -> int for the core
+        mi = self.max_instances
+        if mi is not None:
+            if isinstance(mi, bool) or not isinstance(mi, int | np.integer) or mi < 1:
+                raise ValueError(
+                    f"config field max_instances: expected None or an int >= 1, got {mi!r}"
+                )
+            object.__setattr__(self, "max_instances", int(mi))
         # The Rust core is the single source of truth for valid ranges.
         _core.validate_config(self.to_dict())
 

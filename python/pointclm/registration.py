@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Sequence
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,10 @@ def as_matrix(x: ArrayLike, name: str, columns: int | None) -> np.ndarray:
 def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.ndarray, bool]:
     """(N, 6) rows from either (N, 6) correspondences or two (N, 3) point arrays; the flag
     says whether `second` was consumed as target points."""
-    a = np.asarray(first) if not isinstance(first, np.ndarray) else first
+    try:
+        a = np.asarray(first) if not isinstance(first, np.ndarray) else first
+    except Exception as e:  # ragged lists and the like
+        raise ValueError(f"correspondences could not be read as an array: {e}") from None
     if getattr(a, "ndim", 0) == 2 and a.shape[1] == 3:
         if second is None:
             raise ValueError(
@@ -62,9 +66,7 @@ def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.n
         corr = as_matrix(first, "correspondences", 6)
         used = False
     if len(corr) < MIN_CORRESPONDENCES:
-        raise ValueError(
-            f"need at least {MIN_CORRESPONDENCES} correspondences, got {len(corr)}"
-        )
+        raise ValueError(f"need at least {MIN_CORRESPONDENCES} correspondences, got {len(corr)}")
     return corr, used
 
 
@@ -83,6 +85,10 @@ def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
     if config is None:
         return Config().to_dict()
     if isinstance(config, dict):
+        known = {f.name for f in fields(Config)}
+        unknown = [k for k in config if k not in known]
+        if unknown:
+            raise ValueError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
         return Config(**config).to_dict()
     if isinstance(config, Config):
         return config.to_dict()
@@ -95,6 +101,7 @@ def register(
     config: Config | dict[str, Any] | None = None,
     seed: int = 0,
     *,
+    target: ArrayLike | None = None,
     num_threads: int | None = None,
     model: Any = None,
 ) -> RegistrationResult:
@@ -108,7 +115,8 @@ def register(
     features : array_like, optional
         (N, D) per-correspondence features (e.g. the learned embedding, L2-normalised); with
         them pruning and clustering use ``S = S^F * beta`` instead of ``S = beta``. When the
-        first argument holds points, the second is the target and features go by keyword.
+        first argument holds points, the second positional argument is the target; to give
+        features with points, pass ``register(source, target=target, features=f)``.
     config : Config or dict, optional
         Thresholds; `Config()` by default.
     seed : int
@@ -129,9 +137,12 @@ def register(
         ``inlier_rmse``, ``correspondence_set``), ``transformations`` (M, 4, 4) and
         ``labels`` (N,): -1 for outliers, k for instance k.
     """
-    corr, used = as_correspondences(correspondences, features)
-    if used:
-        features = None
+    if target is not None:
+        corr, _ = as_correspondences(correspondences, target)
+    else:
+        corr, used = as_correspondences(correspondences, features)
+        if used:
+            features = None
     feats = as_features(features, len(corr))
     if model is not None:
         if feats is not None:
@@ -202,14 +213,18 @@ def register_batch(
 
 
 def _as_seed(seed: int) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
-    return int(seed) & 0xFFFF_FFFF_FFFF_FFFF
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not (0 <= seed < 2**64):
+        raise ValueError(f"seed must be a non-negative int below 2**64, got {seed!r}")
+    return int(seed)
 
 
 def _as_threads(num_threads: int | None) -> int | None:
     if num_threads is None:
         return None
-    if isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 1:
+    if (
+        isinstance(num_threads, bool)
+        or not isinstance(num_threads, int | np.integer)
+        or num_threads < 1
+    ):
         raise ValueError(f"num_threads must be an int >= 1 or None, got {num_threads!r}")
-    return num_threads
+    return int(num_threads)

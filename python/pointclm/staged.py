@@ -12,7 +12,15 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from .config import Config
-from .registration import as_config, as_correspondences, as_features, as_matrix
+from .registration import (
+    MIN_CORRESPONDENCES,
+    _as_seed,
+    _as_threads,
+    as_config,
+    as_correspondences,
+    as_features,
+    as_matrix,
+)
 
 __all__ = [
     "density_counts",
@@ -27,7 +35,11 @@ __all__ = [
 def spatial_consistency(correspondences: ArrayLike, sigma_d: float = 0.05) -> np.ndarray:
     """Dense (N, N) ``beta_ij = [1 - d_ij^2 / sigma_d^2]_+`` (memory N^2: small N only)."""
     corr, _ = as_correspondences(correspondences, None)
-    return _core.spatial_consistency(corr, float(sigma_d))
+    try:
+        sigma = float(sigma_d)
+    except (TypeError, ValueError):
+        raise ValueError(f"sigma_d must be a positive number, got {sigma_d!r}") from None
+    return _core.spatial_consistency(corr, sigma)
 
 
 def density_counts(
@@ -41,7 +53,10 @@ def density_counts(
     included); rows above `tau_n` (or `min_count`) survive pruning."""
     corr, _ = as_correspondences(correspondences, None)
     return _core.density_counts(
-        corr, as_features(features, len(corr)), as_config(config), num_threads=num_threads
+        corr,
+        as_features(features, len(corr)),
+        as_config(config),
+        num_threads=_as_threads(num_threads),
     )
 
 
@@ -67,15 +82,28 @@ def spectral_clustering(
     """Labels, cluster count (eigengap when `n_clusters` is None) and Laplacian spectrum."""
     return _core.spectral_clustering(
         as_matrix(affinity, "affinity", None),
-        n_clusters,
-        max_clusters,
+        None if n_clusters is None else _as_count(n_clusters, "n_clusters"),
+        None if max_clusters is None else _as_count(max_clusters, "max_clusters"),
         assignment,
-        restarts,
-        seed,
+        _as_count(restarts, "restarts"),
+        _as_seed(seed),
     )
+
+
+def _as_count(value: int, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return int(value)
 
 
 def kabsch(source: ArrayLike, target: ArrayLike) -> np.ndarray:
     """Least-squares ``T_target_source`` (4x4) mapping `source` rows onto `target` rows."""
-    corr, _ = as_correspondences(source, target)
-    return _core.kabsch(np.ascontiguousarray(corr[:, :3]), np.ascontiguousarray(corr[:, 3:]))
+    src = as_matrix(source, "source", 3)
+    dst = as_matrix(target, "target", 3)
+    if len(src) != len(dst):
+        raise ValueError(
+            f"source and target must have the same length, got {len(src)} and {len(dst)}"
+        )
+    if len(src) < MIN_CORRESPONDENCES:
+        raise ValueError(f"need at least {MIN_CORRESPONDENCES} point pairs, got {len(src)}")
+    return _core.kabsch(src, dst)

@@ -26,14 +26,23 @@ fn guarded<T: Send>(py: Python<'_>, f: impl FnOnce() -> pointclm::Result<T> + Se
         .map_err(to_py_err)
 }
 
+/// More threads than this is a mistake, not a configuration (each costs a stack and a
+/// spawn, and a pool is kept per count).
+const MAX_THREADS: usize = 256;
+
+fn check_threads(num_threads: usize) -> PyResult<()> {
+    if !(1..=MAX_THREADS).contains(&num_threads) {
+        return Err(PyValueError::new_err(format!(
+            "num_threads must lie in 1..={MAX_THREADS} (or None for all cores), got {num_threads}"
+        )));
+    }
+    Ok(())
+}
+
 /// Private pools, one per requested thread count, built once and reused.
 fn pool(num_threads: usize) -> PyResult<Arc<rayon::ThreadPool>> {
     static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
-    if num_threads == 0 {
-        return Err(PyValueError::new_err(
-            "num_threads must be >= 1 (or None for all cores)",
-        ));
-    }
+    check_threads(num_threads)?;
     let mut pools = POOLS
         .get_or_init(Default::default)
         .lock()
@@ -98,12 +107,10 @@ fn register_batch(
             features: features(feats.as_ref()).map_err(at)?,
         });
     }
-    let threads = num_threads.unwrap_or(0);
-    if num_threads == Some(0) {
-        return Err(PyValueError::new_err(
-            "num_threads must be >= 1 (or None for all cores)",
-        ));
+    if let Some(n) = num_threads {
+        check_threads(n)?;
     }
+    let threads = num_threads.unwrap_or(0);
     let results = guarded(py, move || {
         pointclm::register_batch(&batch, &cfg, seed, threads)
     })?;

@@ -5,7 +5,7 @@ use faer::MatRef;
 use crate::config::{Assignment, Config};
 use crate::correspondences::{Correspondences, Features};
 use crate::discretize::discretize;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::kmeans::kmeans;
 use crate::seeds::{stream, STAGE_CLUSTERING};
 use crate::spectral::{
@@ -33,9 +33,16 @@ pub fn spectral_clustering(
     restarts: usize,
     seed: u64,
 ) -> Result<SpectralLabels> {
+    let n = a.nrows();
+    if let Some(k) = n_clusters.filter(|&k| k == 0 || k > n.max(1)) {
+        return Err(Error::InvalidConfig {
+            field: "n_clusters",
+            value: k.to_string(),
+            reason: "must lie in 1..=number of rows",
+        });
+    }
     let l = normalized_laplacian(a)?;
     let (eigenvalues, vectors) = symmetric_eigen(l.as_ref(), true)?;
-    let n = eigenvalues.len();
     let m = n_clusters
         .unwrap_or_else(|| eigengap(&eigenvalues, max_clusters))
         .clamp(n.min(1), n);
@@ -78,10 +85,14 @@ pub fn cluster_kept(
         return Ok((vec![], 0));
     }
     let a = affinity(c, features, kept, config.affinity_sigma)?;
+    // At most n / min_cluster_size groups can become instances; a larger count would only
+    // split isolated rows apart (and cost k-means time), e.g. when pruning is disabled.
+    let most = (kept.len() / config.min_cluster_size).max(1);
+    let cap = config.max_instances.map_or(most, |m| m.min(most));
     let sl = spectral_clustering(
         a.as_ref(),
         None,
-        config.max_instances,
+        Some(cap),
         config.assignment,
         config.kmeans_restarts,
         seed,

@@ -85,12 +85,15 @@ pub fn finalize(
         .iter()
         .enumerate()
         .map(|(k, (pose, _))| {
-            let inliers: Vec<usize> = (0..n).filter(|&i| labels[i] == k as i64).collect();
+            let mut inliers: Vec<usize> = (0..n).filter(|&i| labels[i] == k as i64).collect();
             let pose = if config.refine {
                 kabsch(c, &inliers).unwrap_or(*pose)
             } else {
                 *pose
             };
+            // The refit moves the pose: keep only what is still an inlier of the pose we
+            // return (Open3D's convention for correspondence_set).
+            inliers.retain(|&i| pose.residual_sq(c.source(i), c.target(i)) < thr_sq);
             let sq: f64 = inliers
                 .iter()
                 .map(|&i| pose.residual_sq(c.source(i), c.target(i)))
@@ -103,6 +106,17 @@ pub fn finalize(
             }
         })
         .collect();
+    // Rows the refit pushed out become outliers. Sizes were checked before the refit, so
+    // only an instance whose pose no longer explains 3 rows is dropped here.
+    for l in labels.iter_mut() {
+        *l = -1;
+    }
+    instances.retain(|inst| inst.inliers.len() >= 3);
+    for (k, inst) in instances.iter().enumerate() {
+        for &i in &inst.inliers {
+            labels[i] = k as i64;
+        }
+    }
 
     // Largest first, labels renumbered to match.
     let mut order: Vec<usize> = (0..instances.len()).collect();
