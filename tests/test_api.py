@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pointclm
 import pytest
+from helpers import assert_same_result
 from pointclm import Config, Instance, RegistrationResult, _core
 from pointclm.datasets import make_scene
 from pointclm.metrics import score_scene
@@ -25,19 +26,6 @@ def corr(scene: pointclm.datasets.SyntheticScene) -> np.ndarray:
 @pytest.fixture(scope="module")
 def result(corr: np.ndarray) -> RegistrationResult:
     return pointclm.register(corr)
-
-
-def assert_same_result(a: RegistrationResult, b: RegistrationResult) -> None:
-    """Bit-identical results (same poses, labels, kept set, instance metadata)."""
-    assert len(a) == len(b)
-    np.testing.assert_array_equal(a.transformations, b.transformations)
-    np.testing.assert_array_equal(a.labels, b.labels)
-    np.testing.assert_array_equal(a.kept, b.kept)
-    assert a.n_clusters == b.n_clusters
-    for ia, ib in zip(a.instances, b.instances, strict=True):
-        np.testing.assert_array_equal(ia.inliers, ib.inliers)
-        assert ia.fitness == ib.fitness
-        assert ia.inlier_rmse == ib.inlier_rmse
 
 
 def residuals(corr: np.ndarray, pose: np.ndarray) -> np.ndarray:

@@ -5,19 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pointclm
 import pytest
+from helpers import assert_same_result
 from pointclm import RegistrationResult
 from pointclm.datasets import SyntheticScene, make_scenes
-
-
-def assert_same(a: RegistrationResult, b: RegistrationResult) -> None:
-    assert len(a) == len(b)
-    np.testing.assert_array_equal(a.transformations, b.transformations)
-    np.testing.assert_array_equal(a.labels, b.labels)
-    np.testing.assert_array_equal(a.kept, b.kept)
-    assert a.n_clusters == b.n_clusters
-    for ia, ib in zip(a.instances, b.instances, strict=True):
-        np.testing.assert_array_equal(ia.inliers, ib.inliers)
-        assert (ia.fitness, ia.inlier_rmse) == (ib.fitness, ib.inlier_rmse)
 
 
 @pytest.fixture(scope="module")
@@ -38,20 +28,20 @@ def test_batch_equals_serial(
     assert isinstance(batch, list) and len(batch) == len(scenes)
     assert sum(len(r) for r in batch) > 3 * len(scenes)  # real work was done
     for b, s in zip(batch, serial, strict=True):
-        assert_same(b, s)
+        assert_same_result(b, s)
 
 
 def test_batch_order_is_kept(scenes: list[SyntheticScene], serial) -> None:
     rev = pointclm.register_batch(scenes[::-1], seed=5, num_threads=2)
     for b, s in zip(rev, serial[::-1], strict=True):
-        assert_same(b, s)
+        assert_same_result(b, s)
 
 
 def test_batch_seed_and_config_apply_to_every_scene(scenes: list[SyntheticScene]) -> None:
     cfg = {"ransac_iterations": 5, "assignment": "discretize"}
     batch = pointclm.register_batch(scenes[:4], config=cfg, seed=9, num_threads=2)
     for b, s in zip(batch, scenes[:4], strict=True):
-        assert_same(b, pointclm.register(s.correspondences, config=cfg, seed=9))
+        assert_same_result(b, pointclm.register(s.correspondences, config=cfg, seed=9))
 
 
 def test_batch_accepts_the_four_scene_forms(scenes: list[SyntheticScene]) -> None:
@@ -80,14 +70,14 @@ def test_batch_accepts_the_four_scene_forms(scenes: list[SyntheticScene]) -> Non
     expected = [plain, with_feats, plain, plain, with_feats, plain, plain]
     batch = pointclm.register_batch(forms, num_threads=2)
     for b, e in zip(batch, expected, strict=True):
-        assert_same(b, e)
+        assert_same_result(b, e)
     assert len(plain) > 0 and len(with_feats) == 0  # the features did reach the core
 
 
 def test_batch_accepts_any_iterable(scenes: list[SyntheticScene], serial) -> None:
     gen = (s.correspondences for s in scenes[:3])
     for b, s in zip(pointclm.register_batch(gen, seed=5), serial[:3], strict=True):
-        assert_same(b, s)
+        assert_same_result(b, s)
 
 
 def test_empty_batch() -> None:
