@@ -112,6 +112,35 @@ def test_inliers_are_within_threshold_of_returned_pose(refine: bool) -> None:
         np.testing.assert_array_equal(inst.inliers[~within[inst.inliers]], [])
 
 
+CONTRACT_CONFIGS = [
+    Config(),
+    Config(refine=False, merge_duplicates=False),
+    Config(ransac_iterations=1, inlier_threshold=0.3),
+    Config(pruning="authors", assignment="discretize", min_cluster_size=25),
+]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_contract_holds_across_scenes_and_configs(seed: int) -> None:
+    corr = make_scene(seed + 100).correspondences
+    for cfg in CONTRACT_CONFIGS:
+        res = pointclm.register(corr, config=cfg, seed=seed)
+        covered = np.zeros(len(corr), dtype=int)
+        for k, inst in enumerate(res.instances):
+            np.testing.assert_array_equal(np.flatnonzero(res.labels == k), inst.inliers)
+            assert len(inst) >= cfg.min_cluster_size
+            r = inst.transformation[:3, :3]
+            np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-10)
+            assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-10)
+            within = residuals(corr, inst.transformation)[inst.inliers] < cfg.inlier_threshold
+            assert within.all()
+            assert inst.fitness == pytest.approx(len(inst) / len(corr), rel=1e-12)
+            covered[inst.inliers] += 1
+        assert covered.max(initial=0) <= 1
+        assert np.all(res.labels[covered == 0] == -1)
+        assert np.all(np.diff(res.kept) > 0) and len(res.kept) <= cfg.max_kept
+
+
 @pytest.mark.parametrize(
     "cfg",
     [
@@ -159,6 +188,7 @@ def test_source_target_pair_equals_correspondences(
 ) -> None:
     assert_same_result(pointclm.register(corr[:, :3], corr[:, 3:]), result)
     assert_same_result(pointclm.register(corr[:, :3].tolist(), corr[:, 3:].tolist()), result)
+    assert_same_result(pointclm.register(corr[:, :3], target=corr[:, 3:]), result)
 
 
 def _strided(corr: np.ndarray) -> np.ndarray:
@@ -246,6 +276,17 @@ def test_num_threads_do_not_change_the_result(corr: np.ndarray) -> None:
         assert_same_result(pointclm.register(corr, seed=seed, num_threads=np.int64(2)), one)
 
 
+def test_num_threads_do_not_change_a_large_result() -> None:
+    # 4000 rows: every parallel stage splits its work into several chunks
+    scene = make_scene(3, n_keep=4000)
+    feats = _oracle_features(scene, noise=0.05, seed=3)
+    for f in (None, feats):
+        one = pointclm.register(scene.correspondences, f, num_threads=1)
+        assert len(one) > 3
+        assert_same_result(pointclm.register(scene.correspondences, f, num_threads=2), one)
+        assert_same_result(pointclm.register(scene.correspondences, f, num_threads=5), one)
+
+
 def test_seed_is_used(corr: np.ndarray) -> None:
     # Few RANSAC iterations: the hypotheses, hence the poses, depend on the seed.
     cfg = Config(ransac_iterations=1, refine=False)
@@ -267,6 +308,20 @@ def test_config_defaults_mirror_rust() -> None:
         assert getattr(py, name) == value, name
         assert type(getattr(py, name)) is type(value), name
     assert py.to_dict() == rust
+
+
+def test_config_normalises_numbers() -> None:
+    # numpy scalars and ints become the plain Python types the core and repr expect
+    cfg = Config(
+        sigma_d=np.float32(0.25), tau_n=np.int64(5), max_instances=np.int32(3), inlier_threshold=1
+    )
+    assert cfg == Config(sigma_d=0.25, tau_n=5, max_instances=3, inlier_threshold=1.0)
+    defaults = Config().to_dict()
+    for name, value in cfg.to_dict().items():
+        if defaults[name] is not None:
+            assert type(value) is type(defaults[name]), name
+    assert type(cfg.tau_n) is int and type(cfg.max_instances) is int
+    assert "np." not in repr(cfg)
 
 
 def test_config_dict_equals_config(corr: np.ndarray) -> None:

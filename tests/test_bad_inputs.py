@@ -66,6 +66,11 @@ REGISTER_CASES: list[tuple[str, Callable[[], Any], str]] = [
     ("length mismatch", lambda: pointclm.register(SRC, DST[:-1]), "same length.*200 and 199"),
     ("target (N,2)", lambda: pointclm.register(SRC, DST[:, :2]), r"target_points.*\(N, 3\)"),
     ("target (N,6)", lambda: pointclm.register(SRC, CORR), r"target_points.*\(N, 3\)"),
+    (
+        "target= with (N,6)",  # used to be silently ignored
+        lambda: pointclm.register(CORR, target=DST),
+        r"target= goes with \(N, 3\) source points",
+    ),
     ("ragged list", lambda: pointclm.register([[0.0] * 6, [0.0] * 5]), "could not be read"),
     ("strings", lambda: pointclm.register(CORR.astype(str)), "real numbers.*<U"),
     ("numeric strings", lambda: pointclm.register([["1"] * 6] * 5), "real numbers"),
@@ -111,12 +116,17 @@ BAD_CONFIGS: list[tuple[dict[str, Any], str]] = [
     ({"sigma_d": float("nan")}, "sigma_d"),
     ({"sigma_d": float("inf")}, "sigma_d"),
     ({"sigma_d": "0.05"}, "sigma_d"),
+    ({"sigma_d": True}, "sigma_d: expected a number"),  # bool is an int, hence was 1.0
+    ({"sigma_d": 10**400}, "sigma_d.*too large"),
+    ({"inlier_threshold": False}, "inlier_threshold: expected a number"),
     ({"tau_s": 1.5}, "tau_s"),
     ({"tau_s": 1.0}, "tau_s"),
     ({"tau_s": -2.0}, "tau_s"),
     ({"tau_n": -1}, "tau_n"),
     ({"tau_n": 10.0}, "tau_n.*int"),
     ({"tau_n": "10"}, "tau_n"),
+    ({"tau_n": True}, "tau_n.*int"),
+    ({"tau_n": 2**70}, "tau_n"),
     ({"beta_threshold": 1.0}, "beta_threshold"),
     ({"feature_threshold": 1.5}, "feature_threshold"),
     ({"min_cluster_size": 2}, "min_cluster_size"),
@@ -160,9 +170,13 @@ def test_bad_config_containers() -> None:
         pointclm.register(CORR, config="paper")
 
 
-@pytest.mark.parametrize("factor", [0.0, -1.0, float("nan"), float("inf")])
-def test_bad_scale_factor(factor: float) -> None:
-    with raises_value_error("scale factor|sigma_d"):
+@pytest.mark.parametrize(
+    "factor",
+    [0.0, -1.0, float("nan"), float("inf"), 10**400, "2", None, True, 2j],
+    ids=lambda v: repr(v)[:10],
+)
+def test_bad_scale_factor(factor: Any) -> None:
+    with raises_value_error("scale factor must be a finite number > 0"):
         Config().scaled(factor)
 
 
@@ -177,13 +191,24 @@ def test_bad_seed(seed: Any) -> None:
         pointclm.register_batch([CORR], seed=seed)
 
 
-@pytest.mark.parametrize("num_threads", [0, -1, 1.0, "2", True])
-def test_bad_num_threads(num_threads: Any) -> None:
-    with raises_value_error("num_threads must be an int >= 1"):
+@pytest.mark.parametrize(
+    ("num_threads", "match"),
+    [
+        (0, "must be an int >= 1"),
+        (-1, "must be an int >= 1"),
+        (1.0, "must be an int >= 1"),
+        ("2", "must be an int >= 1"),
+        (True, "must be an int >= 1"),
+        (2**70, "is too large"),  # used to be an OverflowError
+    ],
+    ids=repr,
+)
+def test_bad_num_threads(num_threads: Any, match: str) -> None:
+    with raises_value_error(f"num_threads {match}"):
         pointclm.register(CORR, num_threads=num_threads)
-    with raises_value_error("num_threads must be an int >= 1"):
+    with raises_value_error(f"num_threads {match}"):
         pointclm.register_batch([CORR], num_threads=num_threads)
-    with raises_value_error("num_threads must be an int >= 1"):
+    with raises_value_error(f"num_threads {match}"):
         staged.density_counts(CORR, num_threads=num_threads)
 
 
@@ -218,6 +243,20 @@ def test_bad_num_threads(num_threads: Any) -> None:
 def test_batch_names_the_bad_scene(bad: Any, match: str) -> None:
     with raises_value_error(match):
         pointclm.register_batch([CORR, (SRC, DST), bad, CORR])
+
+
+@pytest.mark.parametrize(
+    ("scenes", "match"),
+    [
+        (CORR, r"list of scenes, got one \(200, 6\) array"),  # rows would become scenes
+        (5, "iterable of scenes"),
+        (None, "iterable of scenes"),
+    ],
+    ids=["one-array", "int", "None"],
+)
+def test_batch_bad_container(scenes: Any, match: str) -> None:
+    with raises_value_error(match):
+        pointclm.register_batch(scenes)
 
 
 def test_batch_bad_scene_object() -> None:
@@ -279,6 +318,10 @@ def test_negative_affinity(name: str) -> None:
         ({"restarts": 0}, "restarts"),
         ({"seed": -1}, "seed"),
         ({"assignment": "bar"}, "assignment.*bar"),
+        ({"assignment": None}, "assignment must be 'kmeans' or 'discretize'"),
+        ({"restarts": 2**70}, "restarts is too large"),  # these three were OverflowErrors
+        ({"n_clusters": 2**70}, "n_clusters is too large"),
+        ({"max_clusters": 2**70}, "max_clusters is too large"),
     ],
     ids=lambda v: repr(v)[:30],
 )

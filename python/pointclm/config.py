@@ -7,6 +7,7 @@ defaults are the paper's synthetic settings (shapes in a unit sphere, noise abou
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -71,6 +72,22 @@ class Config:
     merge_duplicates: bool = True
 
     def __post_init__(self) -> None:
+        for name in (
+            "sigma_d",
+            "tau_s",
+            "beta_threshold",
+            "feature_threshold",
+            "affinity_sigma",
+            "inlier_threshold",
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool):
+                raise ValueError(f"config field {name}: expected a number, got {value!r}")
+            if isinstance(value, int | float | np.integer | np.floating):
+                try:
+                    object.__setattr__(self, name, float(value))  # numpy floats -> float
+                except OverflowError:
+                    raise ValueError(f"config field {name}: {value!r} is too large") from None
         for name in ("refine", "merge_duplicates"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"config field {name}: expected True or False")
@@ -104,8 +121,15 @@ class Config:
 
     def scaled(self, factor: float) -> Config:
         """The same settings with every length multiplied by `factor`."""
-        if not factor > 0:
-            raise ValueError(f"scale factor must be > 0, got {factor!r}")
+        real = not isinstance(factor, bool) and isinstance(
+            factor, int | float | np.integer | np.floating
+        )
+        try:
+            ok = real and factor > 0 and math.isfinite(factor)
+        except OverflowError:  # an int beyond float range
+            ok = False
+        if not ok:
+            raise ValueError(f"scale factor must be a finite number > 0, got {factor!r}")
         return replace(
             self,
             sigma_d=self.sigma_d * factor,

@@ -138,7 +138,11 @@ def register(
         ``labels`` (N,): -1 for outliers, k for instance k.
     """
     if target is not None:
-        corr, _ = as_correspondences(correspondences, target)
+        corr, used = as_correspondences(correspondences, target)
+        if not used:
+            raise ValueError(
+                "target= goes with (N, 3) source points; with (N, 6) correspondences leave it out"
+            )
     else:
         corr, used = as_correspondences(correspondences, features)
         if used:
@@ -200,7 +204,15 @@ def register_batch(
     `seed`, so ``register_batch(s)[i]`` equals ``register(s[i])`` whatever `num_threads`.
     With `model`, the embedding of every scene is computed first (torch), as in `register`.
     """
-    items: Sequence[Any] = list(scenes)
+    if isinstance(scenes, np.ndarray) and scenes.ndim == 2:
+        raise ValueError(
+            f"register_batch takes a list of scenes, got one {scenes.shape} array: "
+            "use register(array) or register_batch([array])"
+        )
+    try:
+        items: Sequence[Any] = list(scenes)
+    except TypeError:
+        raise ValueError(f"scenes must be an iterable of scenes, got {type(scenes)}") from None
     arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
     if model is not None:
         if any(f is not None for _, f in arrays):
@@ -227,4 +239,6 @@ def _as_threads(num_threads: int | None) -> int | None:
         or num_threads < 1
     ):
         raise ValueError(f"num_threads must be an int >= 1 or None, got {num_threads!r}")
+    if num_threads >= 2**32:  # the core checks its own, lower, upper bound
+        raise ValueError(f"num_threads is too large: {num_threads}")
     return int(num_threads)

@@ -80,6 +80,8 @@ def spectral_clustering(
     seed: int = 0,
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Labels, cluster count (eigengap when `n_clusters` is None) and Laplacian spectrum."""
+    if not isinstance(assignment, str):
+        raise ValueError(f"assignment must be 'kmeans' or 'discretize', got {assignment!r}")
     return _core.spectral_clustering(
         as_matrix(affinity, "affinity", None),
         None if n_clusters is None else _as_count(n_clusters, "n_clusters"),
@@ -93,6 +95,8 @@ def spectral_clustering(
 def _as_count(value: int, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
         raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    if value >= 2**63:  # would overflow the core's usize
+        raise ValueError(f"{name} is too large: {value}")
     return int(value)
 
 
