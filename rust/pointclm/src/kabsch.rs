@@ -64,19 +64,23 @@ pub fn kabsch(c: &Correspondences, indices: &[usize]) -> Option<RigidTransform> 
     cx *= inv_n;
     cy *= inv_n;
     let mut h = Matrix3::zeros();
-    let mut spread = 0.0;
     for &i in indices {
         let x = Vector3::from(c.source(i)) - cx;
         let y = Vector3::from(c.target(i)) - cy;
         h += x * y.transpose();
-        spread += x.norm_squared();
     }
-    let svd = h.svd(true, true);
+    // The rotation depends only on H's direction: normalising keeps the SVD clear of
+    // overflow and underflow for points at extreme scales (1e80, 1e-100).
+    let scale = h.amax();
+    if !(scale.is_finite() && scale > 0.0) {
+        return None;
+    }
+    let svd = (h / scale).svd(true, true);
     let (u, v_t) = (svd.u?, svd.v_t?);
     // Rank below 2: the points lie on a line (or a point) and the rotation about it is free.
     let mut s: Vec<f64> = svd.singular_values.iter().copied().collect();
     s.sort_by(|a, b| b.total_cmp(a));
-    if spread <= 0.0 || s[1] <= 1e-9 * s[0].max(f64::MIN_POSITIVE) {
+    if s[1] <= 1e-9 * s[0] {
         return None;
     }
     let v = v_t.transpose();

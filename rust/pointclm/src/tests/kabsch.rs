@@ -42,3 +42,24 @@ fn rejects_collinear_and_fixes_reflection() {
     let t = kabsch(&c, &[0, 1, 2, 3]).unwrap();
     assert!((t.rotation.determinant() - 1.0).abs() < 1e-9);
 }
+
+#[test]
+fn works_at_extreme_scales() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let base: Vec<[f64; 3]> = (0..10)
+        .map(|_| [rng.random(), rng.random(), rng.random()])
+        .collect();
+    for scale in [1e-100, 1e-30, 1e30, 1e80] {
+        let pts: Vec<[f64; 3]> = base
+            .iter()
+            .map(|p| [p[0] * scale, p[1] * scale, p[2] * scale])
+            .collect();
+        let c = Correspondences::new(&pts, &pts).unwrap();
+        let idx: Vec<usize> = (0..10).collect();
+        let t = kabsch(&c, &idx).unwrap();
+        assert!(
+            (t.rotation - Matrix3::identity()).abs().max() < 1e-9,
+            "scale {scale}"
+        );
+    }
+}
