@@ -3,6 +3,7 @@
 
 mod config;
 mod convert;
+mod pointcloud;
 mod result;
 
 use std::collections::HashMap;
@@ -273,6 +274,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(spectral_clustering, m)?)?;
     m.add_function(wrap_pyfunction!(kabsch, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::estimate_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::compute_fpfh, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::match_features, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;
     Ok(())
 }

@@ -36,6 +36,22 @@ pub enum Error {
     #[error("eigendecomposition of a {n} x {n} matrix did not converge")]
     EigenNoConvergence { n: usize },
 
+    /// A point cloud or descriptor set with fewer points than the step needs.
+    #[error("{what}: need at least {min} points, got {got}")]
+    TooFewPoints {
+        what: &'static str,
+        got: usize,
+        min: usize,
+    },
+
+    /// A parameter of point cloud processing outside its valid range.
+    #[error("invalid parameter: {name} = {value} ({reason})")]
+    InvalidParameter {
+        name: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+
     /// The caller asked for a thread pool that could not be built.
     #[error("could not build a pool of {threads} threads: {reason}")]
     ThreadPool { threads: usize, reason: String },

@@ -24,6 +24,9 @@
 //! # Ok::<(), pointclm::Error>(())
 //! ```
 //!
+//! Starting from point clouds instead, [`pointcloud`] computes FPFH descriptors and
+//! [`matching`] turns them into correspondences.
+//!
 //! No Python, no I/O: other crates can depend on this one directly.
 
 pub mod clustering;
@@ -35,7 +38,9 @@ pub mod error;
 pub mod instances;
 pub mod kabsch;
 pub mod kmeans;
+pub mod matching;
 pub mod pipeline;
+pub mod pointcloud;
 pub mod pruning;
 pub mod ransac;
 mod seeds;
@@ -49,4 +54,5 @@ pub use correspondences::{Correspondences, Features, MIN_CORRESPONDENCES};
 pub use error::{Error, Result};
 pub use instances::Instance;
 pub use kabsch::RigidTransform;
+pub use matching::{match_features, Matches, MatchingConfig};
 pub use pipeline::{register, register_batch, Registration, Scene, StageTimings};

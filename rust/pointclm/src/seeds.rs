@@ -7,6 +7,7 @@ use rand_chacha::ChaCha8Rng;
 /// Stage tags, so that streams of different stages never coincide.
 pub(crate) const STAGE_CLUSTERING: u64 = 1;
 pub(crate) const STAGE_RANSAC: u64 = 2;
+pub(crate) const STAGE_MATCHING: u64 = 3;
 
 /// A generator for `(seed, stage, index)`; splitmix64 decorrelates nearby seeds.
 pub(crate) fn stream(seed: u64, stage: u64, index: u64) -> ChaCha8Rng {

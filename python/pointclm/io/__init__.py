@@ -1,0 +1,52 @@
+"""Reading point clouds and meshes from files, and writing PLY.
+
+>>> from pointclm.io import read_point_cloud, load_points, write_ply   # doctest: +SKIP
+>>> cloud = read_point_cloud("scene.pcd")            # PointCloud(points, normals, colors)
+>>> src = load_points("model.ply", n_samples=5000)   # (N, 3) float64, mesh sampled by area
+
+Formats: PLY (ASCII, binary little/big endian), PCD (ascii, binary, binary_compressed),
+OFF, ``.xyz``/``.txt``/``.pts`` text, ``.npy``/``.npz``; plus Open3D's feature ``.bin``
+files (:func:`read_open3d_feature`).
+
+Design decisions
+----------------
+- **numpy only, no optional dependency.** ``pip install pointclm`` (numpy + tqdm) reads every
+  format above; nothing here imports trimesh or a PCD library. PLY, OFF and PCD are short
+  specifications, and one implementation means a file gives the same cloud, and a seed the
+  same samples, whether or not the ``[io]`` extra is installed. trimesh (MIT) was the
+  candidate for PLY/OFF; it was not used at runtime because (a) it would make the default
+  install either fail on meshes or behave differently from the extra, (b) for a face-less
+  PLY it returns a ``trimesh.PointCloud`` whose normals are reachable only through private
+  metadata (``metadata["_ply_raw"]``), and (c) it reads no PCD. The test suite checks these
+  readers against trimesh on real files instead.
+- **PCD**: ``pypcd4`` (BSD-3-Clause, maintained) reads binary_compressed, but needs pydantic
+  and the C extension ``python-neo-lzf``; :mod:`pointclm.io.lzf` is a pure-Python LZF
+  decoder instead (a 640x480 organised Kinect cloud, 2.5 MB compressed, decodes in about a
+  quarter of a second).
+- **Meshes are sampled, not returned as vertices**: a PLY or OFF file with faces gives
+  ``n_samples`` points drawn uniformly by area (default ``max(10_000, vertices)``), seeded,
+  with the normal of the triangle each point lies on; a file without faces gives its
+  vertices (with normals and colours when stored).
+- **Only finite points**: rows with NaN/inf coordinates are dropped (organised clouds use
+  them for missing pixels), keeping normals and colours aligned; a file with no finite
+  point is an error, never an empty cloud.
+- **Errors name the file**: a missing file raises :class:`FileNotFoundError`; an empty,
+  truncated or malformed file, an unsupported extension, or a cloud without finite points
+  raises :class:`ValueError` whose message starts with the path.
+"""
+
+from __future__ import annotations
+
+from .features import read_open3d_feature
+from .ply import write_ply
+from .pointcloud import PointCloud
+from .reader import SUPPORTED_SUFFIXES, load_points, read_point_cloud
+
+__all__ = [
+    "SUPPORTED_SUFFIXES",
+    "PointCloud",
+    "load_points",
+    "read_open3d_feature",
+    "read_point_cloud",
+    "write_ply",
+]

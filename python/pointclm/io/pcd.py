@@ -1,0 +1,237 @@
+"""PCL's PCD format (v0.5 to v0.7): ``DATA ascii``, ``binary`` and ``binary_compressed``.
+
+Why our own reader: the maintained pure-Python option on PyPI, ``pypcd4`` (BSD-3-Clause),
+pulls in pydantic and the C extension ``python-neo-lzf`` for one decompression call; the
+format itself is a dozen header lines and three data layouts, so a numpy reader with our
+pure-Python LZF decoder (:mod:`pointclm.io.lzf`) keeps ``pip install pointclm`` enough.
+
+Layouts, as PCL writes them:
+
+- ``ascii``: one point per line, the fields' values in header order.
+- ``binary``: packed records (array of structs), little-endian.
+- ``binary_compressed``: uint32 compressed size, uint32 raw size, then one LZF block whose
+  raw bytes hold each field for all points in turn (struct of arrays).
+
+Organised clouds (HEIGHT > 1, from depth cameras) mark missing pixels with NaN xyz; those
+points are dropped, and the normals and colours stay aligned with the kept points.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lzf import lzf_decompress
+from .pointcloud import PointCloud, finite_cloud
+
+__all__ = ["parse_pcd"]
+
+_MAX_HEADER_LINES = 256
+_TYPE_CHARS = {("F", 4): "f4", ("F", 8): "f8"}
+_TYPE_CHARS.update({("I", s): f"i{s}" for s in (1, 2, 4, 8)})
+_TYPE_CHARS.update({("U", s): f"u{s}" for s in (1, 2, 4, 8)})
+
+
+@dataclass(frozen=True)
+class _Field:
+    name: str
+    dtype: np.dtype
+    count: int
+
+
+@dataclass(frozen=True)
+class _Header:
+    fields: tuple[_Field, ...]
+    n_points: int
+    data: str
+    data_start: int
+
+
+def _parse_header(raw: bytes) -> _Header:
+    """Read the header lines up to and including ``DATA``."""
+    entries: dict[str, list[str]] = {}
+    pos = 0
+    for _ in range(_MAX_HEADER_LINES):
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise ValueError("PCD header has no DATA line (file truncated or not a PCD file)")
+        try:
+            line = raw[pos:end].decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise ValueError("not a PCD file (header is not ASCII text)") from None
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        key = key.upper()
+        if key not in {
+            "VERSION",
+            "FIELDS",
+            "SIZE",
+            "TYPE",
+            "COUNT",
+            "WIDTH",
+            "HEIGHT",
+            "VIEWPOINT",
+            "POINTS",
+            "DATA",
+        }:
+            raise ValueError(f"not a PCD file (unexpected header line {line[:60]!r})")
+        entries[key] = values
+        if key == "DATA":
+            break
+    else:
+        raise ValueError(f"PCD header has no DATA line in its first {_MAX_HEADER_LINES} lines")
+
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH"):
+        if key not in entries:
+            raise ValueError(f"PCD header has no {key} line")
+    names = entries["FIELDS"]
+    sizes = entries["SIZE"]
+    types = entries["TYPE"]
+    counts = entries.get("COUNT", ["1"] * len(names))
+    if not (len(names) == len(sizes) == len(types) == len(counts)) or not names:
+        raise ValueError(
+            "PCD header's FIELDS, SIZE, TYPE and COUNT lines have different lengths "
+            f"({len(names)}, {len(sizes)}, {len(types)}, {len(counts)})"
+        )
+    try:
+        width = int(entries["WIDTH"][0])
+        height = int(entries.get("HEIGHT", ["1"])[0])
+        n_points = int(entries["POINTS"][0]) if "POINTS" in entries else width * height
+        fields = []
+        for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
+            char = _TYPE_CHARS.get((kind.upper(), int(size)))
+            if char is None:
+                raise ValueError(f"PCD field {name!r} has unsupported TYPE {kind} SIZE {size}")
+            fields.append(_Field(name, np.dtype("<" + char), int(count)))
+    except (IndexError, TypeError) as exc:
+        raise ValueError(f"malformed PCD header ({exc})") from None
+    if n_points < 0 or any(f.count < 1 for f in fields):
+        raise ValueError("malformed PCD header (negative POINTS or COUNT < 1)")
+    data = entries["DATA"][0].lower() if entries["DATA"] else ""
+    return _Header(tuple(fields), n_points, data, pos)
+
+
+def _columns_binary(raw: bytes, header: _Header) -> list[np.ndarray]:
+    record = np.dtype(
+        [(f"f{i}", f.dtype, (f.count,)) for i, f in enumerate(header.fields)], align=False
+    )
+    need = header.n_points * record.itemsize
+    have = len(raw) - header.data_start
+    if have < need:
+        raise ValueError(
+            f"binary PCD data is truncated: {header.n_points} points of {record.itemsize} "
+            f"bytes need {need} bytes, the file has {have}"
+        )
+    table = np.frombuffer(raw, dtype=record, count=header.n_points, offset=header.data_start)
+    return [table[f"f{i}"] for i in range(len(header.fields))]
+
+
+def _columns_compressed(raw: bytes, header: _Header) -> list[np.ndarray]:
+    start = header.data_start
+    if len(raw) < start + 8:
+        raise ValueError("binary_compressed PCD data is truncated (no block sizes)")
+    packed, unpacked = struct.unpack_from("<II", raw, start)
+    expected = sum(header.n_points * f.count * f.dtype.itemsize for f in header.fields)
+    if unpacked != expected:
+        raise ValueError(
+            f"binary_compressed PCD block holds {unpacked} bytes, but {header.n_points} points "
+            f"of these fields need {expected}"
+        )
+    block = raw[start + 8 : start + 8 + packed]
+    if len(block) < packed:
+        raise ValueError(
+            f"binary_compressed PCD data is truncated: the block is {packed} bytes, "
+            f"the file has {len(block)}"
+        )
+    data = lzf_decompress(block, unpacked) if unpacked else b""
+    columns = []
+    offset = 0
+    for f in header.fields:
+        n = header.n_points * f.count
+        col = np.frombuffer(data, dtype=f.dtype, count=n, offset=offset)
+        columns.append(col.reshape(header.n_points, f.count))
+        offset += n * f.dtype.itemsize
+    return columns
+
+
+def _columns_ascii(raw: bytes, header: _Header) -> list[np.ndarray]:
+    lines = raw[header.data_start :].decode("ascii", errors="replace").splitlines()
+    width = sum(f.count for f in header.fields)
+    lines = [line for line in lines if line.strip()][: header.n_points]
+    if len(lines) < header.n_points:
+        raise ValueError(
+            f"ASCII PCD data is truncated: header says {header.n_points} points, "
+            f"found {len(lines)} lines"
+        )
+    try:
+        table = np.loadtxt(lines, dtype=np.float64, ndmin=2) if lines else np.empty((0, width))
+    except ValueError as exc:
+        raise ValueError(f"malformed ASCII PCD data ({exc})") from None
+    if table.shape[1] != width:
+        raise ValueError(f"ASCII PCD rows have {table.shape[1]} values, the fields need {width}")
+    columns = []
+    col = 0
+    for f in header.fields:
+        values = table[:, col : col + f.count]
+        if f.dtype.kind == "f":
+            columns.append(values.astype(f.dtype))
+        else:
+            # Integer fields (e.g. rgb written as uint32) are exact in float64 up to 2**53.
+            columns.append(np.nan_to_num(values).astype(f.dtype))
+        col += f.count
+    return columns
+
+
+def _packed_rgb(column: np.ndarray) -> np.ndarray:
+    """Unpack PCL's 0x00RRGGBB (rgb) / 0xAARRGGBB (rgba), stored as float32 or uint32 bits."""
+    flat = np.ascontiguousarray(column[:, 0])
+    bits = flat.view(np.uint32) if flat.dtype.itemsize == 4 else flat.astype(np.uint32)
+    rgb = np.stack([(bits >> 16) & 0xFF, (bits >> 8) & 0xFF, bits & 0xFF], axis=1)
+    return rgb.astype(np.float64) / 255.0
+
+
+def parse_pcd(raw: bytes) -> PointCloud:
+    """Read a PCD file's bytes into a cloud of its finite points.
+
+    Raises
+    ------
+    ValueError
+        Malformed header, unsupported DATA layout, truncated data, no x/y/z fields, or no
+        finite point (messages without the path; :func:`pointclm.io.read_point_cloud`
+        adds it).
+    """
+    header = _parse_header(raw)
+    if header.data == "ascii":
+        columns = _columns_ascii(raw, header)
+    elif header.data == "binary":
+        columns = _columns_binary(raw, header)
+    elif header.data == "binary_compressed":
+        columns = _columns_compressed(raw, header)
+    else:
+        raise ValueError(
+            f"unsupported PCD DATA {header.data!r} (supported: ascii, binary, binary_compressed)"
+        )
+    by_name: dict[str, np.ndarray] = {}
+    for f, col in zip(header.fields, columns, strict=True):
+        by_name.setdefault(f.name, col)
+
+    def stack(names: tuple[str, str, str]) -> np.ndarray | None:
+        if not all(n in by_name for n in names):
+            return None
+        return np.concatenate([by_name[n][:, :1] for n in names], axis=1).astype(np.float64)
+
+    points = stack(("x", "y", "z"))
+    if points is None:
+        raise ValueError(f"PCD file has no x y z fields (fields: {' '.join(by_name)})")
+    normals = stack(("normal_x", "normal_y", "normal_z"))
+    colors: np.ndarray | None = None
+    for name in ("rgb", "rgba"):
+        packed = by_name.get(name)
+        if packed is not None and packed.dtype.itemsize == 4:
+            colors = _packed_rgb(packed)
+            break
+    return finite_cloud(points, normals, colors)

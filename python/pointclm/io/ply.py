@@ -1,0 +1,502 @@
+"""The PLY format: a numpy reader (ASCII, binary little and big endian) and a binary writer.
+
+Why our own reader rather than trimesh's: pointclm's default install is numpy-only and a
+PLY header is a few lines of text, so one reader gives every user the same result whether or
+not the ``[io]`` extra is installed; trimesh also returns a face-less PLY as a
+``trimesh.PointCloud`` whose normals are reachable only through private metadata. The tests
+check our reader against trimesh on the project's real files.
+
+Speed: element tables whose records all have the same layout (every vertex table, and face
+tables of triangles only) are read with one structured :func:`numpy.frombuffer` (binary) or
+:func:`numpy.loadtxt` (ASCII); only tables with lists of varying length (mixed polygons,
+range grids) fall back to a per-record loop, and elements after the last one needed (e.g.
+a range scan's ``range_grid``) are never parsed.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .mesh import sample_mesh, triangulate
+from .pointcloud import PointCloud, finite_cloud, unit_colors
+
+__all__ = ["parse_ply", "write_ply"]
+
+_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+_FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
+_MAX_HEADER_LINES = 10_000
+#: Elements a reader needs; anything stored after the last of them is not parsed.
+_NEEDED = ("vertex", "face")
+_COLOR_NAMES = (("red", "green", "blue"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+
+
+@dataclass(frozen=True)
+class _Property:
+    name: str
+    code: str  # numpy type code of the value (of each item, for a list)
+    count_code: str | None = None  # numpy type code of a list's length; None: scalar
+
+
+@dataclass(frozen=True)
+class _Element:
+    name: str
+    count: int
+    props: tuple[_Property, ...]
+
+
+@dataclass(frozen=True)
+class _ListValues:
+    """A list property of one element table: per-record lengths and all items, flat."""
+
+    counts: np.ndarray
+    items: np.ndarray
+
+
+_Table = dict[str, Any]  # property name -> ndarray (scalar) or _ListValues
+
+
+def _type_code(name: str, line: str) -> str:
+    code = _TYPES.get(name)
+    if code is None:
+        raise ValueError(f"PLY header has unknown property type {name!r} in {line!r}")
+    return code
+
+
+def _parse_header(raw: bytes) -> tuple[str, list[_Element], int]:
+    """Return the format name, the elements in file order, and where the data starts."""
+    if not raw.startswith(b"ply"):
+        raise ValueError("not a PLY file (does not start with 'ply')")
+    fmt: str | None = None
+    elements: list[_Element] = []
+    current: list[_Property] = []
+    pos = 0
+    for _ in range(_MAX_HEADER_LINES):
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise ValueError("PLY header has no end_header line (file truncated?)")
+        try:
+            line = raw[pos:end].decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise ValueError("PLY header is not ASCII text") from None
+        pos = end + 1
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info", "ply"):
+            continue
+        key = words[0]
+        if key == "end_header":
+            break
+        if key == "format":
+            if len(words) < 2 or words[1] not in _FORMATS:
+                raise ValueError(f"unsupported PLY format line {line!r}")
+            fmt = words[1]
+        elif key == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise ValueError(f"malformed PLY element line {line!r}")
+            current = []
+            elements.append(_Element(words[1], int(words[2]), ()))
+        elif key == "property":
+            if not elements:
+                raise ValueError(f"PLY property before any element: {line!r}")
+            if len(words) == 5 and words[1] == "list":
+                prop = _Property(words[4], _type_code(words[3], line), _type_code(words[2], line))
+            elif len(words) == 3:
+                prop = _Property(words[2], _type_code(words[1], line))
+            else:
+                raise ValueError(f"malformed PLY property line {line!r}")
+            current.append(prop)
+            last = elements[-1]
+            elements[-1] = _Element(last.name, last.count, tuple(current))
+        else:
+            raise ValueError(f"unexpected PLY header line {line!r}")
+    else:
+        raise ValueError(f"PLY header has no end_header in its first {_MAX_HEADER_LINES} lines")
+    if fmt is None:
+        raise ValueError("PLY header has no format line")
+    return fmt, elements, pos
+
+
+def _empty_table(el: _Element, endian: str = "<") -> _Table:
+    out: _Table = {}
+    for p in el.props:
+        dt = np.dtype(endian + p.code)
+        out[p.name] = (
+            np.empty(0, dt)
+            if p.count_code is None
+            else _ListValues(np.empty(0, np.int64), np.empty(0, dt))
+        )
+    return out
+
+
+def _first_record_layout(
+    raw: bytes, offset: int, el: _Element, endian: str
+) -> tuple[np.dtype[Any], list[int]] | None:
+    """Record dtype if every record had the first one's list lengths (None: can't tell)."""
+    lengths: list[int] = []
+    fields: list[tuple[Any, ...]] = []
+    pos = offset
+    for i, p in enumerate(el.props):
+        if p.count_code is None:
+            fields.append((f"p{i}", endian + p.code))
+            pos += np.dtype(p.code).itemsize
+            continue
+        count_dt = np.dtype(endian + p.count_code)
+        if pos + count_dt.itemsize > len(raw):
+            return None
+        n = int(np.frombuffer(raw, count_dt, 1, pos)[0])
+        if n < 0:
+            raise ValueError(f"PLY element {el.name!r} has a list of negative length {n}")
+        lengths.append(n)
+        fields.append((f"n{i}", count_dt))
+        if n > 0:
+            fields.append((f"p{i}", endian + p.code, (n,)))
+        pos += count_dt.itemsize + n * np.dtype(p.code).itemsize
+    return np.dtype(fields), lengths
+
+
+def _binary_table(raw: bytes, offset: int, el: _Element, endian: str) -> tuple[_Table, int]:
+    """Read one element table from binary data; returns it and the offset after it."""
+    if el.count == 0:
+        return _empty_table(el, endian), offset
+    layout = _first_record_layout(raw, offset, el, endian)
+    if layout is not None:
+        record, lengths = layout
+        end = offset + el.count * record.itemsize
+        if end > len(raw) and not lengths:
+            raise ValueError(
+                f"binary PLY data is truncated: element {el.name!r} needs "
+                f"{el.count * record.itemsize} bytes, {max(len(raw) - offset, 0)} remain"
+            )
+        if end <= len(raw):
+            table = np.frombuffer(raw, record, el.count, offset)
+            list_ids = [i for i, p in enumerate(el.props) if p.count_code is not None]
+            if all((table[f"n{i}"] == n).all() for i, n in zip(list_ids, lengths, strict=True)):
+                out: _Table = {}
+                for i, p in enumerate(el.props):
+                    if p.count_code is None:
+                        out[p.name] = table[f"p{i}"]
+                        continue
+                    n = lengths[list_ids.index(i)]
+                    items = table[f"p{i}"].reshape(-1) if n else np.empty(0, endian + p.code)
+                    out[p.name] = _ListValues(np.full(el.count, n, np.int64), items)
+                return out, end
+    return _binary_table_slow(raw, offset, el, endian)
+
+
+def _binary_table_slow(raw: bytes, offset: int, el: _Element, endian: str) -> tuple[_Table, int]:
+    """Record-by-record reading, for lists whose lengths vary."""
+    scalars: list[list[Any]] = [[] for _ in el.props]
+    counts: list[list[int]] = [[] for _ in el.props]
+    items: list[list[Any]] = [[] for _ in el.props]
+    formats = []
+    for p in el.props:
+        value = struct.Struct(endian + _struct_char(p.code))
+        count = struct.Struct(endian + _struct_char(p.count_code)) if p.count_code else None
+        formats.append((value, count, _struct_char(p.code)))
+    pos = offset
+    try:
+        for _ in range(el.count):
+            for i, (value, count, char) in enumerate(formats):
+                if count is None:
+                    scalars[i].append(value.unpack_from(raw, pos)[0])
+                    pos += value.size
+                else:
+                    n = count.unpack_from(raw, pos)[0]
+                    if n < 0:
+                        raise ValueError(
+                            f"PLY element {el.name!r} has a list of negative length {n}"
+                        )
+                    pos += count.size
+                    counts[i].append(n)
+                    items[i].extend(struct.unpack_from(f"{endian}{n}{char}", raw, pos))
+                    pos += n * value.size
+    except struct.error:
+        raise ValueError(
+            f"binary PLY data is truncated inside element {el.name!r} ({el.count} records expected)"
+        ) from None
+    out: _Table = {}
+    for i, p in enumerate(el.props):
+        dt = np.dtype(p.code)
+        if p.count_code is None:
+            out[p.name] = np.asarray(scalars[i], dtype=dt)
+        else:
+            out[p.name] = _ListValues(np.asarray(counts[i], np.int64), np.asarray(items[i], dt))
+    return out, pos
+
+
+def _struct_char(code: str | None) -> str:
+    return {
+        "i1": "b",
+        "u1": "B",
+        "i2": "h",
+        "u2": "H",
+        "i4": "i",
+        "u4": "I",
+        "f4": "f",
+        "f8": "d",
+    }[code or ""]
+
+
+def _ascii_table(lines: list[str], start: int, el: _Element) -> _Table:
+    """Read one element table from ASCII lines (one record per line, as writers do)."""
+    rows = lines[start : start + el.count]
+    if len(rows) < el.count:
+        raise ValueError(
+            f"ASCII PLY data is truncated: element {el.name!r} needs {el.count} lines, "
+            f"{len(rows)} remain"
+        )
+    if el.count == 0:
+        return _empty_table(el)
+    try:
+        table = np.loadtxt(rows, dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        table = None  # ragged (lists of varying length) or malformed: the slow path tells
+    if table is not None and table.shape[0] == el.count:
+        columns = _split_uniform(table, el)
+        if columns is not None:
+            return columns
+    return _ascii_table_slow(rows, el)
+
+
+def _as_declared(values: np.ndarray, code: str) -> np.ndarray:
+    """Round ASCII values to their declared type, as a binary file of the same data would
+    hold them (and as other readers do): ``float`` properties become float32."""
+    if code[0] == "f":
+        return values.astype(code)
+    if not np.isfinite(values).all():
+        raise ValueError("integer property holds a non-numeric value")
+    return values.astype(np.int64).astype(code)
+
+
+def _split_uniform(table: np.ndarray, el: _Element) -> _Table | None:
+    """Cut a rectangular ASCII table into properties (None: lists vary in length)."""
+    out: _Table = {}
+    col = 0
+    for p in el.props:
+        if col >= table.shape[1]:
+            return None
+        if p.count_code is None:
+            out[p.name] = _as_declared(table[:, col], p.code)
+            col += 1
+            continue
+        n = int(table[0, col])
+        if n < 0 or not (table[:, col] == n).all() or col + 1 + n > table.shape[1]:
+            return None
+        items = _as_declared(table[:, col + 1 : col + 1 + n].reshape(-1), p.code)
+        out[p.name] = _ListValues(np.full(el.count, n, np.int64), items)
+        col += 1 + n
+    return out if col == table.shape[1] else None
+
+
+def _ascii_table_slow(rows: list[str], el: _Element) -> _Table:
+    """Record-by-record reading, for lists whose lengths vary."""
+    scalars: list[list[float]] = [[] for _ in el.props]
+    counts: list[list[int]] = [[] for _ in el.props]
+    items: list[list[float]] = [[] for _ in el.props]
+    row = ""
+    try:
+        for row in rows:
+            words = row.split()
+            k = 0
+            for i, p in enumerate(el.props):
+                if p.count_code is None:
+                    scalars[i].append(float(words[k]))
+                    k += 1
+                else:
+                    n = int(words[k])
+                    if n < 0 or k + 1 + n > len(words):
+                        raise IndexError
+                    counts[i].append(n)
+                    items[i].extend(float(w) for w in words[k + 1 : k + 1 + n])
+                    k += 1 + n
+    except (IndexError, ValueError):
+        props = " ".join(p.name if p.count_code is None else f"[{p.name}]" for p in el.props)
+        raise ValueError(
+            f"malformed ASCII PLY data in element {el.name!r} (properties: {props}): "
+            f"line {row[:80]!r}"
+        ) from None
+    out: _Table = {}
+    for i, p in enumerate(el.props):
+        if p.count_code is None:
+            out[p.name] = _as_declared(np.asarray(scalars[i]), p.code)
+        else:
+            values = _as_declared(np.asarray(items[i], np.float64), p.code)
+            out[p.name] = _ListValues(np.asarray(counts[i], np.int64), values)
+    return out
+
+
+def _read_tables(raw: bytes) -> dict[str, _Table]:
+    """Tables of the needed elements (the first of each name), parsed in file order."""
+    fmt, elements, start = _parse_header(raw)
+    wanted = [i for i, el in enumerate(elements) if el.name in _NEEDED]
+    stop = max(wanted) + 1 if wanted else 0
+    tables: dict[str, _Table] = {}
+    if fmt == "ascii":
+        lines = raw[start:].decode("latin-1").splitlines()
+        line = 0
+        for el in elements[:stop]:
+            if el.name in _NEEDED and el.name not in tables:
+                tables[el.name] = _ascii_table(lines, line, el)
+            line += el.count
+    else:
+        offset = start
+        endian = _FORMATS[fmt]
+        for el in elements[:stop]:
+            table, offset = _binary_table(raw, offset, el, endian)
+            tables.setdefault(el.name, table)
+    return tables
+
+
+def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) -> PointCloud:
+    """Read a PLY file's bytes: a mesh is sampled by area, a point cloud returned as is.
+
+    Raises
+    ------
+    ValueError
+        Malformed header, truncated data, no x/y/z vertex properties, face indices out of
+        range, or no finite point (messages without the path; the caller adds it).
+    """
+    tables = _read_tables(raw)
+    vertex = tables.get("vertex")
+    if vertex is None:
+        raise ValueError("PLY file has no 'vertex' element")
+
+    def stack(names: tuple[str, ...]) -> np.ndarray | None:
+        if not all(isinstance(vertex.get(n), np.ndarray) for n in names):
+            return None
+        return np.stack([vertex[n] for n in names], axis=1)
+
+    points = stack(("x", "y", "z"))
+    if points is None:
+        raise ValueError(f"PLY vertex element has no x, y, z properties (has: {', '.join(vertex)})")
+    points = points.astype(np.float64)
+    normals = stack(("nx", "ny", "nz"))
+    colors = None
+    for names in _COLOR_NAMES:
+        channels = stack(names)
+        if channels is not None:
+            colors = unit_colors(channels)
+            break
+    face = tables.get("face")
+    if face is not None:
+        lists = [v for v in face.values() if isinstance(v, _ListValues)]
+        named = face.get("vertex_indices", face.get("vertex_index"))
+        faces = named if isinstance(named, _ListValues) else (lists[0] if lists else None)
+        if faces is None and face:
+            raise ValueError("PLY face element has no list of vertex indices")
+        if faces is not None and len(faces.counts):
+            items = faces.items
+            if not np.isfinite(items).all() or (items != np.round(items)).any():
+                raise ValueError("PLY face vertex indices are not integers")
+            triangles = triangulate(faces.counts, items.astype(np.int64))
+            return sample_mesh(points, triangles, n_samples, seed, vertex_colors=colors)
+    return finite_cloud(points, None if normals is None else normals.astype(np.float64), colors)
+
+
+def write_ply(
+    path: str | os.PathLike[str],
+    points: np.ndarray | PointCloud,
+    colors: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+) -> None:
+    """Write a point cloud as binary little-endian PLY.
+
+    Coordinates and normals are stored as ``double`` so a cloud reads back bit for bit
+    (float32 would round georeferenced coordinates to decimetres); colours as ``uchar``
+    ``red``/``green``/``blue``, the layout every viewer (MeshLab, CloudCompare, Open3D,
+    trimesh) understands.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file (overwritten).
+    points : numpy.ndarray or PointCloud
+        (N, 3) finite coordinates, N >= 1; a :class:`PointCloud` also supplies its normals
+        and colours unless they are passed explicitly.
+    colors : numpy.ndarray, optional
+        (N, 3) floats in [0, 1] (rounded to 8 bits) or integers in [0, 255].
+    normals : numpy.ndarray, optional
+        (N, 3) finite normals.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, non-finite values, or colours out of range.
+    """
+    if isinstance(points, PointCloud):
+        colors = points.colors if colors is None else colors
+        normals = points.normals if normals is None else normals
+        points = points.points
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise ValueError(f"points must be a non-empty (N, 3) array, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError("points must be finite (PLY readers would choke on NaN/inf)")
+    fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    nrm = None
+    if normals is not None:
+        nrm = np.asarray(normals, dtype=np.float64)
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
+        if not np.isfinite(nrm).all():
+            raise ValueError("normals must be finite")
+        fields += [("nx", "<f8"), ("ny", "<f8"), ("nz", "<f8")]
+    col = None
+    if colors is not None:
+        col = _colors_u8(colors, pts.shape)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    record = np.empty(len(pts), dtype=fields)
+    for i, axis in enumerate("xyz"):
+        record[axis] = pts[:, i]
+        if nrm is not None:
+            record[f"n{axis}"] = nrm[:, i]
+    if col is not None:
+        for i, channel in enumerate(("red", "green", "blue")):
+            record[channel] = col[:, i]
+    names = {"<f8": "double", "u1": "uchar"}
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment written by pointclm",
+        f"element vertex {len(pts)}",
+        *(f"property {names[code]} {name}" for name, code in fields),
+        "end_header",
+    ]
+    with open(path, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(record.tobytes())
+
+
+def _colors_u8(colors: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(colors)
+    if arr.shape != shape:
+        raise ValueError(f"colors must have shape {shape}, got {arr.shape}")
+    if np.issubdtype(arr.dtype, np.integer):
+        if arr.min() < 0 or arr.max() > 255:
+            raise ValueError("integer colors must lie in [0, 255]")
+        return arr.astype(np.uint8)
+    values = arr.astype(np.float64)
+    if not np.isfinite(values).all() or values.min() < 0.0 or values.max() > 1.0:
+        raise ValueError("float colors must be finite and lie in [0, 1]")
+    return np.round(values * 255.0).astype(np.uint8)

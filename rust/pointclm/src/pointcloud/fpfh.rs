@@ -1,0 +1,216 @@
+//! Fast Point Feature Histograms (Rusu et al., ICRA 2009) in Open3D's 33-bin form.
+//!
+//! Each point first gets a simplified histogram (SPFH) of the angles between its normal and
+//! its neighbours' (three angles, 11 bins each, summing to 100 per angle); its FPFH is the
+//! inverse-squared-distance weighted sum of its neighbours' SPFH, renormalised per angle,
+//! plus its own SPFH. The weighting (1 / squared distance) and the renormalisation follow
+//! Open3D's implementation, so that descriptors match Open3D's to rounding.
+//!
+//! Two variants exist in the wild: PCL (and Open3D before it added the point's own SPFH)
+//! keeps only the weighted neighbour sum (each angle sums to 100); current Open3D adds the
+//! point's own SPFH (each angle sums to 200). [`FpfhVariant`] selects one; the descriptors
+//! differ by that term only, and matching works with either as long as both clouds use the
+//! same.
+
+use std::f64::consts::PI;
+
+use rayon::prelude::*;
+
+use super::search::{Neighbourhoods, PointIndex};
+use super::{check_count, check_points, check_positive};
+use crate::error::{Error, Result};
+
+/// Length of an FPFH descriptor: 3 angles x 11 bins.
+pub const FPFH_DIM: usize = 33;
+const BINS: usize = 11;
+
+/// Which published form of FPFH to compute (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FpfhVariant {
+    /// Current Open3D (0.10 and later): neighbour sum plus the point's own SPFH.
+    #[default]
+    Open3d,
+    /// PCL, and the descriptor files of early Open3D: the neighbour sum only.
+    Pcl,
+}
+
+/// One FPFH descriptor per point, over hybrid neighbourhoods (at most `max_nn` nearest within
+/// `radius`). `normals` must be unit vectors, one per point, consistently oriented (see
+/// [`super::estimate_normals`]). A point without neighbours gets an all-zero descriptor.
+pub fn fpfh(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    index: &PointIndex,
+    radius: f64,
+    max_nn: usize,
+    variant: FpfhVariant,
+) -> Result<Vec<[f64; FPFH_DIM]>> {
+    check_points(points, "points for FPFH", 1)?;
+    if normals.len() != points.len() {
+        return Err(Error::LengthMismatch {
+            what: "normals (one per point)",
+            expected: points.len(),
+            got: normals.len(),
+        });
+    }
+    if let Some(row) = normals
+        .iter()
+        .position(|n| !n.iter().all(|v| v.is_finite()))
+    {
+        return Err(Error::NonFinite {
+            what: "normals",
+            row,
+        });
+    }
+    if index.len() != points.len() {
+        return Err(Error::LengthMismatch {
+            what: "indexed points (the index must be built on the same cloud)",
+            expected: points.len(),
+            got: index.len(),
+        });
+    }
+    check_positive("feature radius", radius)?;
+    check_count("feature max_nn", max_nn, 2)?;
+    if points.len() > u32::MAX as usize {
+        return Err(Error::TooFewPoints {
+            what: "points for FPFH (at most 2^32)",
+            got: points.len(),
+            min: 0,
+        });
+    }
+    let hoods = index.neighbourhoods(points, radius, max_nn)?;
+    let spfh: Vec<[f64; FPFH_DIM]> = (0..points.len())
+        .into_par_iter()
+        .map(|i| spfh_of(i, points, normals, &hoods))
+        .collect();
+    Ok((0..points.len())
+        .into_par_iter()
+        .map(|i| fpfh_of(i, &spfh, &hoods, variant))
+        .collect())
+}
+
+fn spfh_of(
+    i: usize,
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    hoods: &Neighbourhoods,
+) -> [f64; FPFH_DIM] {
+    let mut h = [0.0; FPFH_DIM];
+    let (nbrs, _) = hoods.of(i);
+    if nbrs.len() < 2 {
+        return h;
+    }
+    // The first neighbour is the point itself.
+    let incr = 100.0 / (nbrs.len() - 1) as f64;
+    for &j in &nbrs[1..] {
+        let j = j as usize;
+        let f = pair_features(&points[i], &normals[i], &points[j], &normals[j]);
+        h[bin((f[0] + PI) / (2.0 * PI))] += incr;
+        h[BINS + bin((f[1] + 1.0) * 0.5)] += incr;
+        h[2 * BINS + bin((f[2] + 1.0) * 0.5)] += incr;
+    }
+    h
+}
+
+fn fpfh_of(
+    i: usize,
+    spfh: &[[f64; FPFH_DIM]],
+    hoods: &Neighbourhoods,
+    variant: FpfhVariant,
+) -> [f64; FPFH_DIM] {
+    let mut out = [0.0; FPFH_DIM];
+    let (nbrs, dist2) = hoods.of(i);
+    if nbrs.len() < 2 {
+        return out;
+    }
+    let mut sums = [0.0; 3];
+    for (&j, &d2) in nbrs[1..].iter().zip(&dist2[1..]) {
+        if d2 == 0.0 {
+            continue;
+        }
+        let s = &spfh[j as usize];
+        for f in 0..FPFH_DIM {
+            let v = s[f] / d2;
+            sums[f / BINS] += v;
+            out[f] += v;
+        }
+    }
+    for s in &mut sums {
+        if *s != 0.0 {
+            *s = 100.0 / *s;
+        }
+    }
+    let own = match variant {
+        FpfhVariant::Open3d => 1.0,
+        FpfhVariant::Pcl => 0.0,
+    };
+    for f in 0..FPFH_DIM {
+        out[f] = out[f] * sums[f / BINS] + own * spfh[i][f];
+    }
+    out
+}
+
+/// The bin of `x` in [0, 1] among 11, clamped at both ends.
+#[inline]
+fn bin(x: f64) -> usize {
+    let b = (BINS as f64 * x).floor();
+    if b < 0.0 {
+        0
+    } else {
+        (b as usize).min(BINS - 1)
+    }
+}
+
+/// The Darboux-frame angles `(theta, alpha, phi)` of a pair of oriented points, with the
+/// frame anchored at the point whose normal is more aligned with the connecting line (so the
+/// features do not depend on the order of the pair), and all zero for coincident points or a
+/// degenerate frame.
+fn pair_features(p1: &[f64; 3], n1: &[f64; 3], p2: &[f64; 3], n2: &[f64; 3]) -> [f64; 3] {
+    let mut d = sub(p2, p1);
+    let len = dot(&d, &d).sqrt();
+    if len == 0.0 {
+        return [0.0; 3];
+    }
+    let a1 = dot(n1, &d) / len;
+    let a2 = dot(n2, &d) / len;
+    // acos is decreasing, so acos|a1| > acos|a2| <=> |a1| < |a2|.
+    let (u, n_other, phi) = if a1.abs() < a2.abs() {
+        d = d.map(|v| -v);
+        (n2, n1, -a2)
+    } else {
+        (n1, n2, a1)
+    };
+    let v = cross(&d, u);
+    let vn = dot(&v, &v).sqrt();
+    if vn == 0.0 {
+        return [0.0; 3];
+    }
+    let v = v.map(|x| x / vn);
+    let w = cross(u, &v);
+    let alpha = dot(&v, n_other);
+    let theta = dot(&w, n_other).atan2(dot(u, n_other));
+    [theta, alpha, phi]
+}
+
+#[inline]
+fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[cfg(test)]
+#[path = "../tests/fpfh.rs"]
+mod tests;

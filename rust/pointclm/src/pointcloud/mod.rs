@@ -1,0 +1,63 @@
+//! From raw point clouds to local descriptors: voxel downsampling, neighbour search, normals
+//! and FPFH. The descriptors feed [`crate::matching`], which turns them into the putative
+//! correspondences the rest of the pipeline consumes.
+//!
+//! Conventions follow Open3D, so that users can move between the two: voxel downsampling
+//! averages the points of each voxel, neighbourhoods are "hybrid" (at most `max_nn` nearest
+//! within `radius`), and FPFH is Open3D's 33-bin variant (a test checks parity with Open3D's
+//! own output on 3DMatch fragments).
+
+pub mod describe;
+pub mod fpfh;
+pub mod normals;
+pub mod search;
+pub mod voxel;
+
+pub use describe::{describe, DescribeParams, Described};
+pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
+pub use normals::{estimate_normals, Orientation};
+pub use search::{Neighbourhoods, PointIndex};
+pub use voxel::voxel_downsample;
+
+use crate::error::{Error, Result};
+
+/// Rejects an empty cloud or a non-finite coordinate, naming the input.
+pub(crate) fn check_points(points: &[[f64; 3]], what: &'static str, min: usize) -> Result<()> {
+    if points.len() < min {
+        return Err(Error::TooFewPoints {
+            what,
+            got: points.len(),
+            min,
+        });
+    }
+    if let Some(row) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        return Err(Error::NonFinite { what, row });
+    }
+    Ok(())
+}
+
+/// Rejects a radius (or voxel size) that is not a positive finite number.
+pub(crate) fn check_positive(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidParameter {
+            name,
+            value: value.to_string(),
+            reason: "must be a positive finite number",
+        })
+    }
+}
+
+/// Rejects a neighbour count below `min`.
+pub(crate) fn check_count(name: &'static str, value: usize, min: usize) -> Result<()> {
+    if value >= min {
+        Ok(())
+    } else {
+        Err(Error::InvalidParameter {
+            name,
+            value: value.to_string(),
+            reason: "too small",
+        })
+    }
+}

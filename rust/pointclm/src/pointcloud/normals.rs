@@ -1,0 +1,102 @@
+//! Surface normals by PCA of each point's neighbourhood, oriented consistently.
+
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
+
+use super::search::PointIndex;
+use super::{check_count, check_points, check_positive};
+use crate::error::{Error, Result};
+
+/// How to choose the sign of each normal, which PCA leaves undetermined. FPFH compares
+/// normals across the two clouds, so both must follow the same rule.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Orientation {
+    /// Towards a viewpoint: the sensor position for a scan (the usual choice; a range sensor
+    /// sees only surfaces facing it).
+    Towards([f64; 3]),
+    /// Away from a point inside the object, e.g. a complete model's centroid: outward on
+    /// roughly convex shapes, matching the sensor rule on the scan side.
+    AwayFrom([f64; 3]),
+}
+
+/// One unit normal per point: the direction of least variance of its hybrid neighbourhood
+/// (at most `max_nn` nearest within `radius`), signed by `orientation`. A point with fewer than
+/// three neighbours gets `(0, 0, 1)` (oriented), as in Open3D.
+pub fn estimate_normals(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    radius: f64,
+    max_nn: usize,
+    orientation: Orientation,
+) -> Result<Vec<[f64; 3]>> {
+    check_points(points, "points for normals", 1)?;
+    if index.len() != points.len() {
+        return Err(Error::LengthMismatch {
+            what: "indexed points (the index must be built on the same cloud)",
+            expected: points.len(),
+            got: index.len(),
+        });
+    }
+    check_positive("normal radius", radius)?;
+    check_count("normal max_nn", max_nn, 3)?;
+    let anchor = match orientation {
+        Orientation::Towards(v) | Orientation::AwayFrom(v) => v,
+    };
+    if !anchor.iter().all(|v| v.is_finite()) {
+        return Err(Error::NonFinite {
+            what: "normal orientation point",
+            row: 0,
+        });
+    }
+    Ok(points
+        .par_iter()
+        .map(|p| {
+            let neighbours = index.hybrid(p, radius, max_nn);
+            let n = pca_normal(points, &neighbours);
+            orient(n, p, orientation)
+        })
+        .collect())
+}
+
+fn pca_normal(points: &[[f64; 3]], neighbours: &[(usize, f64)]) -> [f64; 3] {
+    if neighbours.len() < 3 {
+        return [0.0, 0.0, 1.0];
+    }
+    let inv = 1.0 / neighbours.len() as f64;
+    let mut mean = Vector3::zeros();
+    for &(j, _) in neighbours {
+        mean += Vector3::from(points[j]);
+    }
+    mean *= inv;
+    let mut cov = Matrix3::zeros();
+    for &(j, _) in neighbours {
+        let d = Vector3::from(points[j]) - mean;
+        cov += d * d.transpose();
+    }
+    cov *= inv;
+    let eig = SymmetricEigen::new(cov);
+    let k = eig.eigenvalues.imin();
+    let n = eig.eigenvectors.column(k).into_owned();
+    let norm = n.norm();
+    if norm <= 0.0 || !norm.is_finite() {
+        return [0.0, 0.0, 1.0];
+    }
+    (n / norm).into()
+}
+
+fn orient(n: [f64; 3], p: &[f64; 3], orientation: Orientation) -> [f64; 3] {
+    let (anchor, towards) = match orientation {
+        Orientation::Towards(v) => (v, true),
+        Orientation::AwayFrom(v) => (v, false),
+    };
+    let dot: f64 = (0..3).map(|k| n[k] * (anchor[k] - p[k])).sum();
+    if (dot < 0.0) == towards {
+        n.map(|v| -v)
+    } else {
+        n
+    }
+}
+
+#[cfg(test)]
+#[path = "../tests/normals.rs"]
+mod tests;

@@ -1,0 +1,120 @@
+//! Neighbour search in 3-D with a k-d tree (kiddo), and the "hybrid" neighbourhoods that
+//! normals and FPFH are computed over.
+
+use std::num::NonZero;
+
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use kiddo::SquaredEuclidean;
+use rayon::prelude::*;
+
+use super::{check_count, check_points, check_positive};
+use crate::error::Result;
+
+/// A k-d tree over a point cloud, built once and queried many times.
+pub struct PointIndex {
+    tree: ImmutableKdTree<f64, u64, 3, 32>,
+    len: usize,
+}
+
+impl PointIndex {
+    /// Builds the tree; the cloud must be non-empty and finite.
+    pub fn new(points: &[[f64; 3]]) -> Result<Self> {
+        check_points(points, "points to index", 1)?;
+        Ok(Self {
+            tree: ImmutableKdTree::new_from_slice(points),
+            len: points.len(),
+        })
+    }
+
+    /// Number of indexed points.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Always false: construction rejects an empty cloud.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Up to `max_nn` points within `radius` of `query`, nearest first, as
+    /// `(index, squared distance)`. A point of the cloud finds itself first.
+    pub fn hybrid(&self, query: &[f64; 3], radius: f64, max_nn: usize) -> Vec<(usize, f64)> {
+        let max_nn = NonZero::new(max_nn.max(1)).expect("max(1) is non-zero");
+        self.tree
+            .nearest_n_within::<SquaredEuclidean>(query, radius * radius, max_nn, true)
+            .into_iter()
+            .map(|n| (n.item as usize, n.distance))
+            .collect()
+    }
+
+    /// The nearest indexed point to `query`: `(index, squared distance)`.
+    pub fn nearest(&self, query: &[f64; 3]) -> (usize, f64) {
+        let n = self.tree.nearest_one::<SquaredEuclidean>(query);
+        (n.item as usize, n.distance)
+    }
+
+    /// The hybrid neighbourhood of every point of `points` (the cloud this index was built
+    /// on, for normals and FPFH), computed in parallel on the current rayon pool.
+    pub fn neighbourhoods(
+        &self,
+        points: &[[f64; 3]],
+        radius: f64,
+        max_nn: usize,
+    ) -> Result<Neighbourhoods> {
+        check_positive("radius", radius)?;
+        check_count("max_nn", max_nn, 1)?;
+        let lists: Vec<Vec<(usize, f64)>> = points
+            .par_iter()
+            .map(|p| self.hybrid(p, radius, max_nn))
+            .collect();
+        let mut offsets = Vec::with_capacity(points.len() + 1);
+        offsets.push(0);
+        let total: usize = lists.iter().map(Vec::len).sum();
+        let mut index = Vec::with_capacity(total);
+        let mut dist2 = Vec::with_capacity(total);
+        for list in lists {
+            for (j, d) in list {
+                index.push(j as u32);
+                dist2.push(d);
+            }
+            offsets.push(index.len());
+        }
+        Ok(Neighbourhoods {
+            offsets,
+            index,
+            dist2,
+        })
+    }
+}
+
+/// Neighbour lists of every point, stored flat (CSR): the lists are reused by the two passes
+/// of FPFH instead of searching twice as Open3D does.
+#[derive(Debug, Clone)]
+pub struct Neighbourhoods {
+    offsets: Vec<usize>,
+    index: Vec<u32>,
+    dist2: Vec<f64>,
+}
+
+impl Neighbourhoods {
+    /// Neighbours of point `i`, nearest first (the point itself first).
+    #[inline]
+    pub fn of(&self, i: usize) -> (&[u32], &[f64]) {
+        let (a, b) = (self.offsets[i], self.offsets[i + 1]);
+        (&self.index[a..b], &self.dist2[a..b])
+    }
+
+    /// Number of points the lists belong to.
+    pub fn len(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    /// True when there are no lists.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+#[path = "../tests/search.rs"]
+mod tests;

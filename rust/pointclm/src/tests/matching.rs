@@ -1,0 +1,142 @@
+use super::*;
+
+fn features(rows: &[Vec<f64>]) -> Features {
+    let dim = rows[0].len();
+    Features::new(rows.iter().flatten().copied().collect(), dim).unwrap()
+}
+
+fn pseudo_random(n: usize, dim: usize, salt: u64) -> Vec<Vec<f64>> {
+    (0..n)
+        .map(|i| {
+            (0..dim)
+                .map(|j| {
+                    let x = (i as u64 * 2654435761 + j as u64 * 40503 + salt) % 10007;
+                    x as f64 / 100.0
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn nearest_rows_equal_brute_force() {
+    let src = pseudo_random(300, 33, 1);
+    let tgt = pseudo_random(517, 33, 2);
+    let (idx, d2) = nearest_rows(&features(&tgt), &features(&src));
+    for (t, row) in tgt.iter().enumerate() {
+        let dist = |s: &Vec<f64>| {
+            row.iter()
+                .zip(s)
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+        };
+        let best = src.iter().map(dist).fold(f64::INFINITY, f64::min);
+        assert!((d2[t] - best).abs() <= 1e-9 * best.max(1.0));
+        assert!((dist(&src[idx[t]]) - best).abs() <= 1e-9 * best.max(1.0));
+    }
+}
+
+#[test]
+fn exact_copies_match_themselves_most_salient_first() {
+    let src = pseudo_random(100, 8, 3);
+    let mut tgt = pseudo_random(50, 8, 4);
+    tgt.extend(src[..20].iter().cloned());
+    let cfg = MatchingConfig {
+        top_k: 20,
+        mutual: false,
+        n_samples: None,
+    };
+    let m = match_features(&features(&src), &features(&tgt), &cfg, 0).unwrap();
+    assert_eq!(m.len(), 20);
+    for k in 0..20 {
+        assert_eq!(m.distance[k], 0.0);
+        assert_eq!(m.source[k], m.target[k] - 50);
+    }
+}
+
+#[test]
+fn mutual_filter_and_sampling() {
+    let src = pseudo_random(200, 33, 5);
+    let tgt = pseudo_random(400, 33, 6);
+    let (s, t) = (features(&src), features(&tgt));
+    let all = MatchingConfig {
+        top_k: usize::MAX,
+        mutual: false,
+        n_samples: None,
+    };
+    let m = match_features(&s, &t, &all, 0).unwrap();
+    assert_eq!(m.len(), 400);
+    assert!(m.distance.windows(2).all(|w| w[0] <= w[1]));
+    let mutual = match_features(
+        &s,
+        &t,
+        &MatchingConfig {
+            mutual: true,
+            ..all
+        },
+        0,
+    )
+    .unwrap();
+    assert!(mutual.len() < 400 && !mutual.is_empty());
+    let (tgt_of_src, _) = nearest_rows(&s, &t);
+    for k in 0..mutual.len() {
+        assert_eq!(tgt_of_src[mutual.source[k]], mutual.target[k]);
+    }
+    let cfg = MatchingConfig {
+        top_k: 300,
+        mutual: false,
+        n_samples: Some(100),
+    };
+    let a = match_features(&s, &t, &cfg, 7).unwrap();
+    let b = match_features(&s, &t, &cfg, 7).unwrap();
+    let c = match_features(&s, &t, &cfg, 8).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+    assert_eq!(a.len(), 100);
+    // Sampled from the 300 most salient.
+    let cut = m.distance[299];
+    assert!(a.distance.iter().all(|&d| d <= cut));
+}
+
+#[test]
+fn same_result_on_any_pool() {
+    let src = pseudo_random(300, 33, 9);
+    let tgt = pseudo_random(1000, 33, 10);
+    let (s, t) = (features(&src), features(&tgt));
+    let cfg = MatchingConfig::default();
+    let one = crate::pipeline::thread_pool(1)
+        .unwrap()
+        .install(|| match_features(&s, &t, &cfg, 3).unwrap());
+    let two = crate::pipeline::thread_pool(2)
+        .unwrap()
+        .install(|| match_features(&s, &t, &cfg, 3).unwrap());
+    assert_eq!(one, two);
+}
+
+#[test]
+fn bad_inputs_are_typed_errors() {
+    let a = features(&pseudo_random(10, 4, 1));
+    let b = features(&pseudo_random(10, 5, 1));
+    let cfg = MatchingConfig::default();
+    assert!(matches!(
+        match_features(&a, &b, &cfg, 0),
+        Err(Error::LengthMismatch { .. })
+    ));
+    let empty = Features::new(vec![], 4).unwrap();
+    assert!(matches!(
+        match_features(&empty, &a, &cfg, 0),
+        Err(Error::TooFewPoints { .. })
+    ));
+    for bad in [
+        MatchingConfig { top_k: 0, ..cfg },
+        MatchingConfig {
+            n_samples: Some(0),
+            ..cfg
+        },
+    ] {
+        assert!(matches!(
+            match_features(&a, &a, &bad, 0),
+            Err(Error::InvalidParameter { .. })
+        ));
+    }
+}
