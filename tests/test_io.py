@@ -616,3 +616,11 @@ def test_readers_need_only_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
         "pcl/milk.pcd",
     ):
         assert_valid(read_point_cloud(data_file(rel), n_samples=100))
+
+
+def test_face_index_out_of_range(tmp_path: Path) -> None:
+    path = tmp_path / "broken.off"
+    path.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 99\n")
+    with pytest.raises(ValueError, match="vertex index 99") as info:
+        read_point_cloud(path)
+    assert str(path) in str(info.value)
