@@ -10,6 +10,7 @@
 
 from ._core import Instance, RegistrationResult, __version__
 from .config import Config
+from .point_clouds import register_point_clouds
 from .registration import register, register_batch
 
 __all__ = [
@@ -19,4 +20,5 @@ __all__ = [
     "__version__",
     "register",
     "register_batch",
+    "register_point_clouds",
 ]

@@ -53,6 +53,11 @@ def evaluate(
 ) -> Evaluation:
     """Register each scene (objects with `correspondences` and `poses`) and score it.
 
+    Scenes with a ``voxel_size`` (the realistic ones) are in real units: `config` (default
+    `Config()`, or the model's recommended thresholds) is scaled to the voxel as
+    :func:`pointclm.register_point_clouds` does, and a scene's own ``max_translation``
+    replaces the default TE threshold.
+
     `progress` wraps the scene iterable (e.g. `tqdm.tqdm`) when given; `model` is passed to
     `register` (the learned embedding; its time counts in the per-scene time).
     """
@@ -60,18 +65,48 @@ def evaluate(
     scores, seconds = [], []
     for scene in it:
         t0 = time.perf_counter()
-        result = register(
-            scene.correspondences, config=config, seed=seed, num_threads=num_threads, model=model
-        )
+        voxel = getattr(scene, "voxel_size", None)
+        if voxel is None:
+            result = register(
+                scene.correspondences,
+                config=config,
+                seed=seed,
+                num_threads=num_threads,
+                model=model,
+            )
+        else:
+            result = _register_scaled(
+                scene.correspondences, voxel, config, seed, num_threads, model
+            )
         seconds.append(time.perf_counter() - t0)
         scores.append(
             score_scene(
                 result.transformations,
                 scene.poses,
                 max_rotation_deg=max_rotation_deg,
-                max_translation=max_translation,
+                max_translation=getattr(scene, "max_translation", max_translation),
             )
         )
     if not scores:
         raise ValueError("no scenes to evaluate")
     return Evaluation(summarize(scores), scores, np.asarray(seconds))
+
+
+def _register_scaled(
+    corr: np.ndarray,
+    voxel: float,
+    config: Config | None,
+    seed: int,
+    num_threads: int | None,
+    model: Any,
+) -> Any:
+    from .point_clouds import _config, scaled_config
+
+    # A given config is in synthetic units (like the CLI's flags): scale it too.
+    cfg = scaled_config(voxel, config) if config is not None else _config(None, voxel, model)
+    features = None
+    if model is not None:
+        from .registration import _embed
+
+        features = _embed(corr * (Config().sigma_d / cfg.sigma_d), model)
+    return register(corr, features, cfg, seed, num_threads=num_threads)

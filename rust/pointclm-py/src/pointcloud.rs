@@ -7,6 +7,7 @@ use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex};
 use pointclm::{Features, MatchingConfig};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use rayon::prelude::*;
 
 use crate::convert::{indices, points as rows3};
 use crate::{guarded, on_pool, pool};
@@ -143,4 +144,37 @@ pub fn match_features<'py>(
         indices(py, &m.target),
         m.distance.into_pyarray(py),
     ))
+}
+
+type NearestArrays<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<f64>>);
+
+/// For each query point, its nearest point of `reference`: (indices, distances).
+#[pyfunction]
+#[pyo3(signature = (reference, queries, num_threads=None))]
+pub fn nearest_neighbours<'py>(
+    py: Python<'py>,
+    reference: PyReadonlyArray2<'py, f64>,
+    queries: PyReadonlyArray2<'py, f64>,
+    num_threads: Option<usize>,
+) -> PyResult<NearestArrays<'py>> {
+    let r = rows3(&reference, "reference points")?;
+    let q = rows3(&queries, "query points")?;
+    let threads = num_threads.map(pool).transpose()?;
+    let (idx, dist) = guarded(py, move || {
+        on_pool(threads, || {
+            let index = PointIndex::new(&r)?;
+            if let Some(row) = q.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+                return Err(pointclm::Error::NonFinite {
+                    what: "query points",
+                    row,
+                });
+            }
+            let found: Vec<(usize, f64)> = q.par_iter().map(|p| index.nearest(p)).collect();
+            Ok(found
+                .into_iter()
+                .map(|(i, d2)| (i, d2.sqrt()))
+                .unzip::<_, _, Vec<_>, Vec<_>>())
+        })
+    })?;
+    Ok((indices(py, &idx), dist.into_pyarray(py)))
 }

@@ -145,23 +145,25 @@ fn nearest_rows(queries: &Features, base: &Features) -> (Vec<usize>, Vec<f64>) {
         .map(|b| {
             let lo = b * BLOCK;
             let hi = (lo + BLOCK).min(n);
-            let q = Mat::<f64>::from_fn(hi - lo, dim, |i, j| queries.row(lo + i)[j]);
-            let mut g = Mat::<f64>::zeros(hi - lo, base.len());
+            let q = Mat::<f64>::from_fn(dim, hi - lo, |j, i| queries.row(lo + i)[j]);
+            // Column i of g holds q_i . b_j for every base row j, contiguous in j.
+            let mut g = Mat::<f64>::zeros(base.len(), hi - lo);
             matmul(
                 g.as_mut(),
                 Accum::Replace,
+                base_mat.as_ref(),
                 q.as_ref(),
-                base_mat.transpose(),
                 1.0,
                 Par::Seq,
             );
             let mut best = Vec::with_capacity(hi - lo);
             let mut best_d2 = Vec::with_capacity(hi - lo);
             for i in 0..hi - lo {
+                let col = g.col_as_slice(i);
                 let mut arg = 0;
                 let mut min = f64::INFINITY;
-                for (j, &bn) in base_norm.iter().enumerate() {
-                    let v = bn - 2.0 * g[(i, j)];
+                for (j, (&bn, &dot)) in base_norm.iter().zip(col).enumerate() {
+                    let v = bn - 2.0 * dot;
                     if v < min {
                         min = v;
                         arg = j;

@@ -1,0 +1,193 @@
+"""Point clouds in, poses out: FPFH parity with Open3D's stored output, matching, the
+realistic scenes, `register_point_clouds` and the `register` command."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pointclm
+import pointclm.preprocessing as pp
+import pytest
+from pointclm.cli import main
+from pointclm.datasets.scenes import SceneParams, _bunny_scans, make_realistic_scene
+from pointclm.io import read_open3d_feature, read_point_cloud, write_ply
+from pointclm.metrics import score_scene
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+BUNNY = DATA / "stanford/bunny/reconstruction/bun_zipper_res2.ply"
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    den = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    return (a * b).sum(1) / np.maximum(den, 1e-300)
+
+
+@needs_data
+@pytest.mark.parametrize("name", ["cloud_bin_0", "cloud_bin_1"])
+def test_fpfh_matches_open3d_stored_descriptors(name: str) -> None:
+    # Open3D's example files were written by early Open3D: PCL's form of FPFH (no own-SPFH
+    # term) over a pure radius search of 0.25 (5 x its 5 cm voxel), with the stored normals.
+    folder = DATA / "3dmatch/open3d_feature"
+    cloud = read_point_cloud(folder / f"{name}.pcd")
+    stored = read_open3d_feature(folder / f"{name}.fpfh.bin")
+    assert cloud.normals is not None
+    ours = pp.compute_fpfh(cloud.points, cloud.normals, 0.25, 100_000, variant="pcl")
+    cos = _cosine(ours, stored)
+    assert np.median(cos) >= 0.999
+    assert np.percentile(cos, 5) > 0.99
+
+
+def test_fpfh_variants_and_invariance() -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(600, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    normals = pp.estimate_normals(pts, 0.3, 30, away_from=(0, 0, 0))
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1)
+    assert ((normals * pts).sum(1) > 0).mean() > 0.99  # outward
+    o3d = pp.compute_fpfh(pts, normals, 0.4)
+    pcl = pp.compute_fpfh(pts, normals, 0.4, variant="pcl")
+    assert o3d.shape == (600, 33)
+    np.testing.assert_allclose(pcl[:, :11].sum(1), 100, atol=1e-9)
+    np.testing.assert_allclose(o3d[:, :11].sum(1), 200, atol=1e-9)
+    # A rigid motion moves points and normals together and leaves FPFH unchanged.
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    moved = pp.compute_fpfh(pts @ q.T + 5, normals @ q.T, 0.4)
+    np.testing.assert_allclose(moved, o3d, atol=1e-6)
+
+
+def test_voxel_downsample_and_matching() -> None:
+    pts = np.array([[0, 0, 0], [0.01, 0, 0], [1, 1, 1.0]])
+    before = pts.copy()
+    down = pp.voxel_downsample(pts, 0.1)
+    np.testing.assert_array_equal(pts, before)  # input untouched
+    assert down.shape == (2, 3)
+    rng = np.random.default_rng(1)
+    src = rng.random((50, 33))
+    tgt = np.vstack([rng.random((30, 33)), src[:10]])
+    m = pp.match_features(src, tgt, top_k=10, n_samples=None, mutual=False)
+    assert len(m) == 10 and (m.distance == 0).all()
+    np.testing.assert_array_equal(m.source, m.target - 30)
+    corr = m.correspondences(src[:, :3], tgt[:, :3])
+    assert corr.shape == (10, 6)
+    a = pp.match_features(src, tgt, n_samples=5, seed=3)
+    b = pp.match_features(src, tgt, n_samples=5, seed=3)
+    np.testing.assert_array_equal(a.target, b.target)
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: pp.voxel_downsample(np.zeros((0, 3)), 0.1), "empty"),
+        (lambda: pp.voxel_downsample(np.ones((4, 3)), 0.0), "voxel_size"),
+        (lambda: pp.voxel_downsample(np.full((4, 3), np.nan), 0.1), "non-finite"),
+        (lambda: pp.voxel_downsample(np.ones((4, 2)), 0.1), r"\(N, 3\)"),
+        (lambda: pp.estimate_normals(np.ones((4, 3)), -1), "radius"),
+        (
+            lambda: pp.estimate_normals(np.ones((4, 3)), 1, towards=(0, 0, 0), away_from=(1, 1, 1)),
+            "not both",
+        ),
+        (lambda: pp.compute_fpfh(np.ones((4, 3)), np.ones((3, 3)), 1.0), "one normal per point"),
+        (lambda: pp.compute_fpfh(np.ones((4, 3)), np.ones((4, 3)), 1.0, variant="x"), "variant"),
+        (lambda: pp.match_features(np.ones((4, 33)), np.ones((4, 32))), "lengths differ"),
+        (lambda: pp.match_features(np.ones((4, 33)), np.ones((4, 33)), top_k=0), "top_k"),
+        (lambda: pp.match_features(np.ones((4, 33)), np.ones((4, 33)), n_samples=0), "n_samples"),
+        (lambda: pp.match_features(np.ones((0, 33)), np.ones((4, 33))), "at least one"),
+    ],
+)
+def test_bad_inputs_are_value_errors(call, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+def test_float32_and_noncontiguous_inputs_are_accepted() -> None:
+    rng = np.random.default_rng(2)
+    pts = rng.random((400, 6)).astype(np.float32)[:, ::2]  # float32, strided
+    down = pp.voxel_downsample(pts, 0.2)
+    assert down.dtype == np.float64 and len(down) > 0
+
+
+@needs_data
+def test_register_point_clouds_recovers_planted_bunny_scans() -> None:
+    # The four real range scans, each turned so its scanner faced +z, side by side.
+    parts, poses = [], []
+    for k, (pts, view) in enumerate(_bunny_scans(str(DATA))):
+        a = -np.arctan2(view[0], view[2])
+        rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rot, [0.22 * k, 0.01 * k, 0.02 * k]
+        parts.append(pts @ rot.T + pose[:3, 3])
+        poses.append(pose)
+    scene = np.concatenate(parts)
+    r = pointclm.register_point_clouds(BUNNY, scene, viewpoint=scene.mean(0) + [0, 0, 1.0])
+    score = score_scene(r.transformations, np.array(poses), 15.0, 0.025)
+    assert score.n_matched == 4 and score.precision == 1.0
+    for key in ("load", "fpfh", "matching", "pruning", "clustering", "poses", "total"):
+        assert key in r.timings
+    again = pointclm.register_point_clouds(BUNNY, scene, viewpoint=scene.mean(0) + [0, 0, 1.0])
+    np.testing.assert_array_equal(again.transformations, r.transformations)
+
+
+def test_realistic_scene_from_bundled_data() -> None:
+    params = SceneParams(model="bunny", data_dir=None)
+    scene = make_realistic_scene(5, params)
+    assert 2 <= scene.n_instances <= 8
+    assert scene.correspondences.shape[1] == 6 and len(scene.correspondences) <= 1000
+    assert scene.labels.max() < scene.n_instances and (scene.labels >= 0).any()
+    # Labelled inliers agree with their instance's true pose.
+    for k in range(scene.n_instances):
+        rows = scene.correspondences[scene.labels == k]
+        mapped = rows[:, :3] @ scene.poses[k, :3, :3].T + scene.poses[k, :3, 3]
+        assert np.all(np.linalg.norm(mapped - rows[:, 3:], axis=1) < 2.0 * scene.voxel_size)
+    again = make_realistic_scene(5, params)
+    np.testing.assert_array_equal(again.correspondences, scene.correspondences)
+    assert not np.array_equal(make_realistic_scene(6, params).poses[:1], scene.poses[:1])
+
+
+@needs_data
+def test_realistic_bunny_scenes_use_real_scans_and_are_registrable() -> None:
+    scenes = [make_realistic_scene(s) for s in range(3)]
+    assert any(s.real_scan.any() for s in scenes)
+    ev = pointclm.evaluation.evaluate(scenes)
+    assert ev.summary.mean_precision > 0.3  # far from perfect: FPFH on partial views is hard
+
+
+@needs_data
+def test_register_command_writes_json_png_ply(tmp_path: Path, capsys) -> None:
+    pytest.importorskip("matplotlib")
+    scene = make_realistic_scene(1)
+    scene_file = tmp_path / "scene.ply"
+    write_ply(scene_file, scene.target_points)
+    out, png, ply = tmp_path / "r.json", tmp_path / "r.png", tmp_path / "r.ply"
+    rc = main(
+        [
+            "register",
+            str(BUNNY),
+            str(scene_file),
+            "--out",
+            str(out),
+            "--png",
+            str(png),
+            "--ply",
+            str(ply),
+            "--quiet",
+        ]
+    )
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "instance(s)" in printed and "fpfh" in printed
+    result = json.loads(out.read_text())
+    assert len(result["instances"]) >= 1
+    assert np.asarray(result["instances"][0]["T_target_source"]).shape == (4, 4)
+    assert png.stat().st_size > 10_000
+    coloured = read_point_cloud(ply)
+    assert coloured.colors is not None and len(coloured.points) > len(scene.target_points)
+
+
+def test_register_command_bad_file_is_a_clean_error(tmp_path: Path, capsys) -> None:
+    rc = main(["register", str(tmp_path / "missing.ply"), str(tmp_path / "x.ply"), "--quiet"])
+    assert rc == 2
+    assert "missing.ply" in capsys.readouterr().err
