@@ -32,7 +32,6 @@ def main() -> None:
 
     import numpy as np
     import open3d as o3d
-
     import pointclm
     import pointclm.preprocessing as pp
     from pointclm.datasets.scenes import SceneParams, _dense, default_data_dir, make_realistic_scene

@@ -19,6 +19,11 @@ __all__ = [
     "spatial_consistency",
     "spectral_clustering",
     "validate_config",
+    "voxel_downsample",
+    "estimate_normals",
+    "compute_fpfh",
+    "match_features",
+    "nearest_neighbours",
 ]
 
 __version__: str
@@ -97,3 +102,36 @@ def kabsch(
 ) -> npt.NDArray[np.float64]: ...
 def default_config() -> dict[str, Any]: ...
 def validate_config(config: dict[str, Any]) -> None: ...
+def voxel_downsample(
+    points: npt.NDArray[np.float64], voxel_size: float
+) -> npt.NDArray[np.float64]: ...
+def estimate_normals(
+    points: npt.NDArray[np.float64],
+    radius: float,
+    max_nn: int = 30,
+    towards: tuple[float, float, float] | None = None,
+    away_from: tuple[float, float, float] | None = None,
+    num_threads: int | None = None,
+) -> npt.NDArray[np.float64]: ...
+def compute_fpfh(
+    points: npt.NDArray[np.float64],
+    normals: npt.NDArray[np.float64],
+    radius: float,
+    max_nn: int = 100,
+    variant: str = "open3d",
+    num_threads: int | None = None,
+) -> npt.NDArray[np.float64]: ...
+def match_features(
+    source: npt.NDArray[np.float64],
+    target: npt.NDArray[np.float64],
+    top_k: int = 10000,
+    mutual: bool = False,
+    n_samples: int | None = ...,
+    seed: int = 0,
+    num_threads: int | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def nearest_neighbours(
+    reference: npt.NDArray[np.float64],
+    queries: npt.NDArray[np.float64],
+    num_threads: int | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
