@@ -8,13 +8,14 @@
 (4, 4)
 """
 
-from ._core import Instance, RegistrationResult, __version__
+from ._core import Instance, Network, RegistrationResult, __version__
 from .config import Config
 from .registration import register, register_batch
 
 __all__ = [
     "Config",
     "Instance",
+    "Network",
     "RegistrationResult",
     "__version__",
     "register",
