@@ -461,3 +461,66 @@ fn tensors_that_do_not_match_the_architecture_are_typed_errors() {
     counted.push(("pointcn.0.1.num_batches_tracked".into(), vec![], vec![0.0]));
     assert!(Network::from_bytes(&to_bytes(&counted), META, "x").is_ok());
 }
+
+/// The committed scene of the `register_file` example: rows, and the true poses from its
+/// header.
+fn fixture_scene() -> (Correspondences, Vec<[f64; 12]>) {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/scene_seed0.txt");
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut rows = Vec::new();
+    let mut poses = Vec::new();
+    for line in text.lines() {
+        let nums =
+            |s: &str| -> Vec<f64> { s.split_whitespace().map(|v| v.parse().unwrap()).collect() };
+        if let Some(rest) = line.strip_prefix("# pose ") {
+            let v = nums(rest.split_once(':').unwrap().1);
+            poses.push(<[f64; 12]>::try_from(v).unwrap());
+        } else if !line.starts_with('#') {
+            rows.push(<[f64; 6]>::try_from(nums(line)).unwrap());
+        }
+    }
+    (Correspondences::from_rows(&rows).unwrap(), poses)
+}
+
+#[test]
+fn the_shipped_network_registers_the_fixture_scene() {
+    let (corr, truth) = fixture_scene();
+    assert_eq!((corr.len(), truth.len()), (1000, 5));
+    let net = Network::from_file(shipped("default")).unwrap();
+    let reg = crate::register_with_network(&corr, &net, &net.recommended_config(), 0).unwrap();
+    assert_eq!(reg.instances.len(), 5);
+    assert!(reg.timings.embedding > 0.0);
+    for t in &truth {
+        let found = reg.instances.iter().any(|inst| {
+            let m = inst.pose.to_matrix();
+            let dt = (0..3)
+                .map(|r| (m[r][3] - t[4 * r + 3]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let dr = (0..3)
+                .flat_map(|r| (0..3).map(move |c| (r, c)))
+                .map(|(r, c)| (m[r][c] - t[4 * r + c]).abs())
+                .fold(0.0, f64::max);
+            dt < 0.05 && dr < 0.1
+        });
+        assert!(found, "true pose {t:?} not found");
+    }
+    // the batch gives the same, whatever the threads
+    let scenes = vec![corr.clone(), corr];
+    for threads in [1, 2] {
+        let batch = crate::register_batch_with_network(
+            &scenes,
+            &net,
+            &net.recommended_config(),
+            0,
+            threads,
+        )
+        .unwrap();
+        for r in batch {
+            let r = r.unwrap();
+            assert_eq!(r.instances, reg.instances);
+            assert_eq!(r.labels, reg.labels);
+        }
+    }
+}
