@@ -8,7 +8,7 @@
 (4, 4)
 """
 
-from ._core import Instance, RegistrationResult, __version__
+from ._core import Instance, Network, RegistrationResult, __version__
 from .config import Config
 from .point_clouds import register_point_clouds
 from .registration import register, register_batch
@@ -16,6 +16,7 @@ from .registration import register, register_batch
 __all__ = [
     "Config",
     "Instance",
+    "Network",
     "RegistrationResult",
     "__version__",
     "register",

@@ -1,5 +1,6 @@
 """Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
 
+import os
 from typing import Any, final
 
 import numpy as np
@@ -8,6 +9,7 @@ import numpy.typing as npt
 __all__ = [
     "__version__",
     "Instance",
+    "Network",
     "RegistrationResult",
     "default_config",
     "density_counts",
@@ -63,18 +65,39 @@ class RegistrationResult:
     def __len__(self) -> int: ...
     def __getitem__(self, index: int, /) -> Instance: ...
 
+@final
+class Network:
+    """A trained SCNonlocal embedding network (a ``.safetensors`` file and the ``.json``
+    beside it), evaluated in Rust."""
+
+    def __new__(cls, path: str | os.PathLike[str]) -> Network: ...
+    @property
+    def path(self) -> os.PathLike[str]: ...
+    @property
+    def depth(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def sigma_d(self) -> float: ...
+    def recommended_config(self) -> dict[str, Any]: ...
+    def embed(
+        self, correspondences: npt.NDArray[np.float64], num_threads: int | None = None
+    ) -> npt.NDArray[np.float64]: ...
+
 def register(
     correspondences: npt.NDArray[np.float64],
     features: npt.NDArray[np.float64] | None = None,
     config: dict[str, Any] | None = None,
     seed: int = 0,
     num_threads: int | None = None,
+    network: Network | None = None,
 ) -> RegistrationResult: ...
 def register_batch(
     scenes: list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64] | None]],
     config: dict[str, Any] | None = None,
     seed: int = 0,
     num_threads: int | None = None,
+    network: Network | None = None,
 ) -> list[RegistrationResult]: ...
 def spatial_consistency(
     correspondences: npt.NDArray[np.float64], sigma_d: float

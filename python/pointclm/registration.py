@@ -104,6 +104,8 @@ def register(
     target: ArrayLike | None = None,
     num_threads: int | None = None,
     model: Any = None,
+    backend: str = "rust",
+    device: str | None = None,
 ) -> RegistrationResult:
     """Find every copy of the source object in the target.
 
@@ -124,11 +126,18 @@ def register(
         `num_threads`.
     num_threads : int, optional
         Threads for this call (default: all cores).
-    model : str, path or torch module, optional
+    model : str, path, pointclm.Network or torch module, optional
         The learned embedding computes `features` (PointCLM proper): "default" (compact,
-        shipped), "paper" (paper-size, shipped), a weight file, or a network. Needs torch.
+        shipped), "paper" (paper-size, shipped), a weight file (``.safetensors`` with its
+        ``.json``), a loaded `pointclm.Network`, or (with ``backend="torch"``) a torch module.
         Without a `config`, the pruning thresholds chosen with that network on its validation
         shapes are used. None (default) is the training-free pipeline.
+    backend : {"rust", "torch"}
+        Where the embedding is computed: "rust" (default; the core's own forward pass on the
+        CPU, no torch needed, its time in ``timings["embedding"]``) or "torch" (needs torch;
+        runs on `device`).
+    device : str, optional
+        The torch device of ``backend="torch"`` (default "cpu"), e.g. "cuda".
 
     Returns
     -------
@@ -148,28 +157,82 @@ def register(
         if used:
             features = None
     feats = as_features(features, len(corr))
+    network = None
+    backend = _check_backend(backend, model, device)
     if model is not None:
         if feats is not None:
             raise ValueError("pass either features or model, not both")
-        feats = _embed(corr, model)
-        config = _model_config(model, config)
+        if backend == "rust":
+            network = _rust_network(model)
+            config = _model_config(network, config)
+        else:
+            feats = _torch_embed(corr, model, device)
+            config = _model_config(model, config)
     return _core.register(
-        corr, feats, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
+        corr,
+        feats,
+        as_config(config),
+        _as_seed(seed),
+        num_threads=_as_threads(num_threads),
+        network=network,
     )
 
 
-def _embed(corr: np.ndarray, model: Any) -> np.ndarray:
-    from .model import embed  # torch is imported only when a model is asked for
+BACKENDS = ("rust", "torch")
 
-    return embed(corr, model)
+
+def _is_weights(model: Any) -> bool:
+    """A shipped name or a path (either backend loads it), as opposed to a loaded network."""
+    return isinstance(model, str | os.PathLike)
+
+
+def _check_backend(backend: Any, model: Any, device: Any) -> str:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be 'rust' or 'torch', got {backend!r}")
+    if device is not None:
+        if model is None:
+            raise ValueError("device= applies to the learned embedding: pass model= too")
+        if backend != "torch" and device != "cpu":
+            raise ValueError(
+                f"device={device!r} needs backend='torch'; the Rust network runs on the CPU"
+            )
+    if model is None:
+        return str(backend)
+    if isinstance(model, _core.Network):
+        if backend != "rust":
+            raise ValueError("a pointclm.Network is evaluated by backend='rust'")
+    elif not _is_weights(model) and backend != "torch":
+        raise ValueError(
+            f"model of type {type(model).__name__} needs backend='torch'; the Rust backend "
+            "takes a shipped name, a weight file or a pointclm.Network"
+        )
+    return str(backend)
+
+
+def _rust_network(model: Any) -> _core.Network:
+    if isinstance(model, _core.Network):
+        return model
+    from .model.weights import load_network  # torch-free
+
+    return load_network(model)
+
+
+def _torch_embed(corr: np.ndarray, model: Any, device: str | None) -> np.ndarray:
+    from .model.embed import embed  # torch is imported only when asked for
+
+    return embed(corr, model, device=device or "cpu")
 
 
 def _model_config(model: Any, config: Config | dict[str, Any] | None) -> Any:
     """The caller's config, else the shipped or saved network's recommended thresholds (a bare
     torch module carries none: the defaults apply)."""
-    if config is not None or not isinstance(model, str | os.PathLike):
+    if config is not None:
         return config
-    from .model import load_metadata
+    if isinstance(model, _core.Network):
+        return Config(**model.recommended_config())
+    if not _is_weights(model):
+        return None
+    from .model.weights import load_metadata
 
     return Config(**load_metadata(model).get("recommended_config", {}))
 
@@ -195,6 +258,8 @@ def register_batch(
     *,
     num_threads: int | None = None,
     model: Any = None,
+    backend: str = "rust",
+    device: str | None = None,
 ) -> list[RegistrationResult]:
     """Register many scenes in parallel with the GIL released.
 
@@ -202,7 +267,9 @@ def register_batch(
     target_points)`` pair, or an object with a ``correspondences`` attribute (and optionally
     ``features``), such as `pointclm.datasets.SyntheticScene`. Every scene uses the same
     `seed`, so ``register_batch(s)[i]`` equals ``register(s[i])`` whatever `num_threads`.
-    With `model`, the embedding of every scene is computed first (torch), as in `register`.
+    `model`, `backend` and `device` are as in `register`: with the Rust backend each scene's
+    embedding runs on the thread of that scene (the results do not depend on `num_threads`);
+    with torch the embeddings of all scenes are computed first, one after the other.
     """
     if isinstance(scenes, np.ndarray) and scenes.ndim == 2:
         raise ValueError(
@@ -214,13 +281,23 @@ def register_batch(
     except TypeError:
         raise ValueError(f"scenes must be an iterable of scenes, got {type(scenes)}") from None
     arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
+    network = None
+    backend = _check_backend(backend, model, device)
     if model is not None:
         if any(f is not None for _, f in arrays):
             raise ValueError("pass either per-scene features or model, not both")
-        arrays = [(c, _embed(c, model)) for c, _ in arrays]
-        config = _model_config(model, config)
+        if backend == "rust":
+            network = _rust_network(model)
+            config = _model_config(network, config)
+        else:
+            arrays = [(c, _torch_embed(c, model, device)) for c, _ in arrays]
+            config = _model_config(model, config)
     return _core.register_batch(
-        arrays, as_config(config), _as_seed(seed), num_threads=_as_threads(num_threads)
+        arrays,
+        as_config(config),
+        _as_seed(seed),
+        num_threads=_as_threads(num_threads),
+        network=network,
     )
 
 

@@ -1,9 +1,24 @@
-"""The contrastively trained correspondence embedding (needs torch: `pip install .[train]`)."""
+"""The contrastively trained correspondence embedding.
 
-from .embed import embed, resolve_model
-from .loss import contrastive_loss, negative_distances
-from .network import EmbeddingConfig, SCNonlocal, spatial_consistency
-from .weights import DEFAULT_WEIGHTS, SHIPPED, load_metadata, load_model, save_model
+Weight files and the Rust network (`load_network`, `load_metadata`, `weights_path`) need only
+numpy; the torch network, its training and `embed` need torch (`pip install .[train]`), which
+is imported on first use of those names.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+from .weights import (
+    DEFAULT_WEIGHTS,
+    SHIPPED,
+    load_metadata,
+    load_model,
+    load_network,
+    save_model,
+    weights_path,
+)
 
 __all__ = [
     "DEFAULT_WEIGHTS",
@@ -14,8 +29,29 @@ __all__ = [
     "contrastive_loss",
     "embed",
     "load_model",
+    "load_network",
     "negative_distances",
     "resolve_model",
     "save_model",
     "spatial_consistency",
+    "weights_path",
 ]
+
+# name -> submodule; these import torch at module level
+_LAZY = {
+    "EmbeddingConfig": "network",
+    "SCNonlocal": "network",
+    "spatial_consistency": "network",
+    "contrastive_loss": "loss",
+    "negative_distances": "loss",
+    "embed": "embed",
+    "resolve_model": "embed",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

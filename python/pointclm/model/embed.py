@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .weights import load_model, weights_path
+from .weights import _torch, load_model, weights_path
 
 __all__ = ["embed", "resolve_model"]
 
@@ -27,8 +27,11 @@ def resolve_model(model: Any, device: str = "cpu") -> Any:
 
 
 def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cpu") -> np.ndarray:
-    """(N, 6) float64 correspondences -> (N, C) float64 unit embeddings."""
-    import torch
+    """(N, 6) float64 correspondences -> (N, C) float64 unit embeddings, with torch.
+
+    `pointclm.model.load_network(model).embed(...)` computes the same in Rust without torch.
+    """
+    torch = _torch()
 
     net = resolve_model(model, device)
     with torch.no_grad():

@@ -8,16 +8,21 @@ from __future__ import annotations
 
 import json
 import os
+from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .network import EmbeddingConfig, SCNonlocal
+from .. import _core
+
+if TYPE_CHECKING:
+    from .network import SCNonlocal
 
 __all__ = [
     "DEFAULT_WEIGHTS",
     "SHIPPED",
     "load_metadata",
     "load_model",
+    "load_network",
     "save_model",
     "weights_path",
 ]
@@ -63,6 +68,29 @@ def _config_path(path: Path) -> Path:
     return path.with_suffix(".json")
 
 
+def load_network(path: str | os.PathLike[str] | None = None) -> _core.Network:
+    """The network stored at `path` or shipped under that name (default: "default") for the
+    Rust forward pass (no torch needed), loaded once per file version and cached.
+
+    Raises ValueError when a file is missing or does not match its architecture.
+    """
+    p = weights_path(path) if path is not None else DEFAULT_WEIGHTS
+    p = Path(os.path.abspath(p))
+    stamps: list[tuple[int, int] | None] = []
+    for f in (p, _config_path(p)):
+        try:
+            st = f.stat()
+            stamps.append((st.st_mtime_ns, st.st_size))
+        except OSError:
+            stamps.append(None)  # the core names the missing file
+    return _cached_network(str(p), tuple(stamps))
+
+
+@lru_cache(maxsize=8)
+def _cached_network(path: str, _stamps: tuple[Any, ...]) -> _core.Network:
+    return _core.Network(path)
+
+
 def save_model(model: SCNonlocal, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
     """Write `path` (.safetensors) and `path` with .json (architecture + `extra` metadata)."""
     from safetensors.torch import save_file
@@ -84,6 +112,8 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
     """
     _torch()
     from safetensors.torch import load_file
+
+    from .network import EmbeddingConfig, SCNonlocal
 
     path = weights_path(path) if path is not None else DEFAULT_WEIGHTS
     cfg_path = _config_path(path)

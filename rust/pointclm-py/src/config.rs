@@ -66,10 +66,19 @@ pub fn assignment(s: &str) -> PyResult<Assignment> {
 
 /// The defaults, as a dict, so the Python dataclass can be checked against them.
 pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-    let c = Config::default();
+    to_dict(py, &Config::default())
+}
+
+/// A config as the dict of `pointclm.Config`'s fields.
+pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("sigma_d", c.sigma_d)?;
-    d.set_item("pruning", "paper")?;
+    let pruning = match c.pruning {
+        Pruning::Paper => "paper",
+        Pruning::AuthorsCode => "authors",
+        Pruning::Disabled => "none",
+    };
+    d.set_item("pruning", pruning)?;
     d.set_item("tau_s", c.tau_s)?;
     d.set_item("tau_n", c.tau_n)?;
     d.set_item("beta_threshold", c.beta_threshold)?;
@@ -78,7 +87,11 @@ pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     d.set_item("max_kept", c.max_kept)?;
     d.set_item("affinity_sigma", c.affinity_sigma)?;
     d.set_item("max_instances", c.max_instances)?;
-    d.set_item("assignment", "kmeans")?;
+    let assignment = match c.assignment {
+        Assignment::KMeans => "kmeans",
+        Assignment::Discretize => "discretize",
+    };
+    d.set_item("assignment", assignment)?;
     d.set_item("kmeans_restarts", c.kmeans_restarts)?;
     d.set_item("min_cluster_size", c.min_cluster_size)?;
     d.set_item("ransac_iterations", c.ransac_iterations)?;

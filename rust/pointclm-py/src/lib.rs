@@ -3,6 +3,7 @@
 
 mod config;
 mod convert;
+mod network;
 mod pointcloud;
 mod result;
 
@@ -17,6 +18,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use convert::{correspondences, features, mat_to_py, matrix4, points, square, to_py_err};
+use network::PyNetwork;
 use result::{PyInstance, PyRegistration};
 
 /// Runs core code with the GIL released and any panic turned into a Python exception, so a
@@ -65,7 +67,7 @@ fn on_pool<T: Send>(pool: Option<Arc<rayon::ThreadPool>>, f: impl FnOnce() -> T 
 }
 
 #[pyfunction]
-#[pyo3(signature = (correspondences, features=None, config=None, seed=0, num_threads=None))]
+#[pyo3(signature = (correspondences, features=None, config=None, seed=0, num_threads=None, network=None))]
 fn register(
     py: Python<'_>,
     correspondences: PyReadonlyArray2<'_, f64>,
@@ -73,25 +75,36 @@ fn register(
     config: Option<&Bound<'_, PyDict>>,
     seed: u64,
     num_threads: Option<usize>,
+    network: Option<&Bound<'_, PyNetwork>>,
 ) -> PyResult<PyRegistration> {
     let c = convert::correspondences(&correspondences)?;
     let f = convert::features(features.as_ref())?;
     let cfg = config::from_dict(config)?;
     let p = num_threads.map(pool).transpose()?;
+    let net = network.map(|n| n.get().inner.clone());
+    if net.is_some() && f.is_some() {
+        return Err(PyValueError::new_err(
+            "pass either features or network, not both",
+        ));
+    }
     let r = guarded(py, move || {
-        on_pool(p, || pointclm::register(&c, f.as_ref(), &cfg, seed))
+        on_pool(p, || match net {
+            Some(net) => pointclm::register_with_network(&c, &net, &cfg, seed),
+            None => pointclm::register(&c, f.as_ref(), &cfg, seed),
+        })
     })?;
     PyRegistration::new(py, r)
 }
 
 #[pyfunction]
-#[pyo3(signature = (scenes, config=None, seed=0, num_threads=None))]
+#[pyo3(signature = (scenes, config=None, seed=0, num_threads=None, network=None))]
 fn register_batch(
     py: Python<'_>,
     scenes: &Bound<'_, PyList>,
     config: Option<&Bound<'_, PyDict>>,
     seed: u64,
     num_threads: Option<usize>,
+    network: Option<&Bound<'_, PyNetwork>>,
 ) -> PyResult<Vec<PyRegistration>> {
     let cfg = config::from_dict(config)?;
     let mut batch = Vec::with_capacity(scenes.len());
@@ -103,17 +116,28 @@ fn register_batch(
                 ))
             })?;
         let at = |e: PyErr| PyValueError::new_err(format!("scene {k}: {e}"));
+        let features = features(feats.as_ref()).map_err(at)?;
+        if network.is_some() && features.is_some() {
+            return Err(PyValueError::new_err(format!(
+                "scene {k}: pass either features or network, not both"
+            )));
+        }
         batch.push(Scene {
             correspondences: correspondences(&corr).map_err(at)?,
-            features: features(feats.as_ref()).map_err(at)?,
+            features,
         });
     }
     if let Some(n) = num_threads {
         check_threads(n)?;
     }
     let threads = num_threads.unwrap_or(0);
-    let results = guarded(py, move || {
-        pointclm::register_batch(&batch, &cfg, seed, threads)
+    let net = network.map(|n| n.get().inner.clone());
+    let results = guarded(py, move || match net {
+        Some(net) => {
+            let corr: Vec<Correspondences> = batch.into_iter().map(|s| s.correspondences).collect();
+            pointclm::register_batch_with_network(&corr, &net, &cfg, seed, threads)
+        }
+        None => pointclm::register_batch(&batch, &cfg, seed, threads),
     })?;
     results
         .into_iter()
@@ -265,6 +289,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<PyInstance>()?;
     m.add_class::<PyRegistration>()?;
+    m.add_class::<PyNetwork>()?;
     m.add_function(wrap_pyfunction!(register, m)?)?;
     m.add_function(wrap_pyfunction!(register_batch, m)?)?;
     m.add_function(wrap_pyfunction!(spatial_consistency, m)?)?;

@@ -130,10 +130,13 @@ impl PyRegistration {
         indices(py, &self.kept)
     }
 
-    /// Seconds per stage: pruning, clustering, poses.
+    /// Seconds per stage: embedding (with a Rust network only), pruning, clustering, poses.
     #[getter]
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
+        if self.timings.embedding > 0.0 {
+            d.set_item("embedding", self.timings.embedding)?;
+        }
         d.set_item("pruning", self.timings.pruning)?;
         d.set_item("clustering", self.timings.clustering)?;
         d.set_item("poses", self.timings.poses)?;

@@ -55,6 +55,32 @@ pub enum Error {
     /// The caller asked for a thread pool that could not be built.
     #[error("could not build a pool of {threads} threads: {reason}")]
     ThreadPool { threads: usize, reason: String },
+
+    /// A weight file, or the JSON of its architecture beside it, that does not exist or
+    /// cannot be read.
+    #[error("no weights at {path}: {reason}")]
+    WeightsNotFound { path: String, reason: String },
+
+    /// A weight file or its JSON that exists but is not a valid network: not safetensors,
+    /// invalid JSON, a bad architecture, a tensor of an unsupported dtype or with non-finite
+    /// values, or a tensor the architecture has no place for.
+    #[error("malformed weights {path}: {reason}")]
+    WeightsMalformed { path: String, reason: String },
+
+    /// A tensor the architecture needs that the weight file lacks.
+    #[error("weights {path} lack tensor {name} (the file does not match its architecture)")]
+    TensorMissing { path: String, name: String },
+
+    /// A tensor whose shape differs from the one the architecture implies.
+    #[error(
+        "weights {path}: tensor {name} has shape {got:?}, the architecture needs {expected:?}"
+    )]
+    TensorShape {
+        path: String,
+        name: String,
+        expected: Vec<usize>,
+        got: Vec<usize>,
+    },
 }
 
 /// Shorthand for `Result<T, pointclm::Error>`.

@@ -7,7 +7,10 @@
 //! The data flows one way: correspondences -> spatial consistency ([`consistency`]) ->
 //! density pruning ([`pruning`]) -> spectral clustering ([`clustering`], [`spectral`]) ->
 //! per-cluster RANSAC ([`ransac`]) -> instances ([`instances`]). [`register`] runs it all;
-//! each stage is public for staged use.
+//! each stage is public for staged use. With the learned embedding ([`network`], cargo
+//! feature `network`, on by default), [`register_with_network`] puts the network's forward
+//! pass between consistency and pruning: its unit-norm features turn `S = beta` into
+//! `S = S^F * beta`.
 //!
 //! ```
 //! use pointclm::{register, Config, Correspondences};
@@ -27,7 +30,8 @@
 //! Starting from point clouds instead, [`pointcloud`] computes FPFH descriptors and
 //! [`matching`] turns them into correspondences.
 //!
-//! No Python, no I/O: other crates can depend on this one directly.
+//! No Python, and no I/O beyond reading weight files in [`network`]: other crates can depend
+//! on this one directly.
 
 pub mod clustering;
 pub mod config;
@@ -39,6 +43,8 @@ pub mod instances;
 pub mod kabsch;
 pub mod kmeans;
 pub mod matching;
+#[cfg(feature = "network")]
+pub mod network;
 pub mod pipeline;
 pub mod pointcloud;
 pub mod pruning;
@@ -55,4 +61,8 @@ pub use error::{Error, Result};
 pub use instances::Instance;
 pub use kabsch::RigidTransform;
 pub use matching::{match_features, Matches, MatchingConfig};
+#[cfg(feature = "network")]
+pub use network::{Architecture, Network};
 pub use pipeline::{register, register_batch, Registration, Scene, StageTimings};
+#[cfg(feature = "network")]
+pub use pipeline::{register_batch_with_network, register_with_network};

@@ -10,6 +10,8 @@ use crate::config::Config;
 use crate::correspondences::{Correspondences, Features};
 use crate::error::{Error, Result};
 use crate::instances::{finalize, Instance};
+#[cfg(feature = "network")]
+use crate::network::Network;
 use crate::pruning::{density_counts, select_kept};
 use crate::ransac::ransac;
 use crate::seeds::{stream, STAGE_RANSAC};
@@ -17,6 +19,8 @@ use crate::seeds::{stream, STAGE_RANSAC};
 /// Wall-clock seconds spent in each stage (for reporting; not part of the result's identity).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimings {
+    /// The learned embedding's forward pass (0 without a network).
+    pub embedding: f64,
     /// Spatial consistency and density pruning.
     pub pruning: f64,
     /// Affinity, eigendecomposition and label assignment.
@@ -91,6 +95,7 @@ pub fn register(
         kept,
         n_clusters,
         timings: StageTimings {
+            embedding: 0.0,
             pruning: (t1 - t0).as_secs_f64(),
             clustering: (t2 - t1).as_secs_f64(),
             poses: (t3 - t2).as_secs_f64(),
@@ -114,6 +119,57 @@ pub fn register_batch(
         scenes
             .par_iter()
             .map(|s| register(&s.correspondences, s.features.as_ref(), config, seed))
+            .collect()
+    }))
+}
+
+/// [`register`] with the features computed by a trained embedding network (PointCLM proper):
+/// correspondences -> embedding -> pruning and clustering on `S = S^F * beta` -> poses.
+///
+/// The forward pass runs on the current rayon pool; see [`Network::embed`]. Pass
+/// `network.recommended_config()` (or a config derived from it) for the thresholds chosen
+/// with that network.
+#[cfg(feature = "network")]
+pub fn register_with_network(
+    c: &Correspondences,
+    network: &Network,
+    config: &Config,
+    seed: u64,
+) -> Result<Registration> {
+    config.validate()?;
+    let t0 = Instant::now();
+    let features = network.embed(c)?;
+    let embedding = t0.elapsed().as_secs_f64();
+    let mut r = register(c, Some(&features), config, seed)?;
+    r.timings.embedding = embedding;
+    Ok(r)
+}
+
+/// [`register_with_network`] for many scenes on a private pool of `num_threads` threads (0 =
+/// one per core). Scenes are spread over the threads and each forward pass runs on the thread
+/// of its scene, so the results equal those of [`register_with_network`] scene by scene,
+/// whatever `num_threads`. One bad scene yields its own `Err` and does not stop the others.
+#[cfg(feature = "network")]
+pub fn register_batch_with_network(
+    scenes: &[Correspondences],
+    network: &Network,
+    config: &Config,
+    seed: u64,
+    num_threads: usize,
+) -> Result<Vec<Result<Registration>>> {
+    config.validate()?;
+    let pool = thread_pool(num_threads)?;
+    Ok(pool.install(|| {
+        scenes
+            .par_iter()
+            .map(|c| {
+                let t0 = Instant::now();
+                let features = network.embed_sequential(c)?;
+                let embedding = t0.elapsed().as_secs_f64();
+                let mut r = register(c, Some(&features), config, seed)?;
+                r.timings.embedding = embedding;
+                Ok(r)
+            })
             .collect()
     }))
 }

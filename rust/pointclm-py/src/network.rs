@@ -1,0 +1,90 @@
+//! `Network`: a trained embedding network, loaded and evaluated by the core crate (no torch).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::{config, convert, guarded, on_pool, pool};
+
+/// A trained SCNonlocal embedding network, read from a `.safetensors` file and the `.json`
+/// of its architecture beside it. Loading fails with ValueError when either file is missing
+/// or does not describe a valid network.
+#[pyclass(frozen, module = "pointclm._core", name = "Network")]
+pub struct PyNetwork {
+    pub(crate) inner: Arc<pointclm::Network>,
+    path: PathBuf,
+}
+
+#[pymethods]
+impl PyNetwork {
+    #[new]
+    fn new(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let p = path.clone();
+        let inner = guarded(py, move || pointclm::Network::from_file(&p))?;
+        Ok(Self {
+            inner: Arc::new(inner),
+            path,
+        })
+    }
+
+    /// The `.safetensors` file it was loaded from.
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    /// Number of [pointcn, non-local] blocks.
+    #[getter]
+    fn depth(&self) -> usize {
+        self.inner.architecture().depth
+    }
+
+    /// Channels per block, the dimension of the embedding.
+    #[getter]
+    fn width(&self) -> usize {
+        self.inner.architecture().width
+    }
+
+    /// Length tolerance of the `beta` that scales the attention.
+    #[getter]
+    fn sigma_d(&self) -> f64 {
+        self.inner.architecture().sigma_d
+    }
+
+    /// The config (all fields) with the thresholds recommended in the weights' metadata.
+    fn recommended_config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        config::to_dict(py, &self.inner.recommended_config())
+    }
+
+    /// (N, 6) correspondences -> (N, width) unit-norm float64 embeddings.
+    #[pyo3(signature = (correspondences, num_threads=None))]
+    fn embed<'py>(
+        &self,
+        py: Python<'py>,
+        correspondences: PyReadonlyArray2<'py, f64>,
+        num_threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let c = convert::correspondences(&correspondences)?;
+        let p = num_threads.map(pool).transpose()?;
+        let net = self.inner.clone();
+        let f = guarded(py, move || on_pool(p, || net.embed(&c)))?;
+        let dim = f.dim();
+        let a = Array2::from_shape_fn((f.len(), dim), |(i, j)| f.row(i)[j]);
+        Ok(a.into_pyarray(py))
+    }
+
+    fn __repr__(&self) -> String {
+        let a = self.inner.architecture();
+        format!(
+            "Network(path={:?}, depth={}, width={}, sigma_d={})",
+            self.path.display().to_string(),
+            a.depth,
+            a.width,
+            a.sigma_d
+        )
+    }
+}

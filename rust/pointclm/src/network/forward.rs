@@ -1,0 +1,187 @@
+//! The SCNonlocal forward pass over fixed blocks of rows.
+//!
+//! Everything but the attention is row-local, and the attention of a block of rows needs only
+//! that block's queries and all keys and values. Each layer therefore runs in two sweeps over
+//! the same fixed blocks: (A) pointcn and q/k/v for every block, then (B) attention, message
+//! MLP and residual for every block. The blocks do not depend on the thread count and each is
+//! computed sequentially, so the result is bit-identical however the sweeps are scheduled.
+
+use faer::MatRef;
+use rayon::prelude::*;
+
+use super::layers::{attention_rows, AttentionScratch, Geometry};
+use super::Network;
+use crate::correspondences::{Correspondences, Features};
+use crate::error::{Error, Result};
+
+/// Rows per block: the attention holds `BLOCK_ROWS x N` logits per thread (0.5 MB at
+/// N = 1000), small enough for the L2 cache, large enough for efficient matrix products.
+pub(crate) const BLOCK_ROWS: usize = 128;
+
+/// Per-thread buffers.
+#[derive(Default)]
+struct Scratch {
+    pointcn: Vec<f32>,
+    attention: AttentionScratch,
+    message: Vec<f32>,
+    hidden: [Vec<f32>; 2],
+    update: Vec<f32>,
+}
+
+pub(crate) fn embed(
+    net: &Network,
+    c: &Correspondences,
+    parallel: bool,
+    block_rows: usize,
+) -> Result<Features> {
+    let n = c.len();
+    let w = net.architecture.width;
+    let input = centred_input(c)?;
+    let geometry = Geometry::new(c, net.architecture.sigma_d);
+    let scale = (w as f64).powf(-0.5) as f32;
+
+    // `feat` is the running feature (N x w). `act` holds, per row, the pointcn output then
+    // q, k and v (N x 4w), so that sweep (A) writes one chunk per block.
+    let mut feat = vec![0.0f32; n * w];
+    let mut act = vec![0.0f32; n * 4 * w];
+    let aw = 4 * w;
+
+    for_blocks(parallel, &mut feat, block_rows * w, |k, out, _| {
+        let x = block(&input, 6, k, block_rows);
+        net.lift.apply(x.len() / 6, (x, 6), (out, w), false);
+    });
+    for layer in &net.blocks {
+        for_blocks(parallel, &mut act, block_rows * aw, |k, out, s| {
+            let x = block(&feat, w, k, block_rows);
+            let count = x.len() / w;
+            s.pointcn.resize(count * w, 0.0);
+            layer
+                .pointcn
+                .apply(count, (x, w), (&mut s.pointcn, w), true);
+            layer
+                .qkv
+                .apply(count, (&s.pointcn, w), (&mut out[w..], aw), false);
+            for (dst, src) in out.chunks_exact_mut(aw).zip(s.pointcn.chunks_exact(w)) {
+                dst[..w].copy_from_slice(src);
+            }
+        });
+        let keys = MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, aw);
+        let values = MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, aw);
+        for_blocks(parallel, &mut feat, block_rows * w, |k, out, s| {
+            let first = k * block_rows;
+            let count = out.len() / w;
+            let rows = &act[first * aw..(first + count) * aw];
+            let queries = MatRef::from_row_major_slice_with_stride(&rows[w..], count, w, aw);
+            s.message.resize(count * w, 0.0);
+            attention_rows(
+                queries,
+                keys,
+                values,
+                &geometry,
+                first,
+                scale,
+                &mut s.attention,
+                &mut s.message,
+            );
+            let [m0, m1, m2] = &layer.message;
+            let [h0, h1] = &mut s.hidden;
+            h0.resize(count * m0.outputs(), 0.0);
+            h1.resize(count * m1.outputs(), 0.0);
+            s.update.resize(count * w, 0.0);
+            m0.apply(count, (&s.message, w), (h0, m0.outputs()), true);
+            m1.apply(count, (h0, m0.outputs()), (h1, m1.outputs()), true);
+            m2.apply(count, (h1, m1.outputs()), (&mut s.update, w), false);
+            // the residual adds the pointcn output, the input of the non-local block
+            for ((o, pc), u) in out
+                .chunks_exact_mut(w)
+                .zip(rows.chunks_exact(aw))
+                .zip(s.update.chunks_exact(w))
+            {
+                for ((o, &p), &u) in o.iter_mut().zip(&pc[..w]).zip(u) {
+                    *o = p + u;
+                }
+            }
+        });
+    }
+    normalised(&feat, w)
+}
+
+/// Rows of block `k` of a row-major matrix with `cols` columns.
+fn block(m: &[f32], cols: usize, k: usize, block_rows: usize) -> &[f32] {
+    let start = k * block_rows * cols;
+    &m[start..(start + block_rows * cols).min(m.len())]
+}
+
+/// Runs `f(k, rows_of_block_k, scratch)` over the chunks of `buf` (`chunk` values each), in
+/// parallel on the current rayon pool or in order on this thread.
+fn for_blocks(
+    parallel: bool,
+    buf: &mut [f32],
+    chunk: usize,
+    f: impl Fn(usize, &mut [f32], &mut Scratch) + Sync,
+) {
+    if parallel {
+        buf.par_chunks_mut(chunk)
+            .enumerate()
+            .for_each_init(Scratch::default, |s, (k, x)| f(k, x, s));
+    } else {
+        let mut s = Scratch::default();
+        for (k, x) in buf.chunks_mut(chunk).enumerate() {
+            f(k, x, &mut s);
+        }
+    }
+}
+
+/// The network's input: each correspondence minus the scene mean, in f32. Like torch, the
+/// coordinates are rounded to f32 first and the mean is taken of the rounded values.
+fn centred_input(c: &Correspondences) -> Result<Vec<f32>> {
+    let n = c.len();
+    let mut x = Vec::with_capacity(n * 6);
+    for i in 0..n {
+        for v in c.source(i).into_iter().chain(c.target(i)) {
+            let v32 = v as f32;
+            if !v32.is_finite() {
+                return Err(Error::NonFinite {
+                    what: "correspondences (beyond the f32 range of the network)",
+                    row: i,
+                });
+            }
+            x.push(v32);
+        }
+    }
+    let mut mean = [0.0f64; 6];
+    for row in x.chunks_exact(6) {
+        for (m, &v) in mean.iter_mut().zip(row) {
+            *m += f64::from(v);
+        }
+    }
+    let mean = mean.map(|m| (m / n as f64) as f32);
+    for row in x.chunks_exact_mut(6) {
+        for (v, m) in row.iter_mut().zip(mean) {
+            *v -= m;
+        }
+    }
+    Ok(x)
+}
+
+/// Rows scaled to unit length as torch's `normalize` (`x / max(||x||, 1e-12)`), in f64.
+fn normalised(feat: &[f32], w: usize) -> Result<Features> {
+    let mut out = Vec::with_capacity(feat.len());
+    for (row, x) in feat.chunks_exact(w).enumerate() {
+        let norm = x
+            .iter()
+            .map(|&v| f64::from(v) * f64::from(v))
+            .sum::<f64>()
+            .sqrt();
+        if !norm.is_finite() {
+            // Only reachable with coordinates so large that f32 products overflow.
+            return Err(Error::NonFinite {
+                what: "embedding (coordinates too large for the f32 network)",
+                row,
+            });
+        }
+        let denom = norm.max(1e-12);
+        out.extend(x.iter().map(|&v| f64::from(v) / denom));
+    }
+    Features::new(out, w)
+}

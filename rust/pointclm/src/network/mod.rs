@@ -1,0 +1,131 @@
+//! The learned correspondence embedding (SCNonlocal, from PointDSC) evaluated in Rust, so
+//! that `register` with a trained network needs neither Python nor torch.
+//!
+//! The network reads the weights that `pointclm.model.save_model` writes: a safetensors file
+//! of the torch state dict and, beside it with the extension `.json`, the metadata holding
+//! `architecture` (`depth`, `width`, `sigma_d`) and optionally `recommended_config`.
+//!
+//! The forward pass computes in `f32`, as torch does, so that it reproduces torch's
+//! embeddings to about 1e-6; every eval-mode BatchNorm is folded into the convolution before
+//! it at load time. The attention `softmax_j(beta_ij q_i . k_j / sqrt(width))` is evaluated
+//! for a block of rows at a time, recomputing `beta` on the fly, so memory stays
+//! O(N x block) and no N x N matrix is ever formed.
+//!
+//! ```
+//! # fn main() -> pointclm::Result<()> {
+//! use pointclm::network::Network;
+//! use pointclm::{register_with_network, Correspondences};
+//!
+//! let weights = concat!(env!("CARGO_MANIFEST_DIR"), "/../../python/pointclm/weights/default.safetensors");
+//! let network = Network::from_file(weights)?;
+//! let src: Vec<[f64; 3]> = (0..40).map(|i| [(i % 5) as f64 * 0.1, (i / 5) as f64 * 0.05, (i % 3) as f64 * 0.07]).collect();
+//! let dst: Vec<[f64; 3]> = src.iter().map(|p| [p[0] + 1.0, p[1], p[2]]).collect();
+//! let corr = Correspondences::new(&src, &dst)?;
+//! let features = network.embed(&corr)?;
+//! assert_eq!((features.len(), features.dim()), (40, network.architecture().width));
+//! let result = register_with_network(&corr, &network, &network.recommended_config(), 0)?;
+//! assert_eq!(result.labels.len(), 40);
+//! # Ok(())
+//! # }
+//! ```
+
+mod forward;
+pub(crate) mod layers;
+mod weights;
+
+use std::fmt;
+use std::path::Path;
+
+use crate::config::Config;
+use crate::correspondences::{Correspondences, Features};
+use crate::error::Result;
+
+use layers::Dense;
+
+/// The shape of an SCNonlocal network, as stored under `architecture` in the weights' JSON.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Architecture {
+    /// Number of [pointcn, non-local] blocks.
+    pub depth: usize,
+    /// Channels of every block (even; the message MLP narrows to `width / 2`).
+    pub width: usize,
+    /// Length tolerance of the `beta` that scales the attention logits.
+    pub sigma_d: f64,
+}
+
+/// A trained embedding network, ready to evaluate: `Send + Sync`, so one loaded network
+/// serves any number of threads.
+pub struct Network {
+    architecture: Architecture,
+    recommended: Config,
+    lift: Dense,
+    blocks: Vec<Block>,
+}
+
+/// One [pointcn, non-local] block. `q`, `k` and `v` share their input, so they are one
+/// `width -> 3 width` product.
+pub(crate) struct Block {
+    pointcn: Dense,
+    qkv: Dense,
+    message: [Dense; 3],
+}
+
+impl Network {
+    /// Loads `path` (the `.safetensors` file) and the `.json` beside it.
+    ///
+    /// Errors: [`Error::WeightsNotFound`](crate::Error::WeightsNotFound) when either file is
+    /// missing or unreadable, [`Error::WeightsMalformed`](crate::Error::WeightsMalformed)
+    /// for a corrupt file or invalid metadata, [`Error::TensorMissing`](crate::Error::TensorMissing)
+    /// and [`Error::TensorShape`](crate::Error::TensorShape) when the tensors do not match
+    /// the architecture.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        weights::read_file(path.as_ref())
+    }
+
+    /// From the bytes of a safetensors file and the text of its JSON metadata (`name` is
+    /// used in error messages only).
+    pub fn from_bytes(safetensors: &[u8], metadata: &str, name: &str) -> Result<Self> {
+        weights::from_bytes(safetensors, metadata, name)
+    }
+
+    /// Depth, width and `sigma_d` of the network.
+    pub fn architecture(&self) -> Architecture {
+        self.architecture
+    }
+
+    /// The defaults with the thresholds stored under `recommended_config` in the metadata
+    /// (chosen with this network on its validation data); the plain defaults if there are
+    /// none.
+    pub fn recommended_config(&self) -> Config {
+        self.recommended.clone()
+    }
+
+    /// Unit-norm embeddings, one `width`-vector per correspondence.
+    ///
+    /// Blocks of rows run in parallel on the current rayon pool; the result is bit-identical
+    /// whatever the number of threads, since the blocks are fixed and each is computed
+    /// sequentially. Errors with [`Error::NonFinite`](crate::Error::NonFinite) when
+    /// coordinates are too large for `f32`.
+    pub fn embed(&self, c: &Correspondences) -> Result<Features> {
+        forward::embed(self, c, true, forward::BLOCK_ROWS)
+    }
+
+    /// [`Network::embed`] on the calling thread only (for callers that already parallelise,
+    /// e.g. over scenes).
+    pub fn embed_sequential(&self, c: &Correspondences) -> Result<Features> {
+        forward::embed(self, c, false, forward::BLOCK_ROWS)
+    }
+}
+
+impl fmt::Debug for Network {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Network")
+            .field("architecture", &self.architecture)
+            .field("recommended", &self.recommended)
+            .finish_non_exhaustive()
+    }
+}
+
+#[cfg(test)]
+#[path = "../tests/network.rs"]
+mod tests;

@@ -1,0 +1,277 @@
+//! Reading a network: the safetensors state dict written by `pointclm.model.save_model` and
+//! the JSON beside it, checked tensor by tensor against the architecture the JSON declares.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use safetensors::{Dtype, SafeTensors};
+use serde_json::{Map, Value};
+
+use super::layers::{BatchNorm, Dense};
+use super::{Architecture, Block, Network};
+use crate::config::{Assignment, Config, Pruning};
+use crate::error::{Error, Result};
+
+pub(crate) fn read_file(path: &Path) -> Result<Network> {
+    let meta_path = path.with_extension("json");
+    let read_err = |p: &Path, e: std::io::Error| Error::WeightsNotFound {
+        path: p.display().to_string(),
+        reason: e.to_string(),
+    };
+    let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
+    let meta = std::fs::read(&meta_path).map_err(|e| read_err(&meta_path, e))?;
+    let meta = String::from_utf8(meta).map_err(|_| Error::WeightsMalformed {
+        path: meta_path.display().to_string(),
+        reason: "the metadata is not UTF-8 text".into(),
+    })?;
+    from_bytes(&bytes, &meta, &path.display().to_string())
+}
+
+pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network> {
+    let malformed = |reason: String| Error::WeightsMalformed {
+        path: name.to_string(),
+        reason,
+    };
+    let meta: Value = serde_json::from_str(meta)
+        .map_err(|e| malformed(format!("metadata is not valid JSON: {e}")))?;
+    let architecture = meta
+        .get("architecture")
+        .ok_or_else(|| malformed("metadata has no \"architecture\"".into()))
+        .and_then(|a| architecture(a).map_err(malformed))?;
+    let recommended = match meta.get("recommended_config") {
+        None | Some(Value::Null) => Config::default(),
+        Some(v) => config(v).map_err(|e| malformed(format!("recommended_config: {e}")))?,
+    };
+    let st = SafeTensors::deserialize(bytes)
+        .map_err(|e| malformed(format!("not a safetensors file: {e}")))?;
+    let mut r = Reader {
+        st: &st,
+        name,
+        used: BTreeSet::new(),
+    };
+    let w = architecture.width;
+    let h = w / 2;
+    let lift = r.conv("lift", w, 6, None)?;
+    let mut blocks = Vec::with_capacity(architecture.depth);
+    for b in 0..architecture.depth {
+        let pc = format!("pointcn.{b}");
+        let nl = format!("nonlocal_blocks.{b}");
+        let pointcn = r.conv(&format!("{pc}.0"), w, w, Some(&format!("{pc}.1")))?;
+        let qkv = r.qkv(&nl, w)?;
+        let message = [
+            r.conv(
+                &format!("{nl}.message.0"),
+                h,
+                w,
+                Some(&format!("{nl}.message.1")),
+            )?,
+            r.conv(
+                &format!("{nl}.message.3"),
+                h,
+                h,
+                Some(&format!("{nl}.message.4")),
+            )?,
+            r.conv(&format!("{nl}.message.6"), w, h, None)?,
+        ];
+        blocks.push(Block {
+            pointcn,
+            qkv,
+            message,
+        });
+    }
+    // BatchNorm's step counter is training state; anything else left over means the file
+    // holds a different network than its metadata says (torch's strict loading refuses it).
+    let unexpected = st
+        .names()
+        .into_iter()
+        .find(|t| !r.used.contains(*t) && !t.ends_with(".num_batches_tracked"));
+    if let Some(t) = unexpected {
+        return Err(malformed(format!(
+            "unexpected tensor {t} for architecture depth {}, width {}",
+            architecture.depth, w
+        )));
+    }
+    Ok(Network {
+        architecture,
+        recommended,
+        lift,
+        blocks,
+    })
+}
+
+/// Looks tensors up by name and checks their shape, dtype and values.
+struct Reader<'a, 'd> {
+    st: &'a SafeTensors<'d>,
+    name: &'a str,
+    used: BTreeSet<String>,
+}
+
+impl Reader<'_, '_> {
+    fn tensor(&mut self, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
+        let view = self.st.tensor(name).map_err(|_| Error::TensorMissing {
+            path: self.name.to_string(),
+            name: name.to_string(),
+        })?;
+        if view.shape() != shape {
+            return Err(Error::TensorShape {
+                path: self.name.to_string(),
+                name: name.to_string(),
+                expected: shape.to_vec(),
+                got: view.shape().to_vec(),
+            });
+        }
+        let data = view.data();
+        let values: Vec<f64> = match view.dtype() {
+            Dtype::F32 => data
+                .chunks_exact(4)
+                .map(|b| f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])))
+                .collect(),
+            Dtype::F64 => data
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+                .collect(),
+            other => {
+                return Err(self.malformed(format!(
+                    "tensor {name} has dtype {other:?}; F32 and F64 are supported"
+                )))
+            }
+        };
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(self.malformed(format!("tensor {name} has non-finite values")));
+        }
+        self.used.insert(name.to_string());
+        Ok(values)
+    }
+
+    fn malformed(&self, reason: String) -> Error {
+        Error::WeightsMalformed {
+            path: self.name.to_string(),
+            reason,
+        }
+    }
+
+    /// A `Conv1d(inp, out, 1)` named `conv`, with the `BatchNorm1d(out)` named `bn` after it.
+    fn conv(&mut self, conv: &str, out: usize, inp: usize, bn: Option<&str>) -> Result<Dense> {
+        let weight = self.tensor(&format!("{conv}.weight"), &[out, inp, 1])?;
+        let bias = self.tensor(&format!("{conv}.bias"), &[out])?;
+        let bn = bn.map(|bn| self.batch_norm(bn, out)).transpose()?;
+        Ok(Dense::new(&weight, &bias, bn.as_ref()))
+    }
+
+    fn batch_norm(&mut self, bn: &str, c: usize) -> Result<BatchNorm> {
+        let norm = BatchNorm {
+            weight: self.tensor(&format!("{bn}.weight"), &[c])?,
+            bias: self.tensor(&format!("{bn}.bias"), &[c])?,
+            mean: self.tensor(&format!("{bn}.running_mean"), &[c])?,
+            var: self.tensor(&format!("{bn}.running_var"), &[c])?,
+        };
+        if norm.var.iter().any(|&v| v < 0.0) {
+            return Err(self.malformed(format!("{bn}.running_var has negative values")));
+        }
+        Ok(norm)
+    }
+
+    /// The q, k and v convolutions of a non-local block stacked into one `w -> 3w` product.
+    fn qkv(&mut self, block: &str, w: usize) -> Result<Dense> {
+        let mut weight = Vec::with_capacity(3 * w * w);
+        let mut bias = Vec::with_capacity(3 * w);
+        for part in ["q", "k", "v"] {
+            weight.extend(self.tensor(&format!("{block}.{part}.weight"), &[w, w, 1])?);
+            bias.extend(self.tensor(&format!("{block}.{part}.bias"), &[w])?);
+        }
+        Ok(Dense::new(&weight, &bias, None))
+    }
+}
+
+fn architecture(v: &Value) -> std::result::Result<Architecture, String> {
+    let obj = v
+        .as_object()
+        .ok_or_else(|| format!("architecture must be an object, got {v}"))?;
+    if let Some(k) = obj
+        .keys()
+        .find(|k| !["depth", "width", "sigma_d"].contains(&k.as_str()))
+    {
+        return Err(format!("unknown architecture key {k:?}"));
+    }
+    let count = |key: &str| -> std::result::Result<usize, String> {
+        obj.get(key)
+            .and_then(Value::as_u64)
+            .and_then(|v| usize::try_from(v).ok())
+            .ok_or_else(|| format!("architecture.{key} must be a non-negative integer"))
+    };
+    let (depth, width) = (count("depth")?, count("width")?);
+    let sigma_d = obj
+        .get("sigma_d")
+        .and_then(Value::as_f64)
+        .ok_or("architecture.sigma_d must be a number")?;
+    if depth < 1 || width < 4 || width % 2 != 0 {
+        return Err(format!(
+            "need depth >= 1 and an even width >= 4, got depth {depth}, width {width}"
+        ));
+    }
+    if !(sigma_d.is_finite() && sigma_d > 0.0) {
+        return Err(format!("architecture.sigma_d must be > 0, got {sigma_d}"));
+    }
+    Ok(Architecture {
+        depth,
+        width,
+        sigma_d,
+    })
+}
+
+/// The defaults overridden by the fields of a JSON object (the names of [`Config`]'s fields,
+/// values as `pointclm.Config.to_dict()` writes them).
+pub(crate) fn config(v: &Value) -> std::result::Result<Config, String> {
+    let obj: &Map<String, Value> = v
+        .as_object()
+        .ok_or_else(|| format!("expected an object, got {v}"))?;
+    let mut c = Config::default();
+    for (key, v) in obj {
+        let num = || v.as_f64().ok_or(format!("{key} must be a number, got {v}"));
+        let int = || {
+            v.as_u64()
+                .and_then(|x| usize::try_from(x).ok())
+                .ok_or(format!("{key} must be a non-negative integer, got {v}"))
+        };
+        let text = || v.as_str().ok_or(format!("{key} must be a string, got {v}"));
+        let flag = || {
+            v.as_bool()
+                .ok_or(format!("{key} must be true or false, got {v}"))
+        };
+        match key.as_str() {
+            "sigma_d" => c.sigma_d = num()?,
+            "pruning" => {
+                c.pruning = match text()? {
+                    "paper" => Pruning::Paper,
+                    "authors" => Pruning::AuthorsCode,
+                    "none" => Pruning::Disabled,
+                    other => return Err(format!("unknown pruning {other:?}")),
+                }
+            }
+            "tau_s" => c.tau_s = num()?,
+            "tau_n" => c.tau_n = int()?,
+            "beta_threshold" => c.beta_threshold = num()?,
+            "feature_threshold" => c.feature_threshold = num()?,
+            "min_count" => c.min_count = int()?,
+            "max_kept" => c.max_kept = int()?,
+            "affinity_sigma" => c.affinity_sigma = num()?,
+            "max_instances" => c.max_instances = if v.is_null() { None } else { Some(int()?) },
+            "assignment" => {
+                c.assignment = match text()? {
+                    "kmeans" => Assignment::KMeans,
+                    "discretize" => Assignment::Discretize,
+                    other => return Err(format!("unknown assignment {other:?}")),
+                }
+            }
+            "kmeans_restarts" => c.kmeans_restarts = int()?,
+            "min_cluster_size" => c.min_cluster_size = int()?,
+            "ransac_iterations" => c.ransac_iterations = int()?,
+            "inlier_threshold" => c.inlier_threshold = num()?,
+            "refine" => c.refine = flag()?,
+            "merge_duplicates" => c.merge_duplicates = flag()?,
+            other => return Err(format!("unknown config field {other:?}")),
+        }
+    }
+    c.validate().map_err(|e| e.to_string())?;
+    Ok(c)
+}

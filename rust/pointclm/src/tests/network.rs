@@ -1,0 +1,526 @@
+//! Unit tests of `network`: layers against direct f64 references, weight-file errors, and the
+//! forward pass's invariances.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use faer::MatRef;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use safetensors::{serialize, Dtype};
+
+use super::forward;
+use super::layers::{
+    attention_rows, exp_nonpositive, softmax_unnormalised, AttentionScratch, BatchNorm, Dense,
+    Geometry, BN_EPS,
+};
+use super::*;
+use crate::error::Error;
+use crate::testing::random_scene;
+
+fn shipped(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../python/pointclm/weights")
+        .join(format!("{name}.safetensors"))
+}
+
+fn uniform(rng: &mut ChaCha8Rng, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+    (0..n)
+        .map(|_| lo + (hi - lo) * rng.random::<f64>())
+        .collect()
+}
+
+#[test]
+fn folded_batch_norm_equals_conv_then_batch_norm() {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let (rows, inp, out) = (37, 12, 9);
+    let w = uniform(&mut rng, out * inp, -1.0, 1.0);
+    let b = uniform(&mut rng, out, -1.0, 1.0);
+    let bn = BatchNorm {
+        weight: uniform(&mut rng, out, 0.5, 2.0),
+        bias: uniform(&mut rng, out, -1.0, 1.0),
+        mean: uniform(&mut rng, out, -0.5, 0.5),
+        var: uniform(&mut rng, out, 0.01, 3.0),
+    };
+    let x32: Vec<f32> = uniform(&mut rng, rows * inp, -2.0, 2.0)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    for relu in [false, true] {
+        let dense = Dense::new(&w, &b, Some(&bn));
+        let mut y = vec![0.0f32; rows * out];
+        dense.apply(rows, (&x32, inp), (&mut y, out), relu);
+        for r in 0..rows {
+            for o in 0..out {
+                let z: f64 = b[o]
+                    + (0..inp)
+                        .map(|i| w[o * inp + i] * f64::from(x32[r * inp + i]))
+                        .sum::<f64>();
+                let mut want =
+                    bn.weight[o] * (z - bn.mean[o]) / (bn.var[o] + BN_EPS).sqrt() + bn.bias[o];
+                if relu {
+                    want = want.max(0.0);
+                }
+                let got = f64::from(y[r * out + o]);
+                assert!(
+                    (got - want).abs() < 1e-5 * (1.0 + want.abs()),
+                    "{got} vs {want}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn dense_reads_and_writes_strided_column_ranges() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let (rows, inp, out, stride) = (5, 4, 3, 10);
+    let dense = Dense::new(
+        &uniform(&mut rng, out * inp, -1.0, 1.0),
+        &uniform(&mut rng, out, -1.0, 1.0),
+        None,
+    );
+    let x: Vec<f32> = (0..rows * inp).map(|i| i as f32 * 0.1).collect();
+    let mut dense_out = vec![0.0f32; rows * out];
+    dense.apply(rows, (&x, inp), (&mut dense_out, out), false);
+    // the same rows placed at column 3 of a wider matrix, output at column 6 of another
+    let mut wide_x = vec![f32::NAN; rows * stride];
+    for r in 0..rows {
+        wide_x[r * stride + 3..r * stride + 3 + inp].copy_from_slice(&x[r * inp..(r + 1) * inp]);
+    }
+    let mut wide_y = vec![-7.0f32; rows * stride];
+    dense.apply(
+        rows,
+        (&wide_x[3..], stride),
+        (&mut wide_y[6..], stride),
+        false,
+    );
+    for r in 0..rows {
+        assert_eq!(
+            &wide_y[r * stride + 6..r * stride + 6 + out],
+            &dense_out[r * out..(r + 1) * out]
+        );
+        assert!(wide_y[r * stride..r * stride + 6]
+            .iter()
+            .all(|&v| v == -7.0));
+    }
+}
+
+#[test]
+fn exp_is_accurate_on_its_domain() {
+    let mut worst = 0.0f64;
+    for k in 0..=200_000 {
+        let x = -90.0 * k as f64 / 200_000.0;
+        let got = f64::from(exp_nonpositive(x as f32));
+        let want = f64::from(x as f32).exp();
+        if x >= -87.0 {
+            worst = worst.max((got - want).abs() / want);
+        } else {
+            // clamped to exp(-87): negligible next to a softmax row's exp(0) = 1
+            assert!(got < 1.7e-38);
+        }
+    }
+    assert!(worst < 3e-7, "max relative error {worst}");
+    assert_eq!(exp_nonpositive(0.0), 1.0);
+}
+
+#[test]
+fn softmax_matches_a_direct_one() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for n in [1, 7, 8, 9, 100, 1001] {
+        let z: Vec<f32> = uniform(&mut rng, n, -30.0, 30.0)
+            .iter()
+            .map(|&v| v as f32)
+            .collect();
+        let mut e = z.clone();
+        let sum = softmax_unnormalised(&mut e);
+        let max = z
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &b| a.max(f64::from(b)));
+        let direct: Vec<f64> = z.iter().map(|&v| (f64::from(v) - max).exp()).collect();
+        let total: f64 = direct.iter().sum();
+        assert!((f64::from(sum) - total).abs() < 1e-5 * total);
+        for (a, b) in e.iter().zip(&direct) {
+            assert!((f64::from(*a) / f64::from(sum) - b / total).abs() < 1e-6);
+        }
+    }
+}
+
+/// The attention with the full N x N matrix in f64, as the torch code writes it.
+fn dense_attention(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    geo: &Geometry,
+    c: usize,
+    scale: f64,
+) -> Vec<f64> {
+    let n = q.len() / c;
+    let mut out = vec![0.0; n * c];
+    for i in 0..n {
+        let mut beta = vec![1.0f32; n];
+        geo.scale_by_beta(i, &mut beta);
+        let logits: Vec<f64> = (0..n)
+            .map(|j| {
+                let dot: f64 = (0..c)
+                    .map(|t| f64::from(q[i * c + t]) * f64::from(k[j * c + t]))
+                    .sum();
+                f64::from(beta[j]) * dot * scale
+            })
+            .collect();
+        let max = logits.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+        let e: Vec<f64> = logits.iter().map(|l| (l - max).exp()).collect();
+        let s: f64 = e.iter().sum();
+        for j in 0..n {
+            for t in 0..c {
+                out[i * c + t] += e[j] / s * f64::from(v[j * c + t]);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn blocked_attention_equals_the_dense_one() {
+    let scene = random_scene(300, 3, 0.2, 5);
+    let geo = Geometry::new(&scene.corr, 0.3);
+    let n = scene.corr.len();
+    let c = 16;
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let mut draw = || -> Vec<f32> {
+        uniform(&mut rng, n * c, -2.0, 2.0)
+            .iter()
+            .map(|&v| v as f32)
+            .collect()
+    };
+    let (q, k, v) = (draw(), draw(), draw());
+    let scale = 0.25;
+    let want = dense_attention(&q, &k, &v, &geo, c, scale);
+    for block in [1, 64, 128, 300, 512] {
+        let mut got = vec![0.0f32; n * c];
+        let mut scratch = AttentionScratch::default();
+        for (b, out) in got.chunks_mut(block * c).enumerate() {
+            let rows = out.len() / c;
+            let first = b * block;
+            attention_rows(
+                MatRef::from_row_major_slice(&q[first * c..(first + rows) * c], rows, c),
+                MatRef::from_row_major_slice(&k, n, c),
+                MatRef::from_row_major_slice(&v, n, c),
+                &geo,
+                first,
+                scale as f32,
+                &mut scratch,
+                out,
+            );
+        }
+        let worst = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (f64::from(*a) - b).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 2e-5, "block {block}: max difference {worst}");
+    }
+}
+
+#[test]
+fn embeddings_are_unit_norm_and_independent_of_threads_and_blocking() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    let scene = random_scene(700, 4, 0.1, 6);
+    let par = net.embed(&scene.corr).unwrap();
+    let seq = net.embed_sequential(&scene.corr).unwrap();
+    assert_eq!(par, seq);
+    let one = crate::pipeline::thread_pool(1)
+        .unwrap()
+        .install(|| net.embed(&scene.corr).unwrap());
+    assert_eq!(one, par);
+    assert_eq!(par.dim(), 64);
+    for i in 0..par.len() {
+        let norm: f64 = par.row(i).iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-9);
+    }
+    // other block sizes change only the rounding of the products
+    let small = forward::embed(&net, &scene.corr, false, 50).unwrap();
+    for i in 0..par.len() {
+        for (a, b) in par.row(i).iter().zip(small.row(i)) {
+            assert!((a - b).abs() < 1e-5);
+        }
+    }
+}
+
+#[test]
+fn embedding_ignores_a_shift_of_both_clouds_through_beta_and_the_centring() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    let scene = random_scene(200, 2, 0.3, 7);
+    let shift = |p: [f64; 3], d: f64| [p[0] + d, p[1] - d, p[2] + 0.5 * d];
+    let src: Vec<[f64; 3]> = (0..200)
+        .map(|i| shift(scene.corr.source(i), 0.25))
+        .collect();
+    let dst: Vec<[f64; 3]> = (0..200)
+        .map(|i| shift(scene.corr.target(i), 0.25))
+        .collect();
+    let moved = Correspondences::new(&src, &dst).unwrap();
+    let (a, b) = (net.embed(&scene.corr).unwrap(), net.embed(&moved).unwrap());
+    for i in 0..200 {
+        for (x, y) in a.row(i).iter().zip(b.row(i)) {
+            assert!((x - y).abs() < 1e-4);
+        }
+    }
+}
+
+#[test]
+fn shipped_networks_load_with_their_recommended_config() {
+    for (name, depth, width) in [("default", 6, 64), ("paper", 12, 128)] {
+        let net = Network::from_file(shipped(name)).unwrap();
+        assert_eq!(
+            net.architecture(),
+            Architecture {
+                depth,
+                width,
+                sigma_d: 0.05
+            }
+        );
+        let cfg = net.recommended_config();
+        assert_eq!((cfg.tau_n, cfg.tau_s), (5, 0.85));
+        assert_eq!(cfg.max_kept, Config::default().max_kept);
+    }
+}
+
+#[test]
+fn coordinates_beyond_f32_are_a_typed_error() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    let src = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1e300, 0.0]];
+    let c = Correspondences::new(&src, &src).unwrap();
+    assert!(matches!(
+        net.embed(&c),
+        Err(Error::NonFinite { row: 2, .. })
+    ));
+}
+
+// ---- weight files ----
+
+const META: &str = r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}}"#;
+
+/// The state dict of a depth-1, width-4 network with arbitrary values (as torch names it).
+fn tiny_state() -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    let mut t = Vec::new();
+    let mut conv = |name: &str, out: usize, inp: usize| {
+        t.push((
+            format!("{name}.weight"),
+            vec![out, inp, 1],
+            vec![0.1; out * inp],
+        ));
+        t.push((format!("{name}.bias"), vec![out], vec![0.01; out]));
+    };
+    conv("lift", 4, 6);
+    conv("pointcn.0.0", 4, 4);
+    for p in ["q", "k", "v"] {
+        conv(&format!("nonlocal_blocks.0.{p}"), 4, 4);
+    }
+    conv("nonlocal_blocks.0.message.0", 2, 4);
+    conv("nonlocal_blocks.0.message.3", 2, 2);
+    conv("nonlocal_blocks.0.message.6", 4, 2);
+    for (bn, c) in [
+        ("pointcn.0.1", 4),
+        ("nonlocal_blocks.0.message.1", 2),
+        ("nonlocal_blocks.0.message.4", 2),
+    ] {
+        t.push((format!("{bn}.weight"), vec![c], vec![1.0; c]));
+        t.push((format!("{bn}.bias"), vec![c], vec![0.0; c]));
+        t.push((format!("{bn}.running_mean"), vec![c], vec![0.0; c]));
+        t.push((format!("{bn}.running_var"), vec![c], vec![1.0; c]));
+    }
+    t
+}
+
+fn to_bytes(state: &[(String, Vec<usize>, Vec<f32>)]) -> Vec<u8> {
+    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = state
+        .iter()
+        .map(|(n, s, v)| {
+            (
+                n.clone(),
+                s.clone(),
+                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            )
+        })
+        .collect();
+    let views: HashMap<String, safetensors::tensor::TensorView<'_>> = bytes
+        .iter()
+        .map(|(n, s, b)| {
+            (
+                n.clone(),
+                safetensors::tensor::TensorView::new(Dtype::F32, s.clone(), b).unwrap(),
+            )
+        })
+        .collect();
+    serialize(&views, None).unwrap()
+}
+
+#[test]
+fn a_tiny_network_loads_and_embeds() {
+    let net = Network::from_bytes(&to_bytes(&tiny_state()), META, "tiny").unwrap();
+    let scene = random_scene(50, 1, 0.5, 8);
+    let f = net.embed(&scene.corr).unwrap();
+    assert_eq!((f.len(), f.dim()), (50, 4));
+    assert_eq!(net.recommended_config(), Config::default());
+}
+
+#[test]
+fn missing_files_are_weights_not_found() {
+    let dir = std::env::temp_dir().join(format!("pointclm-net-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let st = dir.join("m.safetensors");
+    let err = Network::from_file(&st).unwrap_err();
+    assert!(
+        matches!(err, Error::WeightsNotFound { ref path, .. } if path.ends_with("m.safetensors"))
+    );
+    std::fs::write(&st, to_bytes(&tiny_state())).unwrap();
+    let err = Network::from_file(&st).unwrap_err();
+    assert!(matches!(err, Error::WeightsNotFound { ref path, .. } if path.ends_with("m.json")));
+    std::fs::write(dir.join("m.json"), META).unwrap();
+    assert!(Network::from_file(&st).is_ok());
+    std::fs::write(&st, b"not a safetensors file").unwrap();
+    assert!(matches!(
+        Network::from_file(&st),
+        Err(Error::WeightsMalformed { .. })
+    ));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_metadata_is_malformed() {
+    let bytes = to_bytes(&tiny_state());
+    for meta in [
+        "{",
+        "{}",
+        r#"{"architecture": {"depth": 1, "width": 5, "sigma_d": 0.05}}"#,
+        r#"{"architecture": {"depth": 0, "width": 4, "sigma_d": 0.05}}"#,
+        r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": -1}}"#,
+        r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05, "heads": 2}}"#,
+        r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}, "recommended_config": {"tau_n": -1}}"#,
+        r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}, "recommended_config": {"tau_q": 1}}"#,
+        r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}, "recommended_config": {"inlier_threshold": -1}}"#,
+    ] {
+        match Network::from_bytes(&bytes, meta, "x") {
+            Err(Error::WeightsMalformed { .. }) => {}
+            other => panic!("{meta}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn tensors_that_do_not_match_the_architecture_are_typed_errors() {
+    let state = tiny_state();
+    // missing
+    let fewer: Vec<_> = state
+        .iter()
+        .filter(|(n, _, _)| n != "nonlocal_blocks.0.k.weight")
+        .cloned()
+        .collect();
+    let err = Network::from_bytes(&to_bytes(&fewer), META, "x").unwrap_err();
+    assert_eq!(
+        err,
+        Error::TensorMissing {
+            path: "x".into(),
+            name: "nonlocal_blocks.0.k.weight".into()
+        }
+    );
+    // wrong shape: the metadata says width 6
+    let meta6 = r#"{"architecture": {"depth": 1, "width": 6, "sigma_d": 0.05}}"#;
+    let err = Network::from_bytes(&to_bytes(&state), meta6, "x").unwrap_err();
+    assert_eq!(
+        err,
+        Error::TensorShape {
+            path: "x".into(),
+            name: "lift.weight".into(),
+            expected: vec![6, 6, 1],
+            got: vec![4, 6, 1]
+        }
+    );
+    // an extra block the metadata does not declare
+    let mut more = state.clone();
+    more.push(("nonlocal_blocks.1.q.bias".into(), vec![4], vec![0.0; 4]));
+    let err = Network::from_bytes(&to_bytes(&more), META, "x").unwrap_err();
+    assert!(
+        matches!(err, Error::WeightsMalformed { ref reason, .. } if reason.contains("nonlocal_blocks.1.q.bias"))
+    );
+    // non-finite values, negative variance
+    let mut nan = state.clone();
+    nan[0].2[0] = f32::NAN;
+    let err = Network::from_bytes(&to_bytes(&nan), META, "x").unwrap_err();
+    assert!(matches!(err, Error::WeightsMalformed { .. }));
+    let mut neg = state.clone();
+    let var = neg
+        .iter_mut()
+        .find(|(n, _, _)| n == "pointcn.0.1.running_var")
+        .unwrap();
+    var.2[1] = -1.0;
+    let err = Network::from_bytes(&to_bytes(&neg), META, "x").unwrap_err();
+    assert!(matches!(err, Error::WeightsMalformed { .. }));
+    // a step counter of BatchNorm is allowed
+    let mut counted = state;
+    counted.push(("pointcn.0.1.num_batches_tracked".into(), vec![], vec![0.0]));
+    assert!(Network::from_bytes(&to_bytes(&counted), META, "x").is_ok());
+}
+
+/// The committed scene of the `register_file` example: rows, and the true poses from its
+/// header.
+fn fixture_scene() -> (Correspondences, Vec<[f64; 12]>) {
+    let path =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/scene_seed0.txt");
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut rows = Vec::new();
+    let mut poses = Vec::new();
+    for line in text.lines() {
+        let nums =
+            |s: &str| -> Vec<f64> { s.split_whitespace().map(|v| v.parse().unwrap()).collect() };
+        if let Some(rest) = line.strip_prefix("# pose ") {
+            let v = nums(rest.split_once(':').unwrap().1);
+            poses.push(<[f64; 12]>::try_from(v).unwrap());
+        } else if !line.starts_with('#') {
+            rows.push(<[f64; 6]>::try_from(nums(line)).unwrap());
+        }
+    }
+    (Correspondences::from_rows(&rows).unwrap(), poses)
+}
+
+#[test]
+fn the_shipped_network_registers_the_fixture_scene() {
+    let (corr, truth) = fixture_scene();
+    assert_eq!((corr.len(), truth.len()), (1000, 5));
+    let net = Network::from_file(shipped("default")).unwrap();
+    let reg = crate::register_with_network(&corr, &net, &net.recommended_config(), 0).unwrap();
+    assert_eq!(reg.instances.len(), 5);
+    assert!(reg.timings.embedding > 0.0);
+    for t in &truth {
+        let found = reg.instances.iter().any(|inst| {
+            let m = inst.pose.to_matrix();
+            let dt = (0..3)
+                .map(|r| (m[r][3] - t[4 * r + 3]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let dr = (0..3)
+                .flat_map(|r| (0..3).map(move |c| (r, c)))
+                .map(|(r, c)| (m[r][c] - t[4 * r + c]).abs())
+                .fold(0.0, f64::max);
+            dt < 0.05 && dr < 0.1
+        });
+        assert!(found, "true pose {t:?} not found");
+    }
+    // the batch gives the same, whatever the threads
+    let scenes = vec![corr.clone(), corr];
+    for threads in [1, 2] {
+        let batch = crate::register_batch_with_network(
+            &scenes,
+            &net,
+            &net.recommended_config(),
+            0,
+            threads,
+        )
+        .unwrap();
+        for r in batch {
+            let r = r.unwrap();
+            assert_eq!(r.instances, reg.instances);
+            assert_eq!(r.labels, reg.labels);
+        }
+    }
+}

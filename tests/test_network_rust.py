@@ -1,0 +1,213 @@
+"""The embedding network's Rust forward pass: parity with torch and the stored fixture,
+`register(model=...)` on the Rust backend, bad weight files, and thread independence.
+
+Only the torch comparisons need torch; everything else runs on a torch-free install.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pointclm
+import pytest
+from helpers import assert_same_result
+from pointclm import Config, Network
+from pointclm.datasets import make_scene
+from pointclm.model import SHIPPED, load_network
+
+FIXTURES = Path(__file__).parent / "fixtures"
+N_SCENES = 20
+# torch computes in float32 too; the two differ by rounding only (measured: <= 4e-5)
+PARITY = 1e-4
+
+
+@pytest.fixture(scope="module")
+def scenes() -> list[np.ndarray]:
+    return [make_scene(s).correspondences for s in range(N_SCENES)]
+
+
+@pytest.mark.parametrize("name", ["default", "paper"])
+def test_shipped_networks_reproduce_the_stored_embeddings(name: str) -> None:
+    stored = np.load(FIXTURES / "embeddings.npz")
+    out = load_network(name).embed(stored["correspondences"])
+    assert out.shape == stored[name].shape and out.dtype == np.float64
+    np.testing.assert_allclose(out, stored[name], rtol=0, atol=PARITY)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["default", "paper"])
+def test_rust_embeddings_equal_torch_on_20_scenes(name: str, scenes: list[np.ndarray]) -> None:
+    torch = pytest.importorskip("torch")
+    from pointclm.model import load_model
+
+    rust, net = load_network(name), load_model(name)
+    worst = 0.0
+    for corr in scenes:
+        with torch.no_grad():
+            want = net(torch.tensor(corr, dtype=torch.float32)[None])[0].double().numpy()
+        worst = max(worst, float(np.abs(rust.embed(corr) - want).max()))
+    assert worst <= PARITY, f"max abs difference {worst:.2e}"
+
+
+def test_rust_and_torch_backends_find_identical_instances(scenes: list[np.ndarray]) -> None:
+    pytest.importorskip("torch")
+    found = 0
+    for corr in scenes:
+        rust = pointclm.register(corr, model="default", backend="rust")
+        torch_ = pointclm.register(corr, model="default", backend="torch")
+        assert_same_result(rust, torch_)
+        found += len(rust)
+    assert found >= 3 * N_SCENES  # the scenes hold several instances each
+
+
+def test_register_batch_is_independent_of_threads(scenes: list[np.ndarray]) -> None:
+    one = pointclm.register_batch(scenes, model="default", num_threads=1, seed=3)
+    two = pointclm.register_batch(scenes, model="default", num_threads=2, seed=3)
+    for a, b in zip(one, two, strict=True):
+        assert_same_result(a, b)
+    for k in (0, 7):
+        alone = pointclm.register(scenes[k], model="default", seed=3, num_threads=2)
+        assert_same_result(alone, one[k])
+
+
+def test_embedding_is_independent_of_threads(scenes: list[np.ndarray]) -> None:
+    net = load_network("default")
+    np.testing.assert_array_equal(net.embed(scenes[0], 1), net.embed(scenes[0], 2))
+
+
+def test_network_object_and_recommended_config(scenes: list[np.ndarray]) -> None:
+    net = Network(SHIPPED["default"])
+    assert (net.depth, net.width, net.sigma_d) == (6, 64, 0.05)
+    assert Path(net.path) == SHIPPED["default"]
+    assert "depth=6" in repr(net)
+    assert Config(**net.recommended_config()) == Config(tau_n=5, tau_s=0.85)
+    by_object = pointclm.register(scenes[1], model=net)
+    by_name = pointclm.register(scenes[1], model="default")
+    assert_same_result(by_object, by_name)
+    assert by_name.timings["embedding"] > 0
+    assert "embedding" not in pointclm.register(scenes[1]).timings
+    # the paper's thresholds are still the defaults without a model
+    assert len(by_name) >= len(make_scene(1).poses) - 1
+
+
+def test_a_caller_config_overrides_the_recommended_one(scenes: list[np.ndarray]) -> None:
+    cfg = Config(tau_n=40)
+    a = pointclm.register(scenes[2], model="default", config=cfg)
+    f = load_network("default").embed(scenes[2])
+    b = pointclm.register(scenes[2], features=f, config=cfg)
+    assert_same_result(a, b)
+
+
+def _copy_shipped(tmp_path: Path, name: str = "m") -> Path:
+    dst = tmp_path / f"{name}.safetensors"
+    shutil.copy(SHIPPED["default"], dst)
+    shutil.copy(SHIPPED["default"].with_suffix(".json"), dst.with_suffix(".json"))
+    return dst
+
+
+def _set_architecture(path: Path, **arch: int) -> None:
+    meta_path = path.with_suffix(".json")
+    meta = json.loads(meta_path.read_text())
+    meta["architecture"].update(arch)
+    meta_path.write_text(json.dumps(meta))
+
+
+def test_bad_weight_files_give_value_errors(tmp_path: Path) -> None:
+    corr = make_scene(0).correspondences
+    with pytest.raises(ValueError, match="no weights at .*missing.safetensors"):
+        Network(tmp_path / "missing.safetensors")
+    with pytest.raises(ValueError, match="no weights"):
+        pointclm.register(corr, model=tmp_path / "missing.safetensors")
+
+    path = _copy_shipped(tmp_path, "nojson")
+    path.with_suffix(".json").unlink()
+    with pytest.raises(ValueError, match=r"no weights at .*nojson\.json"):
+        Network(path)
+
+    wide = _copy_shipped(tmp_path, "wide")
+    _set_architecture(wide, width=32)
+    with pytest.raises(ValueError, match=r"lift.weight has shape \[64, 6, 1\].*\[32, 6, 1\]"):
+        Network(wide)
+    deep = _copy_shipped(tmp_path, "deep")
+    _set_architecture(deep, depth=7)
+    with pytest.raises(ValueError, match="lack tensor pointcn.6.0.weight"):
+        pointclm.register_batch([corr], model=deep)
+    shallow = _copy_shipped(tmp_path, "shallow")
+    _set_architecture(shallow, depth=5)
+    with pytest.raises(ValueError, match="unexpected tensor .*5"):
+        Network(shallow)
+
+    corrupt = _copy_shipped(tmp_path, "corrupt")
+    corrupt.write_bytes(b"not a safetensors file")
+    with pytest.raises(ValueError, match="malformed weights .*not a safetensors file"):
+        pointclm.register(corr, model=corrupt)
+    truncated = _copy_shipped(tmp_path, "truncated")
+    truncated.write_bytes(SHIPPED["default"].read_bytes()[:100_000])
+    with pytest.raises(ValueError, match="malformed weights"):
+        Network(truncated)
+    badjson = _copy_shipped(tmp_path, "badjson")
+    badjson.with_suffix(".json").write_text("{")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        Network(badjson)
+
+
+def test_a_rewritten_weight_file_is_reloaded(tmp_path: Path) -> None:
+    path = _copy_shipped(tmp_path)
+    assert load_network(path).width == 64
+    _set_architecture(path, width=32)
+    with pytest.raises(ValueError, match="has shape"):
+        load_network(path)
+
+
+def test_backend_and_device_arguments_are_checked(scenes: list[np.ndarray]) -> None:
+    corr = scenes[0]
+    with pytest.raises(ValueError, match="backend must be"):
+        pointclm.register(corr, model="default", backend="onnx")
+    with pytest.raises(ValueError, match="needs backend='torch'"):
+        pointclm.register(corr, model="default", device="cuda")
+    with pytest.raises(ValueError, match="pass model= too"):
+        pointclm.register(corr, device="cpu")
+    with pytest.raises(ValueError, match="backend='rust'"):
+        pointclm.register(corr, model=load_network("default"), backend="torch")
+    with pytest.raises(ValueError, match="needs backend='torch'"):
+        pointclm.register(corr, model=object())
+    with pytest.raises(ValueError, match="either features or model"):
+        pointclm.register(corr, np.ones((len(corr), 4)), model="default")
+    with pytest.raises(ValueError, match="either per-scene features or model"):
+        pointclm.register_batch([(corr, np.ones((len(corr), 4)))], model="default")
+    with pytest.raises(ValueError, match="either features or network"):
+        pointclm._core.register(corr, np.ones((len(corr), 4)), network=load_network("default"))
+    # device="cpu" is accepted by both backends
+    pointclm.register(corr, model="default", device="cpu")
+
+
+def test_rust_backend_needs_no_torch(tmp_path: Path) -> None:
+    script = (
+        "import sys\n"
+        "sys.modules['torch'] = None  # any 'import torch' now raises ImportError\n"
+        "import pointclm\n"
+        "from pointclm.datasets import make_scene\n"
+        "from pointclm.model import load_metadata, load_network\n"
+        "scene = make_scene(4)\n"
+        "r = pointclm.register(scene.correspondences, model='default')\n"
+        "b = pointclm.register_batch([scene], model='paper', num_threads=1)\n"
+        "assert len(r) >= 2 and len(b[0]) >= 2, (len(r), len(b[0]))\n"
+        "assert load_metadata('default')['architecture']['width'] == 64\n"
+        "try:\n"
+        "    pointclm.register(scene.correspondences, model='default', backend='torch')\n"
+        "except ImportError as e:\n"
+        "    assert 'torch' in str(e)\n"
+        "else:\n"
+        "    raise AssertionError('torch backend ran without torch')\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path, check=False
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
