@@ -106,7 +106,7 @@ def _register_scaled(
     cfg = scaled_config(voxel, config) if config is not None else _config(None, voxel, model)
     features = None
     if model is not None:
-        from .registration import _embed
+        from .point_clouds import embed_scaled
 
-        features = _embed(corr * (Config().sigma_d / cfg.sigma_d), model)
+        features = embed_scaled(corr, model, cfg, num_threads)
     return register(corr, features, cfg, seed, num_threads=num_threads)

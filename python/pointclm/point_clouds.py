@@ -152,11 +152,7 @@ def register_point_clouds(
     cfg = _config(config, voxel, model)
     features = None
     if model is not None:
-        from .registration import _embed
-
-        # The network attends with the sigma_d it was trained with: feed it correspondences in
-        # those units (a uniform scale changes nothing else it sees).
-        features = _embed(corr * (Config().sigma_d / cfg.sigma_d), model)
+        features = embed_scaled(corr, model, cfg, num_threads)
     t3 = time.perf_counter()
     result = register(corr, features, cfg, seed, num_threads=num_threads)
     t4 = time.perf_counter()
@@ -183,6 +179,22 @@ def register_point_clouds(
         config=cfg,
         timings=timings,
     )
+
+
+def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | None) -> np.ndarray:
+    """The learned embedding of correspondences in real units.
+
+    The network attends with the sigma_d it was trained with (synthetic units): it sees the
+    correspondences scaled by ``trained sigma_d / cfg.sigma_d`` (a uniform scale changes
+    nothing else it sees). Shipped names, weight files and `pointclm.Network` run on the Rust
+    network; a torch module on torch.
+    """
+    from .registration import _is_weights, _rust_network, _torch_embed
+
+    scaled = np.ascontiguousarray(corr * (Config().sigma_d / cfg.sigma_d))
+    if _is_weights(model) or type(model).__name__ == "Network":
+        return np.asarray(_rust_network(model).embed(scaled, num_threads=num_threads))
+    return _torch_embed(scaled, model, None)
 
 
 def _config(config: Config | dict[str, Any] | None, voxel: float, model: Any) -> Config:
