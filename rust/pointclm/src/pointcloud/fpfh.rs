@@ -17,7 +17,7 @@ use std::f64::consts::PI;
 use rayon::prelude::*;
 
 use super::search::{Neighbourhoods, PointIndex};
-use super::{check_count, check_points, check_positive};
+use super::{check_count, check_index, check_points, check_positive};
 use crate::error::{Error, Result};
 
 /// Length of an FPFH descriptor: 3 angles x 11 bins.
@@ -62,13 +62,7 @@ pub fn fpfh(
             row,
         });
     }
-    if index.len() != points.len() {
-        return Err(Error::LengthMismatch {
-            what: "indexed points (the index must be built on the same cloud)",
-            expected: points.len(),
-            got: index.len(),
-        });
-    }
+    check_index(index, points)?;
     check_positive("feature radius", radius)?;
     check_count("feature max_nn", max_nn, 2)?;
     if points.len() > u32::MAX as usize {

@@ -36,6 +36,18 @@ pub(crate) fn check_points(points: &[[f64; 3]], what: &'static str, min: usize) 
     Ok(())
 }
 
+/// Rejects an index built on another cloud than `points`.
+pub(crate) fn check_index(index: &PointIndex, points: &[[f64; 3]]) -> Result<()> {
+    if index.len() != points.len() {
+        return Err(Error::LengthMismatch {
+            what: "indexed points (the index must be built on the same cloud)",
+            expected: points.len(),
+            got: index.len(),
+        });
+    }
+    Ok(())
+}
+
 /// Rejects a radius (or voxel size) that is not a positive finite number.
 pub(crate) fn check_positive(name: &'static str, value: f64) -> Result<()> {
     if value.is_finite() && value > 0.0 {

@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
 use super::search::PointIndex;
-use super::{check_count, check_points, check_positive};
+use super::{check_count, check_index, check_points, check_positive};
 use crate::error::{Error, Result};
 
 /// How to choose the sign of each normal, which PCA leaves undetermined. FPFH compares
@@ -30,13 +30,7 @@ pub fn estimate_normals(
     orientation: Orientation,
 ) -> Result<Vec<[f64; 3]>> {
     check_points(points, "points for normals", 1)?;
-    if index.len() != points.len() {
-        return Err(Error::LengthMismatch {
-            what: "indexed points (the index must be built on the same cloud)",
-            expected: points.len(),
-            got: index.len(),
-        });
-    }
+    check_index(index, points)?;
     check_positive("normal radius", radius)?;
     check_count("normal max_nn", max_nn, 3)?;
     let anchor = match orientation {

@@ -39,7 +39,7 @@ impl PointIndex {
     /// Up to `max_nn` points within `radius` of `query`, nearest first, as
     /// `(index, squared distance)`. A point of the cloud finds itself first.
     pub fn hybrid(&self, query: &[f64; 3], radius: f64, max_nn: usize) -> Vec<(usize, f64)> {
-        let max_nn = NonZero::new(max_nn.max(1)).expect("max(1) is non-zero");
+        let max_nn = NonZero::new(max_nn).unwrap_or(NonZero::<usize>::MIN);
         self.tree
             .nearest_n_within::<SquaredEuclidean>(query, radius * radius, max_nn, true)
             .into_iter()
