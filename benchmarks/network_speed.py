@@ -165,6 +165,7 @@ def packaging() -> str:
         py = venv / "bin" / "python"
         env = dict(os.environ, CARGO_TARGET_DIR=str(tmp_path / "target"))
         env.pop("PYTHONPATH", None)
+        load_before = load()
         t0 = time.perf_counter()
         subprocess.run(
             [str(py), "-m", "pip", "install", "-q", str(ROOT)],
@@ -190,7 +191,8 @@ def packaging() -> str:
         lines.append(
             f"- `pip install .` into a fresh venv (pip {pip_version}, no torch, fresh "
             f"`CARGO_TARGET_DIR`, so the Rust code compiles from scratch): {install:.0f} s "
-            f"wall on this shared {os.cpu_count()}-core machine. In that venv `import torch` "
+            f"wall on this shared {os.cpu_count()}-core machine (load average before "
+            f"{load_before}, after {load()}). In that venv `import torch` "
             f"fails and `pointclm.register(make_scene(0).correspondences, model='default')` "
             f"finds {out[0]} instances (first call, loading the weights included: "
             f"{1e3 * float(out[1]):.0f} ms)."
