@@ -48,8 +48,8 @@ pub(crate) fn embed(
     let mut act = vec![0.0f32; n * 4 * w];
     let aw = 4 * w;
     // One scratch per thread of the pool, reused by every block that thread runs: a fresh
-    // one per rayon task would allocate (and the kernel zero) the logits again and again,
-    // which cost a fifth of the 2-thread time at N = 1000.
+    // one per rayon task would allocate (and the kernel zero) the logits again in every
+    // sweep.
     let threads = if parallel {
         rayon::current_num_threads()
     } else {
