@@ -7,10 +7,13 @@ venv without torch.
                                        [--out benchmarks/results/network_speed.md]
 
 Forward pass: for k = 1 and 2, `torch.set_num_threads(k)` and the Rust pool at k threads
-(`Network.embed(corr, num_threads=k)`); the two alternate scene by scene so that any load on
-the shared machine hits both alike. Batch: `register_batch` of the same scenes with
-model="default" at 1 and 2 threads, alternated, best of --rounds. The markdown goes to --out
-and to stdout.
+(`Network.embed(corr, num_threads=k)`). Batch: `register_batch` of the same scenes with
+model="default" at 1 and 2 threads. Every timed loop runs in a fresh child process of this
+script: torch's OpenMP workers keep spinning for seconds after a parallel region and would
+take a core from whatever runs next in the same process (measured: Rust at 2 threads went
+from 8.5 to 15 ms right after a 2-thread torch call). The two sides of each comparison
+alternate over --rounds (best per scene is kept), so that load on the shared machine hits
+both alike. The markdown goes to --out and to stdout.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import datetime  # noqa: E402
+import hashlib  # noqa: E402
+import json  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
@@ -34,9 +39,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pointclm  # noqa: E402
-import torch  # noqa: E402
 from pointclm.datasets import make_scene  # noqa: E402
-from pointclm.model import load_model, load_network  # noqa: E402
+from pointclm.model import load_network  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -79,7 +83,7 @@ def environment(command: str) -> str:
         "machine is shared with other jobs, so each comparison alternates its two sides and "
         "reports ratios measured in the same run.\n"
         f"- Versions: pointclm {pointclm.__version__} (git {rev}), Python "
-        f"{platform.python_version()}, numpy {np.__version__}, torch {torch.__version__}, "
+        f"{platform.python_version()}, numpy {np.__version__}, torch {torch_version()}, "
         f"{tool_version(['rustc', '--version'])}, {tool_version(['maturin', '--version'])}.\n"
         "- Rust side: the extension built with `cargo build --release -p pointclm-py` "
         "(workspace release profile: thin LTO); faer picks AVX-512/AVX2 kernels at run time, "
@@ -87,51 +91,108 @@ def environment(command: str) -> str:
     )
 
 
-def forward_times(
-    scenes: list[np.ndarray], name: str, threads: int, rounds: int
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Per-scene seconds (best of `rounds`) of torch's and Rust's forward pass, and the max
-    abs difference of their embeddings."""
-    torch.set_num_threads(threads)
-    net, rust = load_model(name), load_network(name)
-    tensors = [torch.tensor(c, dtype=torch.float32)[None] for c in scenes]
-    with torch.no_grad():
-        for x, c in zip(tensors[:3], scenes[:3], strict=True):  # warm-up
-            net(x)
-            rust.embed(c, num_threads=threads)
-        t_torch = np.full(len(scenes), np.inf)
-        t_rust = np.full(len(scenes), np.inf)
-        worst = 0.0
-        for _ in range(rounds):
-            for i, (x, c) in enumerate(zip(tensors, scenes, strict=True)):
-                t0 = time.perf_counter()
-                want = net(x)
-                t1 = time.perf_counter()
-                got = rust.embed(c, num_threads=threads)
-                t2 = time.perf_counter()
-                t_torch[i] = min(t_torch[i], t1 - t0)
-                t_rust[i] = min(t_rust[i], t2 - t1)
-                worst = max(worst, float(np.abs(got - want[0].double().numpy()).max()))
-    return t_torch, t_rust, worst
+def torch_version() -> str:
+    import torch
+
+    return str(torch.__version__)
 
 
-def batch_throughput(scenes: list[np.ndarray], rounds: int) -> dict[int, float]:
-    """Scenes per second of register_batch(model="default"), best of `rounds` per thread
-    count, the counts alternating."""
-    pointclm.register_batch(scenes[:4], model="default", num_threads=2)  # load + warm-up
-    best = dict.fromkeys(THREADS, 0.0)
-    results = {}
-    for _ in range(rounds):
-        for k in THREADS:
-            t0 = time.perf_counter()
-            results[k] = pointclm.register_batch(scenes, model="default", num_threads=k)
-            best[k] = max(best[k], len(scenes) / (time.perf_counter() - t0))
-    one, two = results[1], results[2]
-    same = all(
-        np.array_equal(a.transformations, b.transformations) and np.array_equal(a.labels, b.labels)
-        for a, b in zip(one, two, strict=True)
+def scenes_for(count: int) -> list[np.ndarray]:
+    return [make_scene(s).correspondences for s in range(count)]
+
+
+def child_forward(name: str, backend: str, threads: int, count: int) -> list[float]:
+    """Seconds per scene of one backend's forward pass (after 3 warm-up calls)."""
+    scenes = scenes_for(count)
+    if backend == "torch":
+        import torch
+        from pointclm.model import load_model
+
+        torch.set_num_threads(threads)
+        net = load_model(name)
+        inputs = [torch.tensor(c, dtype=torch.float32)[None] for c in scenes]
+
+        def run(x: object) -> object:
+            with torch.no_grad():
+                return net(x)
+    else:
+        rust = load_network(name)
+        inputs = scenes
+
+        def run(x: object) -> object:
+            return rust.embed(x, num_threads=threads)
+
+    for x in inputs[:3]:
+        run(x)
+    times = []
+    for x in inputs:
+        t0 = time.perf_counter()
+        run(x)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def child_batch(threads: int, count: int) -> dict[str, object]:
+    """Scenes per second of register_batch(model="default"), and a digest of the results."""
+    scenes = scenes_for(count)
+    pointclm.register_batch(scenes[:4], model="default", num_threads=threads)  # warm-up
+    t0 = time.perf_counter()
+    results = pointclm.register_batch(scenes, model="default", num_threads=threads)
+    rate = len(scenes) / (time.perf_counter() - t0)
+    digest = hashlib.sha256()
+    for r in results:
+        digest.update(r.transformations.tobytes() + r.labels.tobytes())
+    return {"rate": rate, "digest": digest.hexdigest()}
+
+
+def in_child(*args: object) -> object:
+    out = subprocess.run(
+        [sys.executable, __file__, "--child", *map(str, args)],
+        capture_output=True,
+        text=True,
+        check=True,
     )
-    if not same:
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def forward_times(
+    name: str, threads: int, count: int, rounds: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-scene best-of-`rounds` seconds of torch and Rust, alternating which goes first."""
+    best = {b: np.full(count, np.inf) for b in ("torch", "rust")}
+    for r in range(rounds):
+        for backend in ("torch", "rust") if r % 2 == 0 else ("rust", "torch"):
+            times = np.asarray(in_child("forward", name, backend, threads, count))
+            best[backend] = np.minimum(best[backend], times)
+    return best["torch"], best["rust"]
+
+
+def max_difference(name: str, count: int) -> float:
+    """Largest |Rust - torch| over the embeddings of the timed scenes (untimed)."""
+    import torch
+    from pointclm.model import load_model
+
+    net, rust = load_model(name), load_network(name)
+    worst = 0.0
+    with torch.no_grad():
+        for c in scenes_for(count):
+            want = net(torch.tensor(c, dtype=torch.float32)[None])[0].double().numpy()
+            worst = max(worst, float(np.abs(rust.embed(c) - want).max()))
+    return worst
+
+
+def batch_throughput(count: int, rounds: int) -> dict[int, float]:
+    """Best-of-`rounds` scenes per second at 1 and 2 threads (alternating), after checking
+    that both give identical results."""
+    best = dict.fromkeys(THREADS, 0.0)
+    digests = set()
+    for r in range(rounds):
+        for k in THREADS if r % 2 == 0 else THREADS[::-1]:
+            out = in_child("batch", k, count)
+            assert isinstance(out, dict)
+            best[k] = max(best[k], float(out["rate"]))
+            digests.add(out["digest"])
+    if len(digests) != 1:
         raise AssertionError("register_batch differs between 1 and 2 threads")
     return best
 
@@ -165,6 +226,7 @@ def packaging() -> str:
         py = venv / "bin" / "python"
         env = dict(os.environ, CARGO_TARGET_DIR=str(tmp_path / "target"))
         env.pop("PYTHONPATH", None)
+        load_before = load()
         t0 = time.perf_counter()
         subprocess.run(
             [str(py), "-m", "pip", "install", "-q", str(ROOT)],
@@ -189,8 +251,10 @@ def packaging() -> str:
         ).stdout.split()[1]
         lines.append(
             f"- `pip install .` into a fresh venv (pip {pip_version}, no torch, fresh "
-            f"`CARGO_TARGET_DIR`, so the Rust code compiles from scratch): {install:.0f} s "
-            f"wall on this shared {os.cpu_count()}-core machine. In that venv `import torch` "
+            f"`CARGO_TARGET_DIR`, so the Rust code compiles from scratch; crate sources already "
+            f"in ~/.cargo): {install:.0f} s "
+            f"wall on this shared {os.cpu_count()}-core machine (load average before "
+            f"{load_before}, after {load()}). In that venv `import torch` "
             f"fails and `pointclm.register(make_scene(0).correspondences, model='default')` "
             f"finds {out[0]} instances (first call, loading the weights included: "
             f"{1e3 * float(out[1]):.0f} ms)."
@@ -199,6 +263,14 @@ def packaging() -> str:
 
 
 def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        kind, rest = sys.argv[2], sys.argv[3:]
+        if kind == "forward":
+            result: object = child_forward(rest[0], rest[1], int(rest[2]), int(rest[3]))
+        else:
+            result = child_batch(int(rest[0]), int(rest[1]))
+        print(json.dumps(result))
+        return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", type=int, default=20, help="scenes for the forward timing")
     ap.add_argument("--batch", type=int, default=200, help="scenes for register_batch")
@@ -209,13 +281,13 @@ def main() -> None:
     command = "python benchmarks/network_speed.py " + " ".join(sys.argv[1:])
 
     header = environment(command.strip())
-    scenes = [make_scene(s).correspondences for s in range(max(args.scenes, args.batch))]
-    assert all(len(c) == 1000 for c in scenes)
+    assert all(len(c) == 1000 for c in scenes_for(args.scenes))
 
     rows, checks = [], []
     for name in NETWORKS:
+        worst = max_difference(name, args.scenes)
         for k in THREADS:
-            t_torch, t_rust, worst = forward_times(scenes[: args.scenes], name, k, args.rounds)
+            t_torch, t_rust = forward_times(name, k, args.scenes, args.rounds)
             ratio = float(np.median(t_torch) / np.median(t_rust))
             rows.append(
                 f"| {name} | {k} | {1e3 * np.median(t_torch):.1f} | {1e3 * np.median(t_rust):.1f}"
@@ -225,8 +297,9 @@ def main() -> None:
             print(rows[-1], flush=True)
     forward = (
         f"Median over {args.scenes} scenes (N = 1000, `make_scene(0..{args.scenes - 1})`) of "
-        f"each scene's best of {args.rounds}; the last column is the largest difference "
-        "between the two embeddings.\n\n"
+        f"each scene's best of {args.rounds} (each backend in its own child process, the "
+        "order alternating); the last column is the largest difference between the two "
+        "embeddings over those scenes (default thread counts).\n\n"
         "| network | threads | torch CPU (ms) | Rust (ms) | speed-up | max abs diff |\n"
         "|---|---|---|---|---|---|\n" + "\n".join(rows) + "\n\n"
     )
@@ -239,12 +312,14 @@ def main() -> None:
     )
 
     load_before = load()
-    best = batch_throughput(scenes[: args.batch], args.rounds)
+    best = batch_throughput(args.batch, args.rounds)
     scaling = best[2] / best[1]
     batch = (
         f'`register_batch` of {args.batch} scenes with model="default" (Rust network, '
-        f"recommended config), best of {args.rounds} alternated runs; results identical at 1 "
-        f"and 2 threads (checked). Load average before: {load_before}; after: {load()}.\n\n"
+        f"recommended config, `make_scene(0..{args.batch - 1})`), scenes per second of the "
+        f"best of {args.rounds} runs per thread count (each in its own child process, the "
+        "order alternating); results identical at 1 and 2 threads (checked by a digest of "
+        f"poses and labels). Load average before: {load_before}; after: {load()}.\n\n"
         "| threads | scenes/s |\n|---|---|\n"
         + "".join(f"| {k} | {best[k]:.1f} |\n" for k in THREADS)
         + f"\nTarget: 2 threads >= {BATCH_TARGET}x the 1-thread throughput: "

@@ -42,8 +42,8 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--num-threads", type=int, default=None, help="threads (default: all)")
     p.add_argument(
         "--model",
-        help="learned embedding: default, paper or a weight file "
-        "(needs pointclm[train]); omit for the training-free pipeline",
+        help="learned embedding: default, paper or a weight file (run by the Rust core); "
+        "omit for the training-free pipeline",
     )
 
 

@@ -6,6 +6,8 @@
 //! MLP and residual for every block. The blocks do not depend on the thread count and each is
 //! computed sequentially, so the result is bit-identical however the sweeps are scheduled.
 
+use std::sync::Mutex;
+
 use faer::MatRef;
 use rayon::prelude::*;
 
@@ -45,13 +47,26 @@ pub(crate) fn embed(
     let mut feat = vec![0.0f32; n * w];
     let mut act = vec![0.0f32; n * 4 * w];
     let aw = 4 * w;
+    // One scratch per thread of the pool, reused by every block that thread runs: a fresh
+    // one per rayon task would allocate (and the kernel zero) the logits again in every
+    // sweep.
+    let threads = if parallel {
+        rayon::current_num_threads()
+    } else {
+        1
+    };
+    let scratch: Vec<Mutex<Scratch>> = (0..threads).map(|_| Mutex::default()).collect();
+    let for_blocks =
+        |buf: &mut [f32], chunk: usize, f: &(dyn Fn(usize, &mut [f32], &mut Scratch) + Sync)| {
+            for_blocks(parallel, buf, chunk, &scratch, f)
+        };
 
-    for_blocks(parallel, &mut feat, block_rows * w, |k, out, _| {
+    for_blocks(&mut feat, block_rows * w, &|k, out, _| {
         let x = block(&input, 6, k, block_rows);
         net.lift.apply(x.len() / 6, (x, 6), (out, w), false);
     });
     for layer in &net.blocks {
-        for_blocks(parallel, &mut act, block_rows * aw, |k, out, s| {
+        for_blocks(&mut act, block_rows * aw, &|k, out, s| {
             let x = block(&feat, w, k, block_rows);
             let count = x.len() / w;
             s.pointcn.resize(count * w, 0.0);
@@ -67,7 +82,7 @@ pub(crate) fn embed(
         });
         let keys = MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, aw);
         let values = MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, aw);
-        for_blocks(parallel, &mut feat, block_rows * w, |k, out, s| {
+        for_blocks(&mut feat, block_rows * w, &|k, out, s| {
             let first = k * block_rows;
             let count = out.len() / w;
             let rows = &act[first * aw..(first + count) * aw];
@@ -113,21 +128,31 @@ fn block(m: &[f32], cols: usize, k: usize, block_rows: usize) -> &[f32] {
 }
 
 /// Runs `f(k, rows_of_block_k, scratch)` over the chunks of `buf` (`chunk` values each), in
-/// parallel on the current rayon pool or in order on this thread.
+/// parallel on the current rayon pool or in order on this thread, with the scratch of the
+/// running thread.
 fn for_blocks(
     parallel: bool,
     buf: &mut [f32],
     chunk: usize,
-    f: impl Fn(usize, &mut [f32], &mut Scratch) + Sync,
+    scratch: &[Mutex<Scratch>],
+    f: &(dyn Fn(usize, &mut [f32], &mut Scratch) + Sync),
 ) {
+    let run = |k: usize, x: &mut [f32]| {
+        let mine = rayon::current_thread_index().unwrap_or(0) % scratch.len();
+        // Uncontended: a thread runs one block at a time. A poisoned or busy lock (not
+        // expected) falls back to a fresh scratch rather than failing.
+        match scratch[mine].try_lock() {
+            Ok(mut s) => f(k, x, &mut s),
+            Err(_) => f(k, x, &mut Scratch::default()),
+        }
+    };
     if parallel {
         buf.par_chunks_mut(chunk)
             .enumerate()
-            .for_each_init(Scratch::default, |s, (k, x)| f(k, x, s));
+            .for_each(|(k, x)| run(k, x));
     } else {
-        let mut s = Scratch::default();
         for (k, x) in buf.chunks_mut(chunk).enumerate() {
-            f(k, x, &mut s);
+            run(k, x);
         }
     }
 }

@@ -92,8 +92,10 @@ impl Dense {
     }
 }
 
-/// The correspondences in `f32` as torch sees them (its `spatial_consistency` runs on the
-/// float32 input), for `beta` inside the attention.
+/// The correspondences in `f32` as torch sees them, for `beta` inside the attention. The
+/// core's f64 kernels (`consistency`) are not used here: torch computes this `beta` from the
+/// float32 input, and following its rounding keeps the embeddings closer to torch's; f32 also
+/// doubles the SIMD width of this N x N loop.
 pub(crate) struct Geometry {
     src: [Vec<f32>; 3],
     dst: [Vec<f32>; 3],
