@@ -137,8 +137,19 @@ pub fn register_with_network(
     seed: u64,
 ) -> Result<Registration> {
     config.validate()?;
+    register_embedded(c, config, seed, || network.embed(c))
+}
+
+/// Embeds with `embed` (timed as the embedding stage), then registers with those features.
+#[cfg(feature = "network")]
+fn register_embedded(
+    c: &Correspondences,
+    config: &Config,
+    seed: u64,
+    embed: impl FnOnce() -> Result<Features>,
+) -> Result<Registration> {
     let t0 = Instant::now();
-    let features = network.embed(c)?;
+    let features = embed()?;
     let embedding = t0.elapsed().as_secs_f64();
     let mut r = register(c, Some(&features), config, seed)?;
     r.timings.embedding = embedding;
@@ -162,14 +173,7 @@ pub fn register_batch_with_network(
     Ok(pool.install(|| {
         scenes
             .par_iter()
-            .map(|c| {
-                let t0 = Instant::now();
-                let features = network.embed_sequential(c)?;
-                let embedding = t0.elapsed().as_secs_f64();
-                let mut r = register(c, Some(&features), config, seed)?;
-                r.timings.embedding = embedding;
-                Ok(r)
-            })
+            .map(|c| register_embedded(c, config, seed, || network.embed_sequential(c)))
             .collect()
     }))
 }
