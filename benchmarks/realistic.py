@@ -9,8 +9,11 @@ half of the instances, clutter, noise; FPFH matches, mutual, top 10,000, at most
 An instance is registered when RE < 15 deg and TE < 10 % of the model's diagonal.
 
 Methods, all on the same correspondences, in the same run:
-- pointclm, training-free (default config scaled to the voxel: ``scaled_config``);
-- pointclm with a learned embedding (``--model``; skipped if torch is missing);
+- pointclm, training-free: ``register_point_clouds``' default, the thresholds chosen on
+  validation models for point clouds (``POINT_CLOUD_THRESHOLDS``) scaled to the voxel;
+- the same with ``Config()``'s thresholds (chosen for the synthetic protocol), for reference;
+- pointclm with each learned embedding of ``--model`` (its ``recommended_point_cloud_config``;
+  the Rust network, so no torch needed);
 - sequential RANSAC (Open3D ``registration_ransac_based_on_correspondence``, 3-point samples,
   inlier threshold 2 voxels (the scenes' inlier definition; pointclm's 6-voxel threshold lets
   wrong poses gather as many inliers as right ones here), 20,000 iterations per
@@ -69,7 +72,10 @@ def sequential_ransac(corr: np.ndarray, threshold: float, min_inliers: int, iter
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=100)
-    ap.add_argument("--model", default="default", help="learned embedding ('' to skip)")
+    ap.add_argument(
+        "--model", default="default", help="learned embedding(s), comma-separated ('' to skip)"
+    )
+    ap.add_argument("--skip-ransac", action="store_true", help="leave the slow baseline out")
     ap.add_argument("--out", default="benchmarks/results/realistic.md")
     args = ap.parse_args()
 
@@ -79,6 +85,7 @@ def main() -> None:
     from pointclm.metrics import Summary, score_scene, summarize
     from pointclm.point_clouds import scaled_config
 
+    base = pointclm.Config()
     t_start = time.perf_counter()
     try:
         import open3d as o3d
@@ -86,17 +93,10 @@ def main() -> None:
         o3d_version = o3d.__version__
     except ImportError:
         o3d_version = None
-    model = args.model or None
-    if model:
-        try:
-            import torch  # noqa: F401
-        except ImportError:
-            model = None
-
-    methods = ["pointclm, training-free"]
-    if model:
-        methods.append(f"pointclm, learned embedding ({model!r})")
-    if o3d_version:
+    models = [m for m in args.model.split(",") if m]
+    methods = ["pointclm, training-free", "pointclm, training-free, Config() thresholds"]
+    methods += [f"pointclm, learned embedding ({m!r})" for m in models]
+    if o3d_version and not args.skip_ransac:
         methods.append(f"sequential RANSAC (Open3D {o3d_version})")
     scores: dict[str, list] = {m: [] for m in methods}
     secs: dict[str, list] = {m: [] for m in methods}
@@ -110,11 +110,15 @@ def main() -> None:
         te = sc.max_translation
         for m in methods:
             t = time.perf_counter()
-            if m.startswith("pointclm, training-free"):
+            if m == "pointclm, training-free":
                 poses = _register_scaled(sc.correspondences, sc.voxel_size, None, 0, 1, None)
                 poses = poses.transformations
+            elif m.startswith("pointclm, training-free"):
+                r = _register_scaled(sc.correspondences, sc.voxel_size, base, 0, 1, None)
+                poses = r.transformations
             elif m.startswith("pointclm, learned"):
-                r = _register_scaled(sc.correspondences, sc.voxel_size, None, 0, 1, model)
+                name = m.split("(")[1][1:-2]
+                r = _register_scaled(sc.correspondences, sc.voxel_size, None, 0, 1, name)
                 poses = r.transformations
             else:
                 cfg = scaled_config(sc.voxel_size)
@@ -134,7 +138,8 @@ def main() -> None:
     hist, edges = np.histogram(np.asarray(ratios) * 100, bins=[0, 1, 2, 5, 10, 20, 100])
     lines = [
         f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/realistic.py --scenes {args.scenes} --model {args.model!r}`.",
+        f"`python benchmarks/realistic.py --scenes {args.scenes} --model {args.model!r}"
+        f"{' --skip-ransac' if args.skip_ransac else ''}`.",
         f"- Hardware: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
         "pointclm with 1 thread, Open3D with its default threads. "
         f"pointclm {pointclm.__version__} (git {commit}).",

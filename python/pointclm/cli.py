@@ -355,7 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("train", help="train the correspondence embedding (needs torch)")
     t.add_argument("--config", help='JSON file of TrainConfig fields ("preset" to start from)')
-    t.add_argument("--preset", default="cpu", help="cpu (default), compact-gpu, paper, smoke")
+    t.add_argument(
+        "--preset", default="cpu", help="cpu (default), realistic-cpu, compact-gpu, paper, smoke"
+    )
     t.add_argument("--out", required=True, help="output folder (weights, checkpoints, log)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
     t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")

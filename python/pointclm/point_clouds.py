@@ -20,11 +20,26 @@ from ._core import Instance, RegistrationResult
 from .config import Config
 from .registration import register
 
-__all__ = ["PointCloudRegistration", "default_voxel_size", "register_point_clouds", "scaled_config"]
+__all__ = [
+    "PointCloudRegistration",
+    "default_voxel_size",
+    "network_units",
+    "register_point_clouds",
+    "scaled_config",
+]
 
 #: The default voxel is the model's bounding-box diagonal over this: about 1,500 points on a
 #: typical object whatever its units, and an FPFH radius (5 voxels) of 1/8 of its size.
 VOXELS_PER_DIAGONAL = 40
+
+
+#: Training-free thresholds for FPFH correspondences between point clouds. An instance there
+#: holds a handful of consistent matches (the synthetic protocol: dozens), so a correspondence
+#: needs fewer consistent neighbours to survive pruning than `Config()` asks. Chosen on
+#: realistic scenes of the validation models (never the benchmark's bunny) by
+#: ``benchmarks/realistic_thresholds.py``; a network brings its own
+#: (``recommended_point_cloud_config`` in its metadata).
+POINT_CLOUD_THRESHOLDS: dict[str, Any] = {"tau_s": 0.85, "tau_n": 5, "min_cluster_size": 10}
 
 
 def default_voxel_size(model_points: ArrayLike) -> float:
@@ -181,17 +196,26 @@ def register_point_clouds(
     )
 
 
+def network_units(corr: np.ndarray, sigma_d: float, network_sigma_d: float) -> np.ndarray:
+    """Correspondences in real units as the network saw them in training: each side centred
+    on its centroid (translations change no consistency, and the network must not depend on
+    where a scan's origin lies) and scaled by ``network_sigma_d / sigma_d``, so the network
+    attends with the length tolerance it was trained with."""
+    c = np.asarray(corr, dtype=np.float64)
+    centred = np.hstack([c[:, :3] - c[:, :3].mean(0), c[:, 3:] - c[:, 3:].mean(0)])
+    return np.ascontiguousarray(centred * (network_sigma_d / sigma_d))
+
+
 def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | None) -> np.ndarray:
     """The learned embedding of correspondences in real units.
 
     The network attends with the sigma_d it was trained with (synthetic units): it sees the
-    correspondences scaled by ``trained sigma_d / cfg.sigma_d`` (a uniform scale changes
-    nothing else it sees). Shipped names, weight files and `pointclm.Network` run on the Rust
-    network; a torch module on torch.
+    correspondences in network units (:func:`network_units`). Shipped names, weight files and
+    `pointclm.Network` run on the Rust network; a torch module on torch.
     """
     from .registration import _is_weights, _rust_network, _torch_embed
 
-    scaled = np.ascontiguousarray(corr * (Config().sigma_d / cfg.sigma_d))
+    scaled = network_units(corr, cfg.sigma_d, Config().sigma_d)
     if _is_weights(model) or type(model).__name__ == "Network":
         return np.asarray(_rust_network(model).embed(scaled, num_threads=num_threads))
     return _torch_embed(scaled, model, None)
@@ -206,9 +230,12 @@ def _config(config: Config | dict[str, Any] | None, voxel: float, model: Any) ->
         return Config(**config)
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
-    base = Config()
+    base = Config(**POINT_CLOUD_THRESHOLDS)
     if isinstance(model, str | os.PathLike):
         from .model import load_metadata
 
-        base = Config(**load_metadata(model).get("recommended_config", {}))
+        meta = load_metadata(model)
+        base = Config(
+            **meta.get("recommended_point_cloud_config", meta.get("recommended_config", {}))
+        )
     return scaled_config(voxel, base)

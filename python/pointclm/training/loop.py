@@ -19,35 +19,70 @@ from ..metrics import score_scene, summarize
 from ..registration import register
 from .config import TrainConfig
 from .data import ShapeBank, make_batch
+from .realistic import SceneBank, realistic_sample
 
-__all__ = ["train", "validate"]
+__all__ = ["train", "validate", "validate_realistic"]
 
 
 def _seed_for(base: int, *parts: int) -> int:
     return int(np.random.SeedSequence([base, *parts]).generate_state(1, np.uint64)[0])
 
 
+Group = tuple[np.ndarray, np.ndarray]
+
+
+def _n_realistic(cfg: TrainConfig) -> int:
+    return round(cfg.batch_size * cfg.realistic_fraction)
+
+
 class _Batches:
     """Map-style dataset: item i is the whole batch of iteration i (order-preserving with
-    workers, so resuming at iteration i sees exactly the batches an uninterrupted run would)."""
+    workers, so resuming at iteration i sees exactly the batches an uninterrupted run would).
 
-    def __init__(self, cfg: TrainConfig, bank: ShapeBank) -> None:
-        self.cfg, self.bank = cfg, bank
+    A batch is a list of groups of equal-sized scenes: the synthetic scenes stacked, then each
+    realistic scene alone (their correspondence counts differ)."""
+
+    def __init__(self, cfg: TrainConfig, bank: ShapeBank, scenes: SceneBank | None) -> None:
+        self.cfg, self.bank, self.scenes = cfg, bank, scenes
 
     def __len__(self) -> int:
         return self.cfg.iterations
 
-    def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+    def __getitem__(self, i: int) -> list[Group]:
         c = self.cfg
-        return make_batch(
-            self.bank,
-            c.train_shapes,
-            _seed_for(c.seed, 1, i),
-            c.batch_size,
-            c.n_correspondences,
-            c.train_outlier_blocks,
-            c.wrong_match_fraction,
-        )
+        n_real = _n_realistic(c) if self.scenes is not None else 0
+        groups: list[Group] = []
+        if c.batch_size > n_real:
+            groups.append(
+                make_batch(
+                    self.bank,
+                    c.train_shapes,
+                    _seed_for(c.seed, 1, i),
+                    c.batch_size - n_real,
+                    c.n_correspondences,
+                    c.train_outlier_blocks,
+                    c.wrong_match_fraction,
+                )
+            )
+        rng = np.random.default_rng(_seed_for(c.seed, 6, i))
+        for _ in range(n_real):
+            assert self.scenes is not None
+            x, y = realistic_sample(self.scenes, rng, c.sigma_d, c.n_correspondences)
+            groups.append((x[None], y[None]))
+        return groups
+
+
+def _scene_bank(path: str | None, out: Path, name: str, build: Any) -> SceneBank:
+    """A saved bank when given, else built once and saved in the run folder (a resumed run
+    finds it there)."""
+    if path:
+        return SceneBank.load(path)
+    cached = out / name
+    if cached.is_file():
+        return SceneBank.load(cached)
+    bank = build()
+    bank.save(cached)
+    return bank
 
 
 def validation_scenes(cfg: TrainConfig, bank: ShapeBank) -> list[Any]:
@@ -64,20 +99,77 @@ def validation_scenes(cfg: TrainConfig, bank: ShapeBank) -> list[Any]:
     return scenes
 
 
-def validate(model: Any, scenes: list[Any], device: str) -> dict[str, float]:
+def validate(
+    model: Any, scenes: list[Any], device: str, config: Config | None = None
+) -> dict[str, float]:
     """Paper MR/MP/MF and strict F1 with the embedding as features (model in eval mode)."""
     import torch
 
+    config = config or Config()
     model.eval()
     scores = []
     with torch.no_grad():
         for s in scenes:
             x = torch.tensor(s.correspondences, dtype=torch.float32, device=device)[None]
             feats = model(x)[0].double().cpu().numpy()
-            r = register(s.correspondences, feats, Config(), seed=0)
+            r = register(s.correspondences, feats, config, seed=0)
             scores.append(score_scene(r.transformations, s.poses))
     model.train()
     return summarize(scores).as_dict()
+
+
+def validate_realistic(
+    model: Any, bank: SceneBank, device: str, config: Config | None = None
+) -> dict[str, float]:
+    """The same on realistic scenes, in real units as `register_point_clouds` runs them:
+    `config` scaled to each scene's voxel, TE threshold 10 % of the model's diagonal."""
+    import torch
+
+    from ..point_clouds import network_units, scaled_config
+
+    model.eval()
+    scores = []
+    with torch.no_grad():
+        for i in range(len(bank)):
+            corr = bank.correspondences[i].astype(np.float64)
+            cfg = scaled_config(float(bank.voxels[i]), config)
+            x = network_units(corr, cfg.sigma_d, model.config.sigma_d)
+            feats = model(torch.tensor(x, dtype=torch.float32, device=device)[None])[0]
+            r = register(corr, feats.double().cpu().numpy(), cfg, seed=0)
+            scores.append(
+                score_scene(
+                    r.transformations, bank.poses[i], max_translation=0.1 * bank.diameters[i]
+                )
+            )
+    model.train()
+    return summarize(scores).as_dict()
+
+
+def _batch_loss(model: Any, groups: list[Any], cfg: TrainConfig, device: str, gen: Any) -> Any:
+    """The contrastive loss of each group, weighted by its number of scenes."""
+    import torch
+
+    from ..model import contrastive_loss
+
+    total: Any = 0.0
+    n = 0
+    stats_sum: dict[str, float] = {}
+    for x, y in groups:
+        x, y = torch.as_tensor(x, device=device), torch.as_tensor(y, device=device)
+        loss, stats = contrastive_loss(
+            model(x),
+            y,
+            margin_pos=cfg.margin_pos,
+            margin_neg=cfg.margin_neg,
+            negatives=cfg.negatives,
+            generator=gen,
+        )
+        b = len(x)
+        total = total + loss * b
+        n += b
+        for k, v in stats.items():
+            stats_sum[k] = stats_sum.get(k, 0.0) + float(v) * b
+    return total / n, {k: v / n for k, v in stats_sum.items()}
 
 
 def _environment(device: str) -> dict[str, Any]:
@@ -113,7 +205,7 @@ def train(
     import torch
     from tqdm import tqdm
 
-    from ..model import EmbeddingConfig, SCNonlocal, contrastive_loss, save_model
+    from ..model import EmbeddingConfig, SCNonlocal, load_model, save_model
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -127,6 +219,41 @@ def train(
     )
     bank.save(out / "shape_bank.npz")
     model = SCNonlocal(EmbeddingConfig(cfg.depth, cfg.width, cfg.sigma_d)).to(device)
+    if cfg.init_weights:
+        init = load_model(cfg.init_weights, device=device)
+        if init.config != model.config:
+            raise ValueError(
+                f"init_weights {cfg.init_weights!r} are a {init.config} network, the config "
+                f"asks for {model.config}"
+            )
+        model.load_state_dict(init.state_dict())
+    scenes = val_real = None
+    if cfg.realistic_fraction > 0:
+        scenes = _scene_bank(
+            cfg.realistic_bank,
+            out,
+            "scene_bank.npz",
+            lambda: SceneBank.build(
+                cfg.realistic_models,
+                cfg.realistic_scenes_per_model,
+                cfg.seed,
+                cfg.data_dir,
+                progress=progress,
+            ),
+        )
+        val_real = _scene_bank(
+            cfg.val_realistic_bank,
+            out,
+            "val_scene_bank.npz",
+            lambda: SceneBank.build(
+                cfg.val_shapes,
+                cfg.val_realistic_scenes_per_model,
+                cfg.seed + 1,
+                cfg.data_dir,
+                progress=progress,
+            ),
+        )
+    val_config = Config(**cfg.val_config)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     start, best, elapsed = 0, None, 0.0
     ckpt = out / "checkpoint.pt"
@@ -147,7 +274,9 @@ def train(
     val_scenes = validation_scenes(cfg, bank)
     loader: Any = torch.utils.data.DataLoader(
         # any object with __len__/__getitem__ serves as a map-style dataset
-        torch.utils.data.Subset(cast(Any, _Batches(cfg, bank)), range(start, cfg.iterations)),
+        torch.utils.data.Subset(
+            cast(Any, _Batches(cfg, bank, scenes)), range(start, cfg.iterations)
+        ),
         batch_size=None,
         shuffle=False,
         num_workers=cfg.num_workers,
@@ -159,17 +288,9 @@ def train(
     bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it", disable=not progress)
     model.train()
     it = start
-    for it, (x, y) in enumerate(loader, start=start + 1):
-        x, y = torch.as_tensor(x, device=device), torch.as_tensor(y, device=device)
+    for it, groups in enumerate(loader, start=start + 1):
         gen = torch.Generator(device=device).manual_seed(_seed_for(cfg.seed, 4, it) % 2**63)
-        loss, stats = contrastive_loss(
-            model(x),
-            y,
-            margin_pos=cfg.margin_pos,
-            margin_neg=cfg.margin_neg,
-            negatives=cfg.negatives,
-            generator=gen,
-        )
+        loss, stats = _batch_loss(model, groups, cfg, device, gen)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -182,9 +303,18 @@ def train(
         bar.update(1)
         postfix = {"loss": f"{float(loss.detach()):.4f}"}
         if it % cfg.val_every == 0 or it == cfg.iterations:
-            metrics = validate(model, val_scenes, device)
+            metrics = validate(model, val_scenes, device, val_config)
             row["val"] = metrics
             key = (metrics["mean_f1"], metrics["strict_f1"])
+            if val_real is not None:
+                real = validate_realistic(model, val_real, device, val_config)
+                row["val_realistic"] = real
+                postfix["val_real_MF"] = f"{100 * real['mean_f1']:.2f}"
+                # both benchmarks count alike: the synthetic one must not be lost for the other
+                key = (
+                    (metrics["mean_f1"] + real["mean_f1"]) / 2,
+                    (metrics["strict_f1"] + real["strict_f1"]) / 2,
+                )
             if best is None or key >= tuple(best["key"]):
                 best = {"key": list(key), "iteration": it, "metrics": metrics}
                 save_model(
@@ -193,6 +323,7 @@ def train(
                     extra={
                         "iteration": it,
                         "validation": metrics,
+                        **({"validation_realistic": row["val_realistic"]} if val_real else {}),
                         "train_config": cfg.to_dict(),
                         "environment": _environment(device),
                         "train_seconds": time.perf_counter() - t0,
