@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from pointclm.point_clouds import POINT_CLOUD_THRESHOLDS, _config, network_units, scaled_config
 from pointclm.training.config import TrainConfig
-from pointclm.training.realistic import SceneBank, realistic_sample, scene_seed
+from pointclm.training.realistic import SceneBank, near_misses, realistic_sample, scene_seed
 
 
 @pytest.fixture(scope="module")
@@ -101,3 +101,26 @@ def test_training_mixes_realistic_scenes(bank: SceneBank, tmp_path: Path) -> Non
 
     rows = [json.loads(r) for r in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert "val_realistic" in rows[-1] and rows[-1]["val_realistic"]["n_scenes"] == 2
+
+
+def test_near_misses_are_outliers_close_to_a_true_pose() -> None:
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 0.0, 0.0]
+    src = np.zeros((4, 3))
+    tgt = np.array([[1.0, 0, 0], [1.5, 0, 0], [3.0, 0, 0], [1.2, 0, 0]])
+    labels = np.array([0, -1, -1, 0])
+    near = near_misses(np.hstack([src, tgt]), labels, pose[None], radius=1.0)
+    np.testing.assert_array_equal(near, [False, True, False, False])
+    assert not near_misses(np.hstack([src, tgt]), labels, np.zeros((0, 4, 4)), 1.0).any()
+
+
+def test_ignored_correspondences_are_never_negatives() -> None:
+    torch = pytest.importorskip("torch")
+    from pointclm.model.loss import IGNORE, negative_distances
+
+    # anchor 0 (instance 0): its closest other correspondence is ignored, the next an outlier
+    dist = torch.tensor([[[0.0, 0.1, 0.5], [0.1, 0.0, 0.7], [0.5, 0.7, 0.0]]])
+    labels = torch.tensor([[0, IGNORE, -1]])
+    chosen, valid = negative_distances(dist, labels)
+    assert valid.tolist() == [[True, False, False]]
+    assert float(chosen[0, 0]) == pytest.approx(0.5)

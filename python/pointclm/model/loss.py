@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["contrastive_loss", "negative_distances"]
+__all__ = ["IGNORE", "contrastive_loss", "negative_distances"]
+
+#: Label of a correspondence the loss leaves out: neither an anchor, a positive nor a negative.
+IGNORE = -2
 
 
 def negative_distances(
@@ -16,12 +19,12 @@ def negative_distances(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Per anchor: the distance to its chosen negative, and whether the anchor counts.
 
-    dist: (B, N, N) feature distances; labels: (B, N), -1 outlier, k instance k. Anchors are
-    inliers that have at least one negative. `mode` "hardest" takes the closest negative,
-    "random" a uniformly drawn one (the paper's ablation).
+    dist: (B, N, N) feature distances; labels: (B, N), -1 outlier, k instance k, `IGNORE`
+    left out. Anchors are inliers that have at least one negative. `mode` "hardest" takes the
+    closest negative, "random" a uniformly drawn one (the paper's ablation).
     """
     anchor = labels >= 0
-    neg = labels[:, :, None] != labels[:, None, :]
+    neg = (labels[:, :, None] != labels[:, None, :]) & (labels[:, None, :] != IGNORE)
     valid = anchor & neg.any(dim=-1)
     if mode == "hardest":
         chosen = dist.masked_fill(~neg, float("inf")).amin(dim=-1)

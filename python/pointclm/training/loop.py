@@ -67,7 +67,9 @@ class _Batches:
         rng = np.random.default_rng(_seed_for(c.seed, 6, i))
         for _ in range(n_real):
             assert self.scenes is not None
-            x, y = realistic_sample(self.scenes, rng, c.sigma_d, c.n_correspondences)
+            x, y = realistic_sample(
+                self.scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels
+            )
             groups.append((x[None], y[None]))
         return groups
 
@@ -254,6 +256,7 @@ def train(
             ),
         )
     val_config = Config(**cfg.val_config)
+    val_real_config = Config(**cfg.val_realistic_config)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     start, best, elapsed = 0, None, 0.0
     ckpt = out / "checkpoint.pt"
@@ -307,7 +310,7 @@ def train(
             row["val"] = metrics
             key = (metrics["mean_f1"], metrics["strict_f1"])
             if val_real is not None:
-                real = validate_realistic(model, val_real, device, val_config)
+                real = validate_realistic(model, val_real, device, val_real_config)
                 row["val_realistic"] = real
                 postfix["val_real_MF"] = f"{100 * real['mean_f1']:.2f}"
                 # both benchmarks count alike: the synthetic one must not be lost for the other

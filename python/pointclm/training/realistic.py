@@ -25,7 +25,7 @@ import numpy as np
 
 from ..point_clouds import network_units, scaled_config
 
-__all__ = ["SceneBank", "realistic_sample", "scene_seed"]
+__all__ = ["SceneBank", "near_misses", "realistic_sample", "scene_seed"]
 
 
 def scene_seed(base: int, model_index: int, k: int) -> int:
@@ -158,13 +158,37 @@ def _random_rotation(rng: np.random.Generator) -> np.ndarray:
     )
 
 
+def near_misses(
+    corr: np.ndarray, labels: np.ndarray, poses: np.ndarray, radius: float
+) -> np.ndarray:
+    """Outliers that some instance's true pose maps within `radius` of their scene point."""
+    if len(poses) == 0:
+        return np.zeros(len(labels), dtype=bool)
+    moved = np.einsum("kij,nj->kni", poses[:, :3, :3], corr[:, :3]) + poses[:, None, :3, 3]
+    err = np.linalg.norm(moved - corr[None, :, 3:], axis=2).min(axis=0)
+    return (labels < 0) & (err < radius)
+
+
 def realistic_sample(
-    bank: SceneBank, rng: np.random.Generator, sigma_d: float, max_correspondences: int
+    bank: SceneBank,
+    rng: np.random.Generator,
+    sigma_d: float,
+    max_correspondences: int,
+    ignore_voxels: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One scene of the bank in network units, augmented: (N, 6) float32, (N,) int64."""
+    """One scene of the bank in network units, augmented: (N, 6) float32, (N,) int64.
+
+    Outliers within `ignore_voxels` of an instance under its true pose (beyond the label's 2
+    voxels: near misses, as many as the inliers with FPFH) are labelled `IGNORE`: the pose
+    stage counts them as support, so the loss should neither pull nor push them."""
+    from ..model.loss import IGNORE
+
     i = int(rng.integers(len(bank)))
     corr = bank.correspondences[i].astype(np.float64)
     labels = bank.labels[i].astype(np.int64)
+    if ignore_voxels > 0:
+        near = near_misses(corr, labels, bank.poses[i], ignore_voxels * float(bank.voxels[i]))
+        labels[near] = IGNORE
     if len(corr) > max_correspondences:
         keep = np.sort(rng.choice(len(corr), max_correspondences, replace=False))
         corr, labels = corr[keep], labels[keep]
