@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pointclm.point_clouds import POINT_CLOUD_THRESHOLDS, _config, network_units, scaled_config
+from pointclm.point_clouds import _config, network_units, scaled_config
 from pointclm.training.config import TrainConfig
 from pointclm.training.realistic import SceneBank, near_misses, realistic_sample, scene_seed
 
@@ -63,12 +63,15 @@ def test_network_units_centre_and_scale_without_touching_the_input() -> None:
     np.testing.assert_allclose(out[1] - out[0], (corr[1] - corr[0]) / 6.0)
 
 
-def test_point_cloud_defaults_use_the_validated_thresholds() -> None:
-    cfg = _config(None, 0.01, None)
-    assert cfg.tau_n == POINT_CLOUD_THRESHOLDS["tau_n"]
-    assert cfg.sigma_d == pytest.approx(0.03)
+def test_point_cloud_configs_scale_and_take_the_networks_thresholds() -> None:
+    from pointclm.config import Config
+    from pointclm.model import load_metadata
+
+    assert _config(None, 0.01, None) == scaled_config(0.01)
+    assert scaled_config(0.01).sigma_d == pytest.approx(0.03)
     net = _config(None, 0.01, "default")
-    assert net.sigma_d == pytest.approx(0.03)
+    wanted = load_metadata("default")["recommended_point_cloud_config"]
+    assert net == scaled_config(0.01, Config(**wanted))
 
 
 def test_config_rejects_leaks_and_bad_fractions() -> None:

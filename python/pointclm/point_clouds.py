@@ -33,15 +33,6 @@ __all__ = [
 VOXELS_PER_DIAGONAL = 40
 
 
-#: Training-free thresholds for FPFH correspondences between point clouds. An instance there
-#: holds a handful of consistent matches (the synthetic protocol: dozens), so a correspondence
-#: needs fewer consistent neighbours to survive pruning than `Config()` asks. Chosen on
-#: realistic scenes of the validation models (never the benchmark's bunny) by
-#: ``benchmarks/realistic_thresholds.py``; a network brings its own
-#: (``recommended_point_cloud_config`` in its metadata).
-POINT_CLOUD_THRESHOLDS: dict[str, Any] = {"tau_s": 0.85, "tau_n": 5, "min_cluster_size": 10}
-
-
 def default_voxel_size(model_points: ArrayLike) -> float:
     """The model's bounding-box diagonal / 40."""
     p = np.asarray(model_points, dtype=np.float64)
@@ -230,7 +221,7 @@ def _config(config: Config | dict[str, Any] | None, voxel: float, model: Any) ->
         return Config(**config)
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
-    base = Config(**POINT_CLOUD_THRESHOLDS)
+    base = Config()
     if isinstance(model, str | os.PathLike):
         from .model import load_metadata
 
