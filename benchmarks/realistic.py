@@ -16,6 +16,8 @@ Methods, all on the same correspondences, in the same run:
   carry over to the bunny, so the default stays;
 - pointclm with each learned embedding of ``--model`` (its ``recommended_point_cloud_config``;
   the Rust network, so no torch needed);
+- an upper bound, not a method: an "oracle" embedding made from the true labels, what a
+  perfect network would feed the same pipeline (``ORACLE_CONFIG`` thresholds);
 - sequential RANSAC (Open3D ``registration_ransac_based_on_correspondence``, 3-point samples,
   inlier threshold 2 voxels (the scenes' inlier definition; pointclm's 6-voxel threshold lets
   wrong poses gather as many inliers as right ones here), 20,000 iterations per
@@ -39,6 +41,21 @@ import numpy as np
 #: The training-free sweep's best on 316 realistic scenes of the five non-bunny models
 #: (``realistic_thresholds.py --bank VAL --bank TRAIN --every 5``).
 VALIDATION_PICK = {"tau_s": 0.9, "tau_n": 5, "min_cluster_size": 10}
+
+
+#: Thresholds for the oracle row, picked on the validation models (armadillo, bed): with
+#: perfect grouping, small instances need small counts.
+ORACLE_CONFIG = {"tau_n": 2, "min_cluster_size": 3}
+
+
+def oracle_features(labels: np.ndarray, seed: int) -> np.ndarray:
+    """An upper bound, not a method: features from the ground-truth labels (one direction per
+    instance, random directions for outliers), what a perfect embedding would give."""
+    rng = np.random.default_rng(seed)
+    f = rng.normal(size=(len(labels), 16))
+    for k in range(int(labels.max(initial=-1)) + 1):
+        f[labels == k] = rng.normal(size=16) + 0.05 * rng.normal(size=((labels == k).sum(), 16))
+    return f / np.linalg.norm(f, axis=1, keepdims=True)
 
 
 def sequential_ransac(corr: np.ndarray, threshold: float, min_inliers: int, iters: int) -> list:
@@ -102,6 +119,7 @@ def main() -> None:
     models = [m for m in args.model.split(",") if m]
     methods = ["pointclm, training-free", "pointclm, training-free, VALIDATION_PICK thresholds"]
     methods += [f"pointclm, learned embedding ({m!r})" for m in models]
+    methods.append("upper bound: oracle embedding from the true labels")
     if o3d_version and not args.skip_ransac:
         methods.append(f"sequential RANSAC (Open3D {o3d_version})")
     scores: dict[str, list] = {m: [] for m in methods}
@@ -122,6 +140,11 @@ def main() -> None:
             elif m.startswith("pointclm, training-free"):
                 r = _register_scaled(sc.correspondences, sc.voxel_size, base, 0, 1, None)
                 poses = r.transformations
+            elif m.startswith("upper bound"):
+                cfg = scaled_config(sc.voxel_size, pointclm.Config(**ORACLE_CONFIG))
+                feats = oracle_features(sc.labels, seed)
+                poses = pointclm.register(sc.correspondences, feats, cfg, 0, num_threads=1)
+                poses = poses.transformations
             elif m.startswith("pointclm, learned"):
                 name = m.split("(")[1][1:-2]
                 r = _register_scaled(sc.correspondences, sc.voxel_size, None, 0, 1, name)
