@@ -24,9 +24,8 @@ import json
 
 import numpy as np
 import pointclm
-from pointclm.metrics import score_scene, summarize
 from pointclm.point_clouds import embed_scaled, scaled_config
-from pointclm.training.realistic import SceneBank
+from pointclm.training.realistic import SceneBank, score_bank
 
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)
@@ -34,25 +33,13 @@ MIN_CLUSTER = (3, 4, 5, 7, 10)
 
 
 def sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
-    feats = []
-    for i in range(len(bank)):
-        corr = bank.correspondences[i].astype(np.float64)
-        cfg = scaled_config(float(bank.voxels[i]))
-        feats.append(None if model is None else embed_scaled(corr, model, cfg, None))
-    out = []
-    for params in grid:
-        scores = []
-        for i in range(len(bank)):
-            corr = bank.correspondences[i].astype(np.float64)
-            cfg = scaled_config(float(bank.voxels[i]), pointclm.Config(**params))
-            r = pointclm.register(corr, feats[i], cfg, seed=0)
-            scores.append(
-                score_scene(
-                    r.transformations, bank.poses[i], max_translation=0.1 * bank.diameters[i]
-                )
-            )
-        out.append((params, summarize(scores).as_dict()))
-    return out
+    feats = [
+        None
+        if model is None
+        else embed_scaled(c.astype(np.float64), model, scaled_config(float(v)), None)
+        for c, v in zip(bank.correspondences, bank.voxels, strict=True)
+    ]
+    return [(params, score_bank(bank, feats, pointclm.Config(**params))) for params in grid]
 
 
 def _concat(banks: list[SceneBank], every: int) -> SceneBank:

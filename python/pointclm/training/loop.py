@@ -19,7 +19,7 @@ from ..metrics import score_scene, summarize
 from ..registration import register
 from .config import TrainConfig
 from .data import ShapeBank, make_batch
-from .realistic import SceneBank, realistic_sample
+from .realistic import SceneBank, realistic_sample, score_bank
 
 __all__ = ["train", "validate", "validate_realistic"]
 
@@ -123,28 +123,21 @@ def validate(
 def validate_realistic(
     model: Any, bank: SceneBank, device: str, config: Config | None = None
 ) -> dict[str, float]:
-    """The same on realistic scenes, in real units as `register_point_clouds` runs them:
-    `config` scaled to each scene's voxel, TE threshold 10 % of the model's diagonal."""
+    """The same on realistic scenes, in real units (:func:`score_bank`)."""
     import torch
 
     from ..point_clouds import network_units, scaled_config
 
     model.eval()
-    scores = []
+    feats = []
     with torch.no_grad():
         for i in range(len(bank)):
-            corr = bank.correspondences[i].astype(np.float64)
-            cfg = scaled_config(float(bank.voxels[i]), config)
-            x = network_units(corr, cfg.sigma_d, model.config.sigma_d)
-            feats = model(torch.tensor(x, dtype=torch.float32, device=device)[None])[0]
-            r = register(corr, feats.double().cpu().numpy(), cfg, seed=0)
-            scores.append(
-                score_scene(
-                    r.transformations, bank.poses[i], max_translation=0.1 * bank.diameters[i]
-                )
-            )
+            sigma_d = scaled_config(float(bank.voxels[i])).sigma_d
+            x = network_units(bank.correspondences[i], sigma_d, model.config.sigma_d)
+            out = model(torch.tensor(x, dtype=torch.float32, device=device)[None])[0]
+            feats.append(out.double().cpu().numpy())
     model.train()
-    return summarize(scores).as_dict()
+    return score_bank(bank, feats, config)
 
 
 def _batch_loss(model: Any, groups: list[Any], cfg: TrainConfig, device: str, gen: Any) -> Any:

@@ -20,12 +20,13 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..point_clouds import network_units, scaled_config
 
-__all__ = ["SceneBank", "near_misses", "realistic_sample", "scene_seed"]
+__all__ = ["SceneBank", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
 
 
 def scene_seed(base: int, model_index: int, k: int) -> int:
@@ -195,3 +196,21 @@ def realistic_sample(
     x = network_units(corr, scaled_config(float(bank.voxels[i])).sigma_d, sigma_d)
     x = np.hstack([x[:, :3] @ _random_rotation(rng).T, x[:, 3:] @ _random_rotation(rng).T])
     return x.astype(np.float32), labels
+
+
+def score_bank(bank: SceneBank, features: Sequence[np.ndarray | None], config: Any) -> dict:
+    """Paper MR/MP/MF and strict F1 over the bank's scenes, registered in real units as
+    `register_point_clouds` runs them: `config` (synthetic units, default `Config()`) scaled
+    to each scene's voxel, the TE threshold 10 % of the model's diagonal."""
+    from ..metrics import score_scene, summarize
+    from ..registration import register
+
+    scores = []
+    for i in range(len(bank)):
+        corr = bank.correspondences[i].astype(np.float64)
+        cfg = scaled_config(float(bank.voxels[i]), config)
+        r = register(corr, features[i], cfg, seed=0)
+        scores.append(
+            score_scene(r.transformations, bank.poses[i], max_translation=0.1 * bank.diameters[i])
+        )
+    return summarize(scores).as_dict()
