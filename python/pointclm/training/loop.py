@@ -288,8 +288,9 @@ def train(
         gen = torch.Generator(device=device).manual_seed(_seed_for(cfg.seed, 4, it) % 2**63)
         loss, stats = _batch_loss(model, groups, cfg, device, gen)
         opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+        if loss.requires_grad:  # a batch with no inlier pair at all has nothing to learn
+            loss.backward()
+            opt.step()
         sched.step()
         row: dict[str, Any] = {
             "iteration": it,
