@@ -114,13 +114,19 @@ pub fn register_batch(
     num_threads: usize,
 ) -> Result<Vec<Result<Registration>>> {
     config.validate()?;
+    on_pool(scenes, num_threads, |s| {
+        register(&s.correspondences, s.features.as_ref(), config, seed)
+    })
+}
+
+/// `f` on every item, in order, on a private pool of `num_threads` threads.
+fn on_pool<T: Sync>(
+    items: &[T],
+    num_threads: usize,
+    f: impl Fn(&T) -> Result<Registration> + Sync + Send,
+) -> Result<Vec<Result<Registration>>> {
     let pool = thread_pool(num_threads)?;
-    Ok(pool.install(|| {
-        scenes
-            .par_iter()
-            .map(|s| register(&s.correspondences, s.features.as_ref(), config, seed))
-            .collect()
-    }))
+    Ok(pool.install(|| items.par_iter().map(f).collect()))
 }
 
 /// [`register`] with the features computed by a trained embedding network (PointCLM proper):
@@ -169,13 +175,9 @@ pub fn register_batch_with_network(
     num_threads: usize,
 ) -> Result<Vec<Result<Registration>>> {
     config.validate()?;
-    let pool = thread_pool(num_threads)?;
-    Ok(pool.install(|| {
-        scenes
-            .par_iter()
-            .map(|c| register_embedded(c, config, seed, || network.embed_sequential(c)))
-            .collect()
-    }))
+    on_pool(scenes, num_threads, |c| {
+        register_embedded(c, config, seed, || network.embed_sequential(c))
+    })
 }
 
 /// A private rayon pool (a library must not configure the global one).
