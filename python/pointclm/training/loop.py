@@ -31,10 +31,6 @@ def _seed_for(base: int, *parts: int) -> int:
 Group = tuple[np.ndarray, np.ndarray]
 
 
-def _n_realistic(cfg: TrainConfig) -> int:
-    return round(cfg.batch_size * cfg.realistic_fraction)
-
-
 class _Batches:
     """Map-style dataset: item i is the whole batch of iteration i (order-preserving with
     workers, so resuming at iteration i sees exactly the batches an uninterrupted run would).
@@ -50,7 +46,8 @@ class _Batches:
 
     def __getitem__(self, i: int) -> list[Group]:
         c = self.cfg
-        n_real = _n_realistic(c) if self.scenes is not None else 0
+        scenes = self.scenes
+        n_real = round(c.batch_size * c.realistic_fraction) if scenes is not None else 0
         groups: list[Group] = []
         if c.batch_size > n_real:
             groups.append(
@@ -66,9 +63,9 @@ class _Batches:
             )
         rng = np.random.default_rng(_seed_for(c.seed, 6, i))
         for _ in range(n_real):
-            assert self.scenes is not None
+            assert scenes is not None  # n_real > 0 only with a bank
             x, y = realistic_sample(
-                self.scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels
+                scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels
             )
             groups.append((x[None], y[None]))
         return groups

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..point_clouds import network_units, scaled_config
+from .config import VAL_SHAPES
 
 __all__ = ["SceneBank", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
 
@@ -42,7 +43,8 @@ def _build_one(
 
     model, seed, data_dir = job
     # Clutter never includes a model registered in validation or test, so no split leaks.
-    clutter = tuple(m for m in DEFAULT_CLUTTER if m not in _held_out_models())
+    held_out = (*VAL_SHAPES, "stanford/bunny", "bunny")
+    clutter = tuple(m for m in DEFAULT_CLUTTER if m not in held_out)
     scene = make_realistic_scene(
         seed, SceneParams(model=model, data_dir=data_dir, clutter_models=clutter)
     )
@@ -53,12 +55,6 @@ def _build_one(
         scene.diameter,
         scene.poses,
     )
-
-
-def _held_out_models() -> tuple[str, ...]:
-    from .config import VAL_SHAPES
-
-    return (*VAL_SHAPES, "stanford/bunny", "bunny")
 
 
 @dataclass

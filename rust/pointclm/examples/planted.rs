@@ -5,11 +5,13 @@
 //! cargo run --release --example planted [correspondences.txt]
 //! ```
 
+mod common;
+use common::read_rows;
 use pointclm::{register, Config, Correspondences};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let rows = match std::env::args().nth(1) {
-        Some(path) => read_rows(&path)?,
+        Some(path) => read_rows(std::path::Path::new(&path))?,
         None => planted_rows(),
     };
     let corr = Correspondences::from_rows(&rows)?;
@@ -32,28 +34,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
-}
-
-fn read_rows(path: &str) -> Result<Vec<[f64; 6]>, Box<dyn std::error::Error>> {
-    let text = std::fs::read_to_string(path)?;
-    let mut rows = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let v: Vec<f64> = line
-            .split(|c: char| c.is_whitespace() || c == ',')
-            .filter(|s| !s.is_empty())
-            .map(str::parse)
-            .collect::<Result<_, _>>()
-            .map_err(|e| format!("{path}:{}: {e}", n + 1))?;
-        let row: [f64; 6] = v
-            .try_into()
-            .map_err(|_| format!("{path}:{}: expected 6 numbers", n + 1))?;
-        rows.push(row);
-    }
-    Ok(rows)
 }
 
 /// Three translated and rotated copies of a small point set among uniform outliers, from a

@@ -10,6 +10,8 @@
 //! `tests/fixtures/scene_seed0.txt` (its header lists the 5 true poses) and the shipped
 //! weights `python/pointclm/weights/default.safetensors` (with the `.json` beside them).
 
+mod common;
+use common::read_rows;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -59,31 +61,4 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
-}
-
-fn read_rows(path: &PathBuf) -> Result<Vec<[f64; 6]>, Box<dyn std::error::Error>> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut rows = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let v: Vec<f64> = line
-            .split(|c: char| c.is_whitespace() || c == ',')
-            .filter(|s| !s.is_empty())
-            .map(str::parse)
-            .collect::<Result<_, _>>()
-            .map_err(|e| format!("{}:{}: {e}", path.display(), n + 1))?;
-        let row: [f64; 6] = v.try_into().map_err(|v: Vec<f64>| {
-            format!(
-                "{}:{}: expected 6 numbers, got {}",
-                path.display(),
-                n + 1,
-                v.len()
-            )
-        })?;
-        rows.push(row);
-    }
-    Ok(rows)
 }
