@@ -10,15 +10,18 @@
 
 from ._core import Instance, Network, RegistrationResult, __version__
 from .config import Config
-from .point_clouds import register_point_clouds
+from .point_clouds import CloudInstance, register_point_clouds
+from .refinement import refine_poses
 from .registration import register, register_batch
 
 __all__ = [
+    "CloudInstance",
     "Config",
     "Instance",
     "Network",
     "RegistrationResult",
     "__version__",
+    "refine_poses",
     "register",
     "register_batch",
     "register_point_clouds",

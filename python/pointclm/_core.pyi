@@ -1,6 +1,7 @@
 """Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
 
 import os
+from collections.abc import Sequence
 from typing import Any, final
 
 import numpy as np
@@ -26,6 +27,7 @@ __all__ = [
     "compute_fpfh",
     "match_features",
     "nearest_neighbours",
+    "refine_poses",
 ]
 
 __version__: str
@@ -158,3 +160,20 @@ def nearest_neighbours(
     queries: npt.NDArray[np.float64],
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def refine_poses(
+    source: npt.NDArray[np.float64],
+    target: npt.NDArray[np.float64],
+    transformations: npt.NDArray[np.float64],
+    radii: Sequence[float],
+    fit_radius: float,
+    iterations: int = 10,
+    min_fitness: float = 0.3,
+    min_relative_fitness: float = 0.8,
+    max_shared: float = 0.5,
+    num_threads: int | None = None,
+) -> tuple[
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.int64],
+]: ...

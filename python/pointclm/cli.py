@@ -115,7 +115,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
         tqdm, total=args.scenes, desc="scenes", unit="scene", disable=args.scenes < 20 or args.quiet
     )
     ev = evaluate(
-        scenes, config, seed=args.seed, num_threads=args.num_threads, progress=bar, model=args.model
+        scenes,
+        config,
+        seed=args.seed,
+        num_threads=args.num_threads,
+        progress=bar,
+        model=args.model,
+        refine=not args.no_refine,
     )
     print(f"{Summary.table_header()} {'med ms':>7} {'p90 ms':>7}")
     name = f"pointclm ({args.model})" if args.model else "pointclm"
@@ -158,8 +164,8 @@ def _report(reg: Any, out: Any = None) -> None:
     )
     for i, inst in enumerate(reg.instances):
         print(
-            f"  [{i}] {_pose_line(inst.transformation)}  inliers {len(inst):4d}  "
-            f"rmse {inst.inlier_rmse:.4g}"
+            f"  [{i}] {_pose_line(inst.transformation)}  matches {len(inst):4d}  "
+            f"fitness {inst.fitness:.3f}  rmse {inst.inlier_rmse:.4g}"
         )
     print("time: " + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in reg.timings.items() if v > 0))
 
@@ -189,6 +195,7 @@ def cmd_register(args: argparse.Namespace) -> int:
             viewpoint=viewpoint,
             mutual=not args.no_mutual,
             n_samples=None if args.all_correspondences else args.correspondences,
+            refine=not args.no_refine,
             num_threads=args.num_threads,
         )
         bar.update()
@@ -330,6 +337,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--json", help="also write the figures to this JSON file")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
+    e.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="keep the correspondence stage's poses (no ICP on the clouds, no verification)",
+    )
     _add_config_flags(e)
     e.set_defaults(func=cmd_eval)
 
@@ -346,6 +358,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--correspondences", type=int, default=1000, help="sampled (default 1000)")
     r.add_argument("--all-correspondences", action="store_true", help="keep all of the top-K")
     r.add_argument("--no-mutual", action="store_true", help="skip mutual-NN filtering")
+    r.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="keep the correspondence stage's poses (no ICP on the clouds, no verification)",
+    )
     r.add_argument("--out", help="write instances and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
     r.add_argument("--ply", help="coloured point cloud of the result")

@@ -50,6 +50,7 @@ def evaluate(
     max_rotation_deg: float = 15.0,
     progress: Any = None,
     model: Any = None,
+    refine: bool = True,
 ) -> Evaluation:
     """Register each scene (objects with `correspondences` and `poses`) and score it.
 
@@ -59,7 +60,9 @@ def evaluate(
     replaces the default TE threshold.
 
     `progress` wraps the scene iterable (e.g. `tqdm.tqdm`) when given; `model` is passed to
-    `register` (the learned embedding; its time counts in the per-scene time).
+    `register` (the learned embedding; its time counts in the per-scene time). Scenes that
+    carry their clouds (``source_points``, ``target_points``) get the poses refined and
+    verified on them as `register_point_clouds` does, unless `refine` is False.
     """
     it = progress(scenes) if progress is not None else scenes
     scores, seconds = [], []
@@ -78,10 +81,17 @@ def evaluate(
             result = _register_scaled(
                 scene.correspondences, voxel, config, seed, num_threads, model
             )
+        poses = np.asarray(result.transformations).reshape(-1, 4, 4)
+        if voxel is not None and refine and hasattr(scene, "target_points"):
+            from .refinement import refine_poses
+
+            poses = refine_poses(
+                scene.source_points, scene.target_points, poses, voxel, num_threads=num_threads
+            ).transformations
         seconds.append(time.perf_counter() - t0)
         scores.append(
             score_scene(
-                result.transformations,
+                poses,
                 scene.poses,
                 max_rotation_deg=max_rotation_deg,
                 max_translation=getattr(scene, "max_translation", max_translation),

@@ -1,8 +1,9 @@
 """`register_point_clouds`: a model and a scan in, the pose of every copy out.
 
 The one-call path for users who have clouds, not correspondences: load (arrays or files),
-downsample, normals, FPFH, descriptor matching (:mod:`pointclm.preprocessing`), then the
-registration pipeline with lengths scaled to the voxel size. Every stage is timed.
+downsample, normals, FPFH, descriptor matching (:mod:`pointclm.preprocessing`), the
+registration pipeline with lengths scaled to the voxel size, then ICP refinement and
+verification of its poses on the clouds (:mod:`pointclm.refinement`). Every stage is timed.
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from numpy.typing import ArrayLike
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
+from .refinement import refine_poses
 from .registration import register
 
 __all__ = [
+    "CloudInstance",
     "PointCloudRegistration",
     "default_voxel_size",
     "network_units",
@@ -52,13 +55,37 @@ def scaled_config(voxel_size: float, base: Config | None = None) -> Config:
 
 
 @dataclass(frozen=True)
+class CloudInstance:
+    """One copy of the model in the scan, refined and verified on the clouds.
+
+    ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of
+    the (downsampled) model's points with a scan point within 1.5 voxels, and their RMS
+    distance. ``matches`` is the correspondence-stage instance the pose was refined from
+    (its ``inliers`` index ``PointCloudRegistration.correspondences``).
+    """
+
+    transformation: np.ndarray
+    fitness: float
+    inlier_rmse: float
+    matches: Instance
+
+    @property
+    def inliers(self) -> np.ndarray:
+        return np.asarray(self.matches.inliers)
+
+    def __len__(self) -> int:
+        return len(self.matches)
+
+
+@dataclass(frozen=True)
 class PointCloudRegistration:
     """The result of :func:`register_point_clouds`.
 
-    ``result`` is the usual :class:`pointclm.RegistrationResult` over ``correspondences``
-    (rows: downsampled model point | downsampled scene point); ``timings`` holds seconds per
-    stage (load, downsample, normals, fpfh, matching, embedding, pruning, clustering, poses,
-    total).
+    ``instances`` are the refined and verified copies, best fitness first. ``result`` is the
+    correspondence stage's :class:`pointclm.RegistrationResult` over ``correspondences``
+    (rows: downsampled model point | downsampled scene point), before refinement.
+    ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
+    pruning, clustering, poses, refinement, total).
     """
 
     result: RegistrationResult
@@ -67,16 +94,15 @@ class PointCloudRegistration:
     target_points: np.ndarray
     voxel_size: float
     config: Config
+    instances: list[CloudInstance] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def instances(self) -> list[Instance]:
-        return list(self.result.instances)
 
     @property
     def transformations(self) -> np.ndarray:
         """(M, 4, 4) T_target_source of every instance found."""
-        return np.asarray(self.result.transformations)
+        if not self.instances:
+            return np.zeros((0, 4, 4))
+        return np.stack([inst.transformation for inst in self.instances])
 
 
 def _load(cloud: Any, name: str) -> np.ndarray:
@@ -99,6 +125,7 @@ def register_point_clouds(
     top_k: int = 10_000,
     mutual: bool = True,
     n_samples: int | None = 1000,
+    refine: bool = True,
     num_threads: int | None = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
@@ -124,6 +151,10 @@ def register_point_clouds(
     top_k, mutual, n_samples
         Correspondence building (paper appendix): keep the `top_k` most similar matches
         (mutual nearest neighbours only if `mutual`), then sample `n_samples` (None: all).
+    refine : bool
+        Refine each pose by ICP on the clouds and keep those the scan supports
+        (:func:`pointclm.refinement.refine_poses` with its defaults). False: the
+        correspondence stage's poses as they are (their fitness is still measured).
     num_threads : int, optional
         Threads (default: all cores).
     """
@@ -162,6 +193,28 @@ def register_point_clouds(
     t3 = time.perf_counter()
     result = register(corr, features, cfg, seed, num_threads=num_threads)
     t4 = time.perf_counter()
+    refined = refine_poses(
+        src_d.points,
+        tgt_d.points,
+        np.asarray(result.transformations).reshape(-1, 4, 4),
+        voxel,
+        icp=refine,
+        **({} if refine else {"min_fitness": 0.0, "min_relative_fitness": 0.0, "max_shared": 1.0}),
+        num_threads=num_threads,
+    )
+    found = list(result.instances)
+    # Without refinement the poses keep the correspondence stage's order (most inliers first).
+    order = np.arange(len(refined.origin)) if refine else np.argsort(refined.origin)
+    instances = [
+        CloudInstance(
+            refined.transformations[i],
+            float(refined.fitness[i]),
+            float(refined.inlier_rmse[i]),
+            found[int(refined.origin[i])],
+        )
+        for i in order
+    ]
+    t5 = time.perf_counter()
     stage = dict(result.timings)
     timings = {
         "load": t_load,
@@ -174,7 +227,8 @@ def register_point_clouds(
         "clustering": stage.get("clustering", 0.0),
         "poses": stage.get("poses", 0.0),
         "registration": t4 - t3,
-        "total": t4 - t0,
+        "refinement": t5 - t4,
+        "total": t5 - t0,
     }
     return PointCloudRegistration(
         result=result,
@@ -183,6 +237,7 @@ def register_point_clouds(
         target_points=tgt_d.points,
         voxel_size=voxel,
         config=cfg,
+        instances=instances,
         timings=timings,
     )
 

@@ -1,9 +1,11 @@
 //! Point cloud processing and descriptor matching: voxel downsampling, normals, FPFH, and
 //! descriptor matches (the inputs `register` needs when the user has clouds, not matches).
 
-use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
-use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex};
+use nalgebra::{Matrix3, Vector3};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3};
+use pointclm::kabsch::RigidTransform;
+use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex, RefineParams};
 use pointclm::{Features, MatchingConfig};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -177,4 +179,97 @@ pub fn nearest_neighbours<'py>(
         })
     })?;
     Ok((indices(py, &idx), dist.into_pyarray(py)))
+}
+
+type RefinedArrays<'py> = (
+    Bound<'py, PyArray3<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<i64>>,
+);
+
+/// Rigid poses from (M, 4, 4) `T_target_source` matrices: the rotation block must be a
+/// rotation (orthonormal, det +1, to 1e-6) and the last row (0, 0, 0, 1).
+fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
+    let v = a.as_array();
+    if v.shape()[1..] != [4, 4] {
+        return Err(PyValueError::new_err(format!(
+            "transformations must have shape (M, 4, 4), got {:?}",
+            v.shape()
+        )));
+    }
+    (0..v.shape()[0])
+        .map(|k| {
+            let m = v.index_axis(numpy::ndarray::Axis(0), k);
+            if !m.iter().all(|x| x.is_finite()) {
+                return Err(PyValueError::new_err(format!(
+                    "transformations[{k}] has a non-finite value (NaN or inf)"
+                )));
+            }
+            let rotation = Matrix3::from_fn(|i, j| m[(i, j)]);
+            let orthonormal = (rotation.transpose() * rotation - Matrix3::identity()).amax() < 1e-6;
+            let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)]] == [0.0, 0.0, 0.0, 1.0];
+            if !(orthonormal && rotation.determinant() > 0.0 && bottom) {
+                return Err(PyValueError::new_err(format!(
+                    "transformations[{k}] is not a rigid motion: its 3x3 block must be a \
+                     rotation and its last row (0, 0, 0, 1)"
+                )));
+            }
+            Ok(RigidTransform {
+                rotation,
+                translation: Vector3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+            })
+        })
+        .collect()
+}
+
+/// ICP refinement of each pose against the target cloud, then verification: returns the
+/// accepted poses (M', 4, 4), their fitness (share of source points explained), inlier RMSE,
+/// and the index of the input pose each came from; best fitness first.
+#[pyfunction]
+#[pyo3(signature = (source, target, transformations, radii, fit_radius, iterations=10, min_fitness=0.3, min_relative_fitness=0.8, max_shared=0.5, num_threads=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn refine_poses<'py>(
+    py: Python<'py>,
+    source: PyReadonlyArray2<'py, f64>,
+    target: PyReadonlyArray2<'py, f64>,
+    transformations: PyReadonlyArray3<'py, f64>,
+    radii: Vec<f64>,
+    fit_radius: f64,
+    iterations: usize,
+    min_fitness: f64,
+    min_relative_fitness: f64,
+    max_shared: f64,
+    num_threads: Option<usize>,
+) -> PyResult<RefinedArrays<'py>> {
+    let s = rows3(&source, "source")?;
+    let t = rows3(&target, "target")?;
+    let poses = rigid_poses(&transformations)?;
+    let params = RefineParams {
+        radii,
+        iterations,
+        fit_radius,
+        min_fitness,
+        min_relative_fitness,
+        max_shared,
+    };
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, move || {
+        on_pool(threads, || {
+            pointcloud::refine_poses(&s, &t, &poses, &params)
+        })
+    })?;
+    let mats = Array3::from_shape_fn((out.len(), 4, 4), |(k, i, j)| out[k].pose.to_matrix()[i][j]);
+    Ok((
+        mats.into_pyarray(py),
+        out.iter()
+            .map(|r| r.fitness)
+            .collect::<Vec<_>>()
+            .into_pyarray(py),
+        out.iter()
+            .map(|r| r.inlier_rmse)
+            .collect::<Vec<_>>()
+            .into_pyarray(py),
+        indices(py, &out.iter().map(|r| r.origin).collect::<Vec<_>>()),
+    ))
 }

@@ -10,12 +10,14 @@
 pub mod describe;
 pub mod fpfh;
 pub mod normals;
+pub mod refine;
 pub mod search;
 pub mod voxel;
 
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{estimate_normals, Orientation};
+pub use refine::{refine_poses, RefineParams, RefinedPose};
 pub use search::{Neighbourhoods, PointIndex};
 pub use voxel::voxel_downsample;
 
