@@ -7,7 +7,7 @@ import numpy as np
 import pointclm
 import pytest
 from pointclm.datasets.scenes import SceneParams, make_realistic_scene
-from pointclm.metrics import score_scene
+from pointclm.metrics import rotation_error_deg, score_scene
 
 
 def _rot(axis: list[float], deg: float) -> np.ndarray:
@@ -47,8 +47,10 @@ def test_icp_corrects_a_rough_pose_and_verification_drops_a_false_one() -> None:
     np.testing.assert_array_equal(model, before)  # inputs untouched
     assert out.origin.tolist() == [1]
     T = out.transformations[0]
-    angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3].T @ truth[:3, :3]) - 1) / 2, -1, 1)))
-    assert angle < 0.5 and np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 0.02
+    assert (
+        rotation_error_deg(T[:3, :3], truth[:3, :3]) < 0.5
+        and np.linalg.norm(T[:3, 3] - truth[:3, 3]) < 0.02
+    )
     assert out.fitness[0] > 0.95 and out.inlier_rmse[0] < 0.05
 
 

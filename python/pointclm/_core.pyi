@@ -1,7 +1,6 @@
 """Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
 
 import os
-from collections.abc import Sequence
 from typing import Any, final
 
 import numpy as np
@@ -164,12 +163,11 @@ def refine_poses(
     source: npt.NDArray[np.float64],
     target: npt.NDArray[np.float64],
     transformations: npt.NDArray[np.float64],
-    radii: Sequence[float],
-    fit_radius: float,
-    iterations: int = 10,
-    min_fitness: float = 0.3,
-    min_relative_fitness: float = 0.8,
-    max_shared: float = 0.5,
+    voxel_size: float,
+    icp: bool,
+    min_fitness: float,
+    min_relative_fitness: float,
+    max_shared: float,
     num_threads: int | None = None,
 ) -> tuple[
     npt.NDArray[np.float64],

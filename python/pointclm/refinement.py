@@ -86,26 +86,23 @@ def refine_poses(
             poses = np.zeros((0, 4, 4))
         else:
             raise ValueError(f"transformations must have shape (K, 4, 4), got {poses.shape}")
-    radii = [3.0 * voxel, 2.0 * voxel, 1.5 * voxel] if icp else []
     out: Any = _core.refine_poses(
         src,
         tgt,
         np.ascontiguousarray(poses),
-        radii,
-        1.5 * voxel,
-        min_fitness=_share(min_fitness, "min_fitness"),
-        min_relative_fitness=_share(min_relative_fitness, "min_relative_fitness"),
-        max_shared=_share(max_shared, "max_shared"),
+        voxel,
+        bool(icp),
+        _number(min_fitness, "min_fitness"),
+        _number(min_relative_fitness, "min_relative_fitness"),
+        _number(max_shared, "max_shared"),
         num_threads=num_threads,
     )
     return RefinedPoses(*out)
 
 
-def _share(value: float, name: str) -> float:
+def _number(value: float, name: str) -> float:
+    """A float for the core, which checks the range ([0, 1]) itself."""
     try:
-        v = float(value)
+        return float(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise ValueError(f"{name} must lie in [0, 1], got {v}")
-    return v

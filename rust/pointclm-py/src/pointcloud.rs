@@ -223,20 +223,20 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
         .collect()
 }
 
-/// ICP refinement of each pose against the target cloud, then verification: returns the
+/// ICP refinement of each pose against the target cloud (the schedule of
+/// `RefineParams::for_voxel`; none if `icp` is false), then verification: returns the
 /// accepted poses (M', 4, 4), their fitness (share of source points explained), inlier RMSE,
 /// and the index of the input pose each came from; best fitness first.
 #[pyfunction]
-#[pyo3(signature = (source, target, transformations, radii, fit_radius, iterations=10, min_fitness=0.3, min_relative_fitness=0.8, max_shared=0.5, num_threads=None))]
+#[pyo3(signature = (source, target, transformations, voxel_size, icp, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
     source: PyReadonlyArray2<'py, f64>,
     target: PyReadonlyArray2<'py, f64>,
     transformations: PyReadonlyArray3<'py, f64>,
-    radii: Vec<f64>,
-    fit_radius: f64,
-    iterations: usize,
+    voxel_size: f64,
+    icp: bool,
     min_fitness: f64,
     min_relative_fitness: f64,
     max_shared: f64,
@@ -245,13 +245,13 @@ pub fn refine_poses<'py>(
     let s = rows3(&source, "source")?;
     let t = rows3(&target, "target")?;
     let poses = rigid_poses(&transformations)?;
+    let defaults = RefineParams::for_voxel(voxel_size);
     let params = RefineParams {
-        radii,
-        iterations,
-        fit_radius,
+        radii: if icp { defaults.radii.clone() } else { vec![] },
         min_fitness,
         min_relative_fitness,
         max_shared,
+        ..defaults
     };
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, move || {
