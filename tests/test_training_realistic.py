@@ -67,11 +67,17 @@ def test_point_cloud_configs_scale_and_take_the_networks_thresholds() -> None:
     from pointclm.config import Config
     from pointclm.model import load_metadata
 
-    assert _config(None, 0.01, None) == scaled_config(0.01)
+    from pointclm.point_clouds import REFINED_THRESHOLDS
+
+    assert _config(None, 0.01, None, False) == scaled_config(0.01)
+    assert _config(None, 0.01, None, True) == scaled_config(0.01, Config(**REFINED_THRESHOLDS))
     assert scaled_config(0.01).sigma_d == pytest.approx(0.03)
-    net = _config(None, 0.01, "default")
-    wanted = load_metadata("default")["recommended_point_cloud_config"]
-    assert net == scaled_config(0.01, Config(**wanted))
+    meta = load_metadata("default")
+    for refine, key in ((True, ""), (False, "_no_refine")):
+        wanted = meta["recommended_point_cloud_config" + key]
+        assert _config(None, 0.01, "default", refine) == scaled_config(0.01, Config(**wanted))
+    # The two defaults differ: refined poses want low count thresholds, raw ones do not.
+    assert _config(None, 0.01, None, True) != _config(None, 0.01, None, False)
 
 
 def test_config_rejects_leaks_and_bad_fractions() -> None:

@@ -69,6 +69,7 @@ def evaluate(
     for scene in it:
         t0 = time.perf_counter()
         voxel = getattr(scene, "voxel_size", None)
+        refined = refine and voxel is not None and hasattr(scene, "target_points")
         if voxel is None:
             result = register(
                 scene.correspondences,
@@ -79,10 +80,10 @@ def evaluate(
             )
         else:
             result = _register_scaled(
-                scene.correspondences, voxel, config, seed, num_threads, model
+                scene.correspondences, voxel, config, seed, num_threads, model, refined
             )
         poses = np.asarray(result.transformations).reshape(-1, 4, 4)
-        if voxel is not None and refine and hasattr(scene, "target_points"):
+        if refined:
             from .refinement import refine_poses
 
             poses = refine_poses(
@@ -109,11 +110,16 @@ def _register_scaled(
     seed: int,
     num_threads: int | None,
     model: Any,
+    refine: bool,
 ) -> Any:
+    """Register correspondences in real units as `register_point_clouds` does, with the
+    default thresholds for refined poses if `refine` (the refinement itself is the caller's)."""
     from .point_clouds import _config, scaled_config
 
     # A given config is in synthetic units (like the CLI's flags): scale it too.
-    cfg = scaled_config(voxel, config) if config is not None else _config(None, voxel, model)
+    cfg = (
+        scaled_config(voxel, config) if config is not None else _config(None, voxel, model, refine)
+    )
     features = None
     if model is not None:
         from .point_clouds import embed_scaled

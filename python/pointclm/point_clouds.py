@@ -23,6 +23,7 @@ from .refinement import refine_poses
 from .registration import register
 
 __all__ = [
+    "REFINED_THRESHOLDS",
     "CloudInstance",
     "PointCloudRegistration",
     "default_voxel_size",
@@ -34,6 +35,15 @@ __all__ = [
 #: The default voxel is the model's bounding-box diagonal over this: about 1,500 points on a
 #: typical object whatever its units, and an FPFH radius (5 voxels) of 1/8 of its size.
 VOXELS_PER_DIAGONAL = 40
+
+#: The training-free thresholds (synthetic units, scaled to the voxel) when the poses are
+#: refined and verified on the clouds, as `register_point_clouds` does by default. Verification
+#: rejects wrong poses far better than pruning does, so the correspondence stage should
+#: propose every plausible group: almost no density pruning (tau_n 1) and small clusters.
+#: Chosen on 200 realistic scenes of the five non-bunny models (armadillo, bed, dragon, happy,
+#: bathtub) by ``benchmarks/realistic_thresholds.py --refine`` (BENCHMARKS.md). Without
+#: refinement `Config()`'s thresholds stay: there every wrong pose is returned.
+REFINED_THRESHOLDS: dict[str, Any] = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
 
 
 def default_voxel_size(model_points: ArrayLike) -> float:
@@ -138,8 +148,10 @@ def register_point_clouds(
         Downsampling voxel, in the clouds' units; default: the model's bounding-box diagonal
         / 40. Normals use 2 voxels, FPFH 5 voxels.
     config : Config or dict, optional
-        Pipeline settings in the clouds' units. Default: :func:`scaled_config` of the voxel
-        (with a `model`, its recommended thresholds too).
+        Pipeline settings in the clouds' units. Default: :func:`scaled_config` of the voxel,
+        with the thresholds chosen for refined poses (`REFINED_THRESHOLDS`, or a `model`'s
+        ``recommended_point_cloud_config``); with ``refine=False``, `Config()`'s (or the
+        model's ``recommended_point_cloud_config_no_refine``).
     seed : int
         Seeds the sampling of correspondences, clustering and RANSAC.
     model : str, path or torch module, optional
@@ -186,7 +198,7 @@ def register_point_clouds(
             f"only {len(corr)} correspondences survived matching: the clouds share too few "
             "similar local shapes (try mutual=False, a smaller voxel_size, or check the units)"
         )
-    cfg = _config(config, voxel, model)
+    cfg = _config(config, voxel, model, refine)
     features = None
     if model is not None:
         features = embed_scaled(corr, model, cfg, num_threads)
@@ -267,21 +279,23 @@ def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | N
     return _torch_embed(scaled, model, None)
 
 
-def _config(config: Config | dict[str, Any] | None, voxel: float, model: Any) -> Config:
-    """The caller's config as given (already in the clouds' units), else the default (or the
-    model's recommended thresholds) scaled to the voxel."""
+def _config(
+    config: Config | dict[str, Any] | None, voxel: float, model: Any, refine: bool
+) -> Config:
+    """The caller's config as given (already in the clouds' units), else the default
+    thresholds (or the model's recommended ones) for refined or raw poses, scaled to the
+    voxel."""
     if isinstance(config, Config):
         return config
     if isinstance(config, dict):
         return Config(**config)
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
-    base = Config()
+    base = Config(**REFINED_THRESHOLDS) if refine else Config()
     if isinstance(model, str | os.PathLike):
         from .model import load_metadata
 
         meta = load_metadata(model)
-        base = Config(
-            **meta.get("recommended_point_cloud_config", meta.get("recommended_config", {}))
-        )
+        key = "recommended_point_cloud_config" + ("" if refine else "_no_refine")
+        base = Config(**meta.get(key, meta.get("recommended_config", {})))
     return scaled_config(voxel, base)
