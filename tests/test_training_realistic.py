@@ -66,7 +66,6 @@ def test_network_units_centre_and_scale_without_touching_the_input() -> None:
 def test_point_cloud_configs_scale_and_take_the_networks_thresholds() -> None:
     from pointclm.config import Config
     from pointclm.model import load_metadata
-
     from pointclm.point_clouds import REFINED_THRESHOLDS
 
     assert _config(None, 0.01, None, False) == scaled_config(0.01)

@@ -26,10 +26,9 @@ def _config(args: argparse.Namespace) -> Config | None:
         value = getattr(args, name, None)
         if value is not None:
             kw[name] = value
-    # No flags and a model: let the network's recommended thresholds apply.
-    if not kw and getattr(args, "model", None):
-        return None
-    return Config(**kw)
+    # No flags: the defaults of each path apply (`Config()`, a network's recommended
+    # thresholds, or on realistic scenes those for refined or raw poses).
+    return Config(**kw) if kw else None
 
 
 def _add_config_flags(p: argparse.ArgumentParser) -> None:

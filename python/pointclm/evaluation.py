@@ -69,7 +69,7 @@ def evaluate(
     for scene in it:
         t0 = time.perf_counter()
         voxel = getattr(scene, "voxel_size", None)
-        refined = refine and voxel is not None and hasattr(scene, "target_points")
+        refined = refine and hasattr(scene, "target_points")
         if voxel is None:
             result = register(
                 scene.correspondences,
@@ -83,7 +83,7 @@ def evaluate(
                 scene.correspondences, voxel, config, seed, num_threads, model, refined
             )
         poses = np.asarray(result.transformations).reshape(-1, 4, 4)
-        if refined:
+        if voxel is not None and refined:
             from .refinement import refine_poses
 
             poses = refine_poses(

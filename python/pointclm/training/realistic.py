@@ -196,8 +196,9 @@ def realistic_sample(
 
 def score_bank(bank: SceneBank, features: Sequence[np.ndarray | None], config: Any) -> dict:
     """Paper MR/MP/MF and strict F1 over the bank's scenes, registered in real units as
-    `register_point_clouds` runs them: `config` (synthetic units, default `Config()`) scaled
-    to each scene's voxel, the TE threshold 10 % of the model's diagonal."""
+    `register_point_clouds(refine=False)` runs them (a bank keeps no clouds to refine on):
+    `config` (synthetic units, default `Config()`) scaled to each scene's voxel, the TE
+    threshold 10 % of the model's diagonal."""
     from ..metrics import score_scene, summarize
     from ..registration import register
 
