@@ -54,23 +54,19 @@ def build_cloud_scenes(models: tuple[str, ...], n: int, base: int, data_dir: str
     """`n` realistic scenes of each model, clouds kept, with the bank's seeds and clutter."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from pointclm.training.realistic import scene_seed
+    from pointclm.training.realistic import bank_scene, scene_seed
 
-    jobs = [(m, scene_seed(base, i, k), data_dir) for i, m in enumerate(models) for k in range(n)]
+    jobs = [(m, scene_seed(base, i, k)) for i, m in enumerate(models) for k in range(n)]
     with ProcessPoolExecutor() as pool:
-        return list(pool.map(_build_scene, jobs, chunksize=2))
-
-
-def _build_scene(job: tuple[str, int, str]) -> object:
-    from pointclm.datasets.scenes import DEFAULT_CLUTTER, SceneParams, make_realistic_scene
-    from pointclm.training.config import VAL_SHAPES
-
-    model, seed, data_dir = job
-    held_out = (*VAL_SHAPES, "stanford/bunny", "bunny")
-    clutter = tuple(m for m in DEFAULT_CLUTTER if m not in held_out)
-    return make_realistic_scene(
-        seed, SceneParams(model=model, data_dir=data_dir, clutter_models=clutter)
-    )
+        return list(
+            pool.map(
+                bank_scene,
+                [m for m, _ in jobs],
+                [s for _, s in jobs],
+                [data_dir] * len(jobs),
+                chunksize=2,
+            )
+        )
 
 
 class _RefinedScorer:

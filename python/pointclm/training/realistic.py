@@ -27,7 +27,7 @@ import numpy as np
 from ..point_clouds import network_units, scaled_config
 from .config import VAL_SHAPES
 
-__all__ = ["SceneBank", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
+__all__ = ["SceneBank", "bank_scene", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
 
 
 def scene_seed(base: int, model_index: int, k: int) -> int:
@@ -36,18 +36,22 @@ def scene_seed(base: int, model_index: int, k: int) -> int:
     return int(ss.generate_state(1, np.uint64)[0] % 2**62)
 
 
-def _build_one(
-    job: tuple[str, int, str | None],
-) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
+def bank_scene(model: str, seed: int, data_dir: str | None) -> Any:
+    """The realistic scene of `model` a bank holds for `seed`, clouds included."""
     from ..datasets.scenes import DEFAULT_CLUTTER, SceneParams, make_realistic_scene
 
-    model, seed, data_dir = job
     # Clutter never includes a model registered in validation or test, so no split leaks.
     held_out = (*VAL_SHAPES, "stanford/bunny", "bunny")
     clutter = tuple(m for m in DEFAULT_CLUTTER if m not in held_out)
-    scene = make_realistic_scene(
+    return make_realistic_scene(
         seed, SceneParams(model=model, data_dir=data_dir, clutter_models=clutter)
     )
+
+
+def _build_one(
+    job: tuple[str, int, str | None],
+) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
+    scene = bank_scene(*job)
     return (
         scene.correspondences.astype(np.float32),
         scene.labels.astype(np.int16),
