@@ -57,16 +57,9 @@ def build_cloud_scenes(models: tuple[str, ...], n: int, base: int, data_dir: str
     from pointclm.training.realistic import bank_scene, scene_seed
 
     jobs = [(m, scene_seed(base, i, k)) for i, m in enumerate(models) for k in range(n)]
+    names, seeds = zip(*jobs, strict=True)
     with ProcessPoolExecutor() as pool:
-        return list(
-            pool.map(
-                bank_scene,
-                [m for m, _ in jobs],
-                [s for _, s in jobs],
-                [data_dir] * len(jobs),
-                chunksize=2,
-            )
-        )
+        return list(pool.map(bank_scene, names, seeds, itertools.repeat(data_dir), chunksize=2))
 
 
 class _RefinedScorer:
