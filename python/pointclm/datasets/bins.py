@@ -1,0 +1,546 @@
+"""Bin-picking scenes: dozens of copies of one part heaped in a bin under a depth sensor.
+
+Why: the first use named for pointclm is a robot picking parts from a bin (issue 18). Such
+a scan holds 20 to 80 copies of one part, most of them partly hidden by others, and the
+picking robot needs the least-hidden ones first. Each scene is built as follows (units:
+metres; the part is scaled to size, so every model gives the same scene geometry):
+
+1. **Bin.** A box of inner size 0.6 x 0.4 m (a Euro container), walls 0.2 m high and 1 cm
+   thick; the part is scaled so that its bounding-box diagonal is 1/6 of the bin's length
+   (0.1 m).
+2. **Heap.** 20-80 copies (uniform) are dropped one after another. Each drop draws
+   ``candidates`` uniformly random orientations, each at a random x, y inside the bin, and
+   lowers it on a height field of the heap (cells of 1/40 of the part's diagonal holding the
+   highest surface sample so far) until it touches the heap or the floor; the candidate
+   that comes to rest lowest is kept (a crude stand-in for tipping onto a stable face).
+   Every column of the height field thus holds the copies in disjoint height intervals:
+   copies touch but never interpenetrate.
+3. **Sensor.** A pinhole depth sensor 1.2 m above the floor's centre looks straight down,
+   640 x 480 pixels, its field of view just covering the bin (about 1 mm per pixel on the
+   floor). A z-buffer of dense surface samples of every copy (40,000 per copy, each splatted
+   over 2 x 2 pixels so that surfaces stay closed) and the bin's planes, cast exactly, gives
+   the first surface along every pixel's ray: copies hide each other, the walls hide copies.
+   Pixels outside the bin's rim return nothing (the scan is cropped to the bin, as a picking
+   cell does).
+4. **Noise of a structured-light sensor.** Depth noise with sigma = ``noise_at_1m`` * z^2
+   (1 mm at 1 m; z in metres), depth quantised as a disparity (focal length f pixels,
+   baseline 7.5 cm, 1/16-pixel steps, so the step also grows as z^2), and dropouts: a pixel
+   whose surface is seen at more than 60 degrees from the ray is lost with a probability
+   rising linearly to 1 at 85 degrees (depth edges included, as real sensors lose them).
+
+Ground truth per copy: its pose ``T_target_source`` (from the scaled model's frame, the
+``model_points``, to the scan's), its **visible fraction** and its **visibility rank**. The
+visible fraction is the number of pixels that see the copy in the heap over the number that
+would see it at the same pose alone in the (empty) bin, both before noise and dropouts: 1 for
+a copy nothing covers, 0 for a buried one, whatever the part's shape or how much of it faces
+the sensor. The rank orders copies by visible fraction, most visible first (ties: more
+pixels first): the copies a picking robot should take first.
+
+The scan is the sensor's raw point cloud (about 200,000 points); downsampled at the scenes'
+``voxel_size`` (1/30 of the part's diagonal, 3.3 mm) it keeps about 20,000 points.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .procedural import PROCEDURAL_SHAPES
+from .scenes import _MODELS, _dense, default_data_dir
+
+__all__ = [
+    "BIN_MODELS_HELD_OUT",
+    "BIN_MODELS_VALIDATION",
+    "BinParams",
+    "BinScene",
+    "bin_scene_cached",
+    "load_bin_scene",
+    "make_bin_scene",
+    "save_bin_scene",
+]
+
+#: Models on which bin figures are reported (never used to pick a threshold).
+BIN_MODELS_HELD_OUT: tuple[str, ...] = (
+    "stanford/bunny",
+    "common3d/spot",
+    "common3d/cow",
+    "common3d/teapot",
+    "common3d/fandisk",
+    "common3d/rocker-arm",
+    "common3d/beetle",
+)
+#: Models on which thresholds and defaults may be chosen.
+BIN_MODELS_VALIDATION: tuple[str, ...] = (
+    "stanford/dragon",
+    "stanford/happy",
+    "stanford/armadillo",
+    "modelnet/bathtub",
+    "modelnet/bed",
+    *PROCEDURAL_SHAPES,
+)
+
+#: Surface labels of scan points that lie on no copy.
+FLOOR, WALL = -2, -3
+#: Bump when the generator changes, so that cached scenes are rebuilt.
+_VERSION = 1
+
+
+@dataclass(frozen=True)
+class BinParams:
+    """How bin scenes are built (defaults: the benchmark's; lengths in metres)."""
+
+    model: str = "common3d/fandisk"
+    copies: tuple[int, int] = (20, 80)
+    bin_size: tuple[float, float, float] = (0.4, 0.3, 0.2)
+    wall_thickness: float = 0.01
+    part_fraction: float = 1 / 4
+    candidates: int = 4
+    pour_spread: float = 1 / 6
+    slide_steps: int = 4
+    sensor_height: float = 0.8
+    resolution: tuple[int, int] = (640, 480)
+    noise_at_1m: float = 5e-4
+    baseline: float = 0.075
+    disparity_step: float = 1 / 16
+    grazing_deg: tuple[float, float] = (60.0, 85.0)
+    crop_margin: float | None = 0.01
+    voxel_fraction: float = 1 / 40
+    data_dir: str | None = None
+
+    def __post_init__(self) -> None:
+        lo, hi = self.copies
+        if not 1 <= lo <= hi:
+            raise ValueError(f"copies must be (lo, hi) with 1 <= lo <= hi, got {self.copies}")
+        if min(self.bin_size) <= 0 or self.wall_thickness < 0:
+            raise ValueError(f"bin_size must be positive, got {self.bin_size}")
+        if not 0 < self.part_fraction < 1:
+            raise ValueError(f"part_fraction must lie in (0, 1), got {self.part_fraction}")
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be at least 1, got {self.candidates}")
+        if self.sensor_height <= self.bin_size[2]:
+            raise ValueError("the sensor must sit above the bin's walls")
+        if min(self.resolution) < 8:
+            raise ValueError(f"resolution must be at least 8 x 8, got {self.resolution}")
+        if self.noise_at_1m < 0 or self.baseline <= 0 or self.disparity_step < 0:
+            raise ValueError("noise_at_1m and disparity_step must be >= 0, baseline > 0")
+        if not 0 < self.grazing_deg[0] <= self.grazing_deg[1] <= 90:
+            raise ValueError(f"grazing_deg must be 0 < lo <= hi <= 90, got {self.grazing_deg}")
+        if not 0 < self.voxel_fraction < 1:
+            raise ValueError(f"voxel_fraction must lie in (0, 1), got {self.voxel_fraction}")
+
+
+@dataclass(frozen=True)
+class BinScene:
+    """One bin scene and its ground truth.
+
+    Attributes
+    ----------
+    scan : (N, 3) float64, the sensor's points (world frame: floor z = 0, bin centred on
+        the origin).
+    scan_ids : (N,) int64, per scan point: the copy it lies on, or ``FLOOR`` (-2) / ``WALL``
+        (-3, walls and rim).
+    model_points : (S, 3) float64, dense samples of the model scaled to the part size, in the
+        model's frame (the source cloud of every pose).
+    poses : (K, 4, 4) float64, T_target_source of each copy (model frame -> scan frame).
+    visible_fraction : (K,) pixels seeing the copy in the heap / pixels that would see it
+        alone in the bin (0 where it would be seen by none).
+    visible_pixels, alone_pixels : (K,) int64, those two counts.
+    rank : (K,) int64, visibility rank (0: most visible copy).
+    sensor : (3,) the sensor's position (the viewpoint of the scan's normals).
+    voxel_size, diameter : float, the benchmark's voxel and the part's bounding-box diagonal.
+    """
+
+    scan: np.ndarray
+    scan_ids: np.ndarray
+    model_points: np.ndarray
+    poses: np.ndarray
+    visible_fraction: np.ndarray
+    visible_pixels: np.ndarray
+    alone_pixels: np.ndarray
+    rank: np.ndarray
+    sensor: np.ndarray
+    voxel_size: float
+    diameter: float
+    model: str
+    seed: int
+    params: BinParams
+
+    @property
+    def n_copies(self) -> int:
+        return len(self.poses)
+
+    @property
+    def max_translation(self) -> float:
+        """The TE threshold: 10 % of the part's diagonal."""
+        return 0.1 * self.diameter
+
+    def least_hidden(self, k: int) -> np.ndarray:
+        """Indices of the `k` most visible copies, most visible first."""
+        return np.argsort(self.rank, kind="stable")[:k]
+
+
+# --- model --------------------------------------------------------------------------------
+
+
+def _model_points(name: str, data_dir: str | None) -> np.ndarray:
+    """Dense samples of a model by name: the realistic scenes' models, procedural shapes, or
+    ``common3d/<mesh>`` from the data folder."""
+    if name in _MODELS or name in PROCEDURAL_SHAPES or name == "bunny":
+        return _dense(name, data_dir)[0]
+    if name.startswith("common3d/"):
+        if data_dir is None:
+            raise ValueError(
+                f"model {name!r} lives in the data folder: pass data_dir= or set POINTCLM_DATA_DIR"
+            )
+        path = Path(data_dir) / f"{name}.ply"
+        if not path.is_file():
+            raise ValueError(f"model {name!r}: no mesh at {path}")
+        return _dense(str(path), data_dir)[0]
+    raise ValueError(
+        f"unknown model {name!r}: use one of {sorted(_MODELS)}, common3d/<mesh> or a "
+        f"procedural shape {list(PROCEDURAL_SHAPES)}"
+    )
+
+
+def _scene_rng(model: str, seed: int) -> np.random.Generator:
+    """A stream per (model, seed): scene i of two models differ, and each is fixed."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    return np.random.default_rng([zlib.crc32(model.encode()), int(seed)])
+
+
+def _random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
+    """`n` rotations uniform on SO(3) (unit quaternions from normal draws)."""
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+# --- heap ---------------------------------------------------------------------------------
+
+
+class _HeightField:
+    """The heap's highest surface sample per cell of a grid over the bin's floor."""
+
+    def __init__(self, length: float, width: float, cell: float) -> None:
+        self.cell = cell
+        self.origin = np.array([-length / 2, -width / 2])
+        self.shape = (int(np.ceil(length / cell)), int(np.ceil(width / cell)))
+        self.top = np.zeros(self.shape[0] * self.shape[1])
+
+    def cells(self, xy: np.ndarray) -> np.ndarray:
+        ij = np.floor((xy - self.origin) / self.cell).astype(np.int64)
+        ij[:, 0] = np.clip(ij[:, 0], 0, self.shape[0] - 1)
+        ij[:, 1] = np.clip(ij[:, 1], 0, self.shape[1] - 1)
+        return ij[:, 0] * self.shape[1] + ij[:, 1]
+
+    def rest_height(self, pts: np.ndarray) -> tuple[float, np.ndarray]:
+        """The lift that sets `pts` down on the heap or the floor, and their cells."""
+        cells = self.cells(pts[:, :2])
+        need = np.max(self.top[cells] - pts[:, 2])
+        return max(float(need), float(-pts[:, 2].min())), cells
+
+    def add(self, pts: np.ndarray, cells: np.ndarray) -> None:
+        np.maximum.at(self.top, cells, pts[:, 2])
+
+
+def _heap(
+    model: np.ndarray, n: int, params: BinParams, rng: np.random.Generator, diameter: float
+) -> np.ndarray:
+    """Poses of `n` copies dropped one by one into the bin (module documentation, step 2)."""
+    length, width, _ = params.bin_size
+    field = _HeightField(length, width, diameter / 40)
+    centre = model.mean(0)
+    local = model - centre
+    # Where a copy comes to rest is searched on a subsample (fast); its final height is set
+    # with every sample, so that the height field stays exact.
+    coarse = local[rng.choice(len(local), size=min(len(local), 3000), replace=False)]
+    half = np.array([length / 2, width / 2])
+    steps = (
+        diameter
+        / 4
+        * np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
+    )
+    poses = np.zeros((n, 4, 4))
+    for k in range(n):
+        # Poured over the bin's middle; each candidate orientation then slides downhill.
+        drop = rng.normal(scale=params.pour_spread * np.array([length, width]))
+        best = None
+        for rot in _random_rotations(rng, params.candidates):
+            p = coarse @ rot.T
+            lo, hi = -half - p[:, :2].min(0), half - p[:, :2].max(0)
+
+            def rest(xy: np.ndarray, p: np.ndarray = p) -> float:
+                return field.rest_height(p + np.array([xy[0], xy[1], 0.0]))[0]
+
+            xy = np.clip(drop, lo, np.maximum(lo, hi))
+            z = rest(xy)
+            for _ in range(params.slide_steps):
+                moves = [np.clip(xy + s, lo, np.maximum(lo, hi)) for s in steps]
+                heights = [rest(m) for m in moves]
+                j = int(np.argmin(heights))
+                if heights[j] >= z - 1e-3 * diameter:
+                    break
+                xy, z = moves[j], heights[j]
+            if best is None or z < best[0]:
+                best = (z, rot, xy)
+        assert best is not None
+        _, rot, xy = best
+        p = local @ rot.T + np.array([xy[0], xy[1], 0.0])
+        lift, cells = field.rest_height(p)
+        p[:, 2] += lift
+        field.add(p, cells)
+        poses[k] = np.eye(4)
+        poses[k, :3, :3] = rot
+        poses[k, :3, 3] = np.array([xy[0], xy[1], lift]) - rot @ centre
+    return poses
+
+
+# --- sensing ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Camera:
+    """A pinhole at (0, 0, height) looking down -z; image x along world x, image y along -y."""
+
+    height: float
+    focal: float
+    cx: float
+    cy: float
+    width: int
+    rows: int
+
+    @classmethod
+    def over_bin(cls, params: BinParams) -> _Camera:
+        w, h = params.resolution
+        length, width, _ = params.bin_size
+        outer = np.array([length, width]) + 2 * params.wall_thickness
+        focal = float(np.min(np.array([w, h]) * params.sensor_height / (1.02 * outer)))
+        return cls(params.sensor_height, focal, w / 2, h / 2, w, h)
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.array([0.0, 0.0, self.height])
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per pixel (rows x width), the ray's x and y slopes at the pixel centre."""
+        u = (np.arange(self.width) + 0.5 - self.cx) / self.focal
+        v = -(np.arange(self.rows) + 0.5 - self.cy) / self.focal
+        return np.meshgrid(u, v)
+
+    def project(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Depth (distance along -z) and the pixel index of each point (-1: off the image)."""
+        depth = self.height - pts[:, 2]
+        safe = np.where(depth > 1e-9, depth, np.inf)
+        u = np.floor(self.focal * pts[:, 0] / safe + self.cx).astype(np.int64)
+        v = np.floor(-self.focal * pts[:, 1] / safe + self.cy).astype(np.int64)
+        ok = (depth > 1e-9) & (u >= 0) & (u < self.width) & (v >= 0) & (v < self.rows)
+        return depth, np.where(ok, v * self.width + u, -1)
+
+
+def _bin_depth(cam: _Camera, params: BinParams) -> tuple[np.ndarray, np.ndarray]:
+    """The first bin surface along every pixel's ray (inf outside the rim) and its label."""
+    sx, sy = cam.rays()
+    length, width, wall = params.bin_size
+    t = params.wall_thickness
+    z_top = cam.height - wall
+    xt, yt = sx * z_top, sy * z_top
+    inside = (np.abs(xt) <= length / 2) & (np.abs(yt) <= width / 2)
+    rim = ~inside & (np.abs(xt) <= length / 2 + t) & (np.abs(yt) <= width / 2 + t)
+    with np.errstate(divide="ignore"):
+        exit_x = np.where(sx != 0, (length / 2) / np.abs(sx), np.inf)
+        exit_y = np.where(sy != 0, (width / 2) / np.abs(sy), np.inf)
+    down = np.minimum(exit_x, exit_y)
+    depth = np.full(sx.shape, np.inf)
+    depth[inside] = np.minimum(cam.height, down[inside])
+    depth[rim] = z_top
+    label = np.where(inside & (down >= cam.height), FLOOR, WALL)
+    return depth.ravel(), label.ravel()
+
+
+#: Splat offsets (pixels): each sample covers 2 x 2 pixels so sparse spots do not leak.
+_SPLAT = ((0, 0), (1, 0), (0, 1), (1, 1))
+
+
+def _splat(cam: _Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(depth, pixel) of every sample at every splat offset, off-image entries dropped."""
+    depth = cam.height - pts[:, 2]
+    safe = np.where(depth > 1e-9, depth, np.inf)
+    fu = cam.focal * pts[:, 0] / safe + cam.cx - 0.5
+    fv = -cam.focal * pts[:, 1] / safe + cam.cy - 0.5
+    u0, v0 = np.floor(fu).astype(np.int64), np.floor(fv).astype(np.int64)
+    ds, ps = [], []
+    for du, dv in _SPLAT:
+        u, v = u0 + du, v0 + dv
+        ok = (depth > 1e-9) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.rows)
+        ds.append(depth[ok])
+        ps.append((v * cam.width + u)[ok])
+    return np.concatenate(ds), np.concatenate(ps)
+
+
+def _render(
+    cam: _Camera, model: np.ndarray, poses: np.ndarray, params: BinParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Depth image, owner per pixel, and per copy its pixels in the heap and alone."""
+    bin_depth, bin_label = _bin_depth(cam, params)
+    n_pix = cam.width * cam.rows
+    zbuf = bin_depth.copy()
+    depths, pixels, owners = [], [], []
+    alone = np.zeros(len(poses), dtype=np.int64)
+    for k, pose in enumerate(poses):
+        d, p = _splat(cam, model @ pose[:3, :3].T + pose[:3, 3])
+        front = d < bin_depth[p]
+        alone[k] = len(np.unique(p[front]))
+        depths.append(d[front])
+        pixels.append(p[front])
+        owners.append(np.full(int(front.sum()), k))
+    d = np.concatenate(depths)
+    p = np.concatenate(pixels)
+    o = np.concatenate(owners)
+    np.minimum.at(zbuf, p, d)
+    owner = bin_label.copy()
+    win = d <= zbuf[p]
+    owner[p[win]] = o[win]
+    owner[~np.isfinite(zbuf)] = np.iinfo(np.int64).min
+    seen = np.bincount(owner[owner >= 0], minlength=len(poses))[: len(poses)]
+    assert n_pix == len(zbuf)
+    return zbuf, owner, seen.astype(np.int64), alone
+
+
+def _sense(
+    cam: _Camera, zbuf: np.ndarray, owner: np.ndarray, params: BinParams, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The structured-light scan of a depth image (module documentation, step 4)."""
+    img = zbuf.reshape(cam.rows, cam.width)
+    with np.errstate(invalid="ignore"):
+        gy, gx = np.gradient(np.where(np.isfinite(img), img, np.nan))
+        # Surface slope against the viewing direction: depth change per metre across.
+        slope = np.hypot(gx, gy) * cam.focal / img
+    angle = np.degrees(np.arctan(np.nan_to_num(slope, nan=np.inf))).ravel()
+    lo, hi = params.grazing_deg
+    p_drop = np.clip((angle - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    keep = np.isfinite(zbuf) & (rng.random(len(zbuf)) >= p_drop)
+    z = zbuf[keep]
+    z = z + rng.normal(size=len(z)) * params.noise_at_1m * z**2
+    if params.disparity_step > 0:
+        fb = cam.focal * params.baseline
+        disparity = np.round(fb / z / params.disparity_step) * params.disparity_step
+        z = fb / np.maximum(disparity, params.disparity_step)
+    sx, sy = cam.rays()
+    pts = np.column_stack([sx.ravel()[keep] * z, sy.ravel()[keep] * z, cam.height - z])
+    ids = owner[keep].astype(np.int64)
+    if params.crop_margin is not None:
+        # The picking cell's region of interest: inside the walls, which it knows.
+        half = np.array(params.bin_size[:2]) / 2 - params.crop_margin
+        roi = np.all(np.abs(pts[:, :2]) < half, axis=1)
+        pts, ids = pts[roi], ids[roi]
+    return pts, ids
+
+
+# --- scenes -------------------------------------------------------------------------------
+
+
+def make_bin_scene(seed: int = 0, params: BinParams | None = None) -> BinScene:
+    """Build one seeded bin scene (see the module documentation)."""
+    params = params or BinParams()
+    rng = _scene_rng(params.model, seed)
+    data_dir = params.data_dir or default_data_dir()
+    raw = _model_points(params.model, str(data_dir) if data_dir else None)
+    diameter = params.part_fraction * params.bin_size[0]
+    model = raw * (diameter / float(np.linalg.norm(raw.max(0) - raw.min(0))))
+    n = int(rng.integers(params.copies[0], params.copies[1] + 1))
+    poses = _heap(model, n, params, rng, diameter)
+    cam = _Camera.over_bin(params)
+    zbuf, owner, seen, alone = _render(cam, model, poses, params)
+    scan, ids = _sense(cam, zbuf, owner, params, rng)
+    frac = np.where(alone > 0, seen / np.maximum(alone, 1), 0.0)
+    order = np.lexsort((-seen, -frac))
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    return BinScene(
+        scan=scan,
+        scan_ids=ids,
+        model_points=model,
+        poses=poses,
+        visible_fraction=frac,
+        visible_pixels=seen,
+        alone_pixels=alone,
+        rank=rank,
+        sensor=cam.position,
+        voxel_size=diameter * params.voxel_fraction,
+        diameter=diameter,
+        model=params.model,
+        seed=int(seed),
+        params=params,
+    )
+
+
+def save_bin_scene(scene: BinScene, path: str | Path) -> None:
+    """Write a scene as a compressed .npz (arrays and a JSON header; no pickle)."""
+    header = {
+        "version": _VERSION,
+        "model": scene.model,
+        "seed": scene.seed,
+        "voxel_size": scene.voxel_size,
+        "diameter": scene.diameter,
+        "params": asdict(scene.params),
+    }
+    np.savez_compressed(
+        path,
+        header=np.array(json.dumps(header)),
+        scan=scene.scan,
+        scan_ids=scene.scan_ids,
+        model_points=scene.model_points,
+        poses=scene.poses,
+        visible_fraction=scene.visible_fraction,
+        visible_pixels=scene.visible_pixels,
+        alone_pixels=scene.alone_pixels,
+        rank=scene.rank,
+        sensor=scene.sensor,
+    )
+
+
+def load_bin_scene(path: str | Path) -> BinScene:
+    """Read a scene :func:`save_bin_scene` wrote."""
+    with np.load(path, allow_pickle=False) as z:
+        header = json.loads(str(z["header"]))
+        if header.get("version") != _VERSION:
+            raise ValueError(f"{path}: bin scene format {header.get('version')}, need {_VERSION}")
+        p = header["params"]
+        params = BinParams(**{k: tuple(v) if isinstance(v, list) else v for k, v in p.items()})
+        arrays = {k: z[k] for k in z.files if k != "header"}
+    return BinScene(
+        **arrays,
+        voxel_size=float(header["voxel_size"]),
+        diameter=float(header["diameter"]),
+        model=header["model"],
+        seed=int(header["seed"]),
+        params=params,
+    )
+
+
+def bin_scene_cached(cache_dir: str | Path | None, seed: int, params: BinParams) -> BinScene:
+    """The scene for (params, seed), read from `cache_dir` when built before with the same
+    parameters, else built (and written there when a folder is given)."""
+    if cache_dir is None:
+        return make_bin_scene(seed, params)
+    key = zlib.crc32(json.dumps([_VERSION, asdict(params)], sort_keys=True).encode())
+    path = Path(cache_dir) / f"{params.model.replace('/', '_')}_{seed}_{key:08x}.npz"
+    if path.is_file():
+        return load_bin_scene(path)
+    scene = make_bin_scene(seed, params)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_bin_scene(scene, path)
+    return scene
