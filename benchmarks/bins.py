@@ -4,11 +4,11 @@
                               [--models held-out|validation|all|m1,m2] [--out FILE]
 
 Scenes: :func:`pointclm.datasets.bins.make_bin_scene` (20-80 copies of one part heaped in a
-0.6 x 0.4 m bin, part diagonal 0.1 m, one structured-light depth sensor 1.2 m above; scan
-cropped to the bin's interior, about 200k raw points, about 20k after downsampling at the
-scenes' voxel, 1/22 of the part's diagonal). Seeds 0..n-1 per model (each model has its own
-random stream, so the scenes are fixed per model). ``--cache DIR`` keeps the built scenes as
-.npz files and reads them back on the next run.
+0.4 x 0.3 m bin, part diagonal 0.1 m, one structured-light depth sensor 0.8 m above; scan
+cropped to the bin's interior, about 200k raw points, about 33k after downsampling at
+pointclm's default voxel, 1/40 of the part's diagonal). Seeds 0..n-1 per model (each model
+has its own random stream, so the scenes are fixed per model). ``--cache DIR`` keeps the
+built scenes as .npz files and reads them back on the next run.
 
 Methods, all given the same model points (dense samples of the scaled part), the same raw scan,
 the same voxel and the sensor position, in the same run:

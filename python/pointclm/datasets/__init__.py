@@ -9,6 +9,7 @@ only when used.
 
 from __future__ import annotations
 
+from .bins import BinParams, BinScene, make_bin_scene
 from .procedural import PROCEDURAL_SHAPES, procedural_mesh
 from .shapes import (
     MESH_SUFFIXES,
@@ -28,6 +29,8 @@ from .synthetic import (
 )
 
 __all__ = [
+    "BinParams",
+    "BinScene",
     "MESH_SUFFIXES",
     "PROCEDURAL_SHAPES",
     "SyntheticScene",
@@ -35,6 +38,7 @@ __all__ = [
     "label_correspondences",
     "load_mesh",
     "load_shape",
+    "make_bin_scene",
     "make_planted_scene",
     "make_scene",
     "make_scenes",

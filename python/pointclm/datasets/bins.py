@@ -1,43 +1,46 @@
 """Bin-picking scenes: dozens of copies of one part heaped in a bin under a depth sensor.
 
 Why: the first use named for pointclm is a robot picking parts from a bin (issue 18). Such
-a scan holds 20 to 80 copies of one part, most of them partly hidden by others, and the
+a scan holds 20 to 80 copies of one part, many of them partly hidden by others, and the
 picking robot needs the least-hidden ones first. Each scene is built as follows (units:
 metres; the part is scaled to size, so every model gives the same scene geometry):
 
-1. **Bin.** A box of inner size 0.6 x 0.4 m (a Euro container), walls 0.2 m high and 1 cm
-   thick; the part is scaled so that its bounding-box diagonal is 1/6 of the bin's length
-   (0.1 m).
-2. **Heap.** 20-80 copies (uniform) are dropped one after another. Each drop draws
-   ``candidates`` uniformly random orientations, each at a random x, y inside the bin, and
-   lowers it on a height field of the heap (cells of 1/40 of the part's diagonal holding the
-   highest surface sample so far) until it touches the heap or the floor; the candidate
-   that comes to rest lowest is kept (a crude stand-in for tipping onto a stable face).
-   Every column of the height field thus holds the copies in disjoint height intervals:
-   copies touch but never interpenetrate.
-3. **Sensor.** A pinhole depth sensor 1.2 m above the floor's centre looks straight down,
-   640 x 480 pixels, its field of view just covering the bin (about 1 mm per pixel on the
+1. **Bin.** A box of inner size 0.4 x 0.3 m, walls 0.2 m high and 1 cm thick; the part is
+   scaled so that its bounding-box diagonal is 1/4 of the bin's length (0.1 m).
+2. **Heap.** 20-80 copies (uniform) are poured one after another over the bin's middle (x, y
+   normal around the centre, sigma 1/6 of the bin's sides). Each drop tries ``candidates``
+   uniformly random orientations; each is lowered on a height field of the heap (cells of
+   1/40 of the part's diagonal holding the highest surface sample so far) until it touches
+   the heap or the floor, then slides downhill in steps of a quarter diagonal (at most
+   ``slide_steps``) while that lowers it; the orientation that comes to rest lowest is kept
+   (a crude stand-in for tipping onto a stable face). Every column of the height field holds
+   the copies in disjoint height intervals: copies touch but never interpenetrate.
+3. **Sensor.** A pinhole depth sensor 0.8 m above the floor's centre looks straight down,
+   640 x 480 pixels, its field of view just covering the bin (about 0.7 mm per pixel on the
    floor). A z-buffer of dense surface samples of every copy (40,000 per copy, each splatted
    over 2 x 2 pixels so that surfaces stay closed) and the bin's planes, cast exactly, gives
    the first surface along every pixel's ray: copies hide each other, the walls hide copies.
-   Pixels outside the bin's rim return nothing (the scan is cropped to the bin, as a picking
-   cell does).
 4. **Noise of a structured-light sensor.** Depth noise with sigma = ``noise_at_1m`` * z^2
-   (1 mm at 1 m; z in metres), depth quantised as a disparity (focal length f pixels,
+   (0.5 mm at 1 m; z in metres), depth quantised as a disparity (focal length f pixels,
    baseline 7.5 cm, 1/16-pixel steps, so the step also grows as z^2), and dropouts: a pixel
    whose surface is seen at more than 60 degrees from the ray is lost with a probability
    rising linearly to 1 at 85 degrees (depth edges included, as real sensors lose them).
+   The scan is then cropped to the bin's interior less ``crop_margin`` (the region of
+   interest of a picking cell, which knows where its bin is): the floor stays, the walls go.
 
 Ground truth per copy: its pose ``T_target_source`` (from the scaled model's frame, the
 ``model_points``, to the scan's), its **visible fraction** and its **visibility rank**. The
 visible fraction is the number of pixels that see the copy in the heap over the number that
-would see it at the same pose alone in the (empty) bin, both before noise and dropouts: 1 for
-a copy nothing covers, 0 for a buried one, whatever the part's shape or how much of it faces
-the sensor. The rank orders copies by visible fraction, most visible first (ties: more
-pixels first): the copies a picking robot should take first.
+would see it at the same pose alone in the (empty) bin, both before noise, dropouts and the
+crop: 1 for a copy nothing covers, 0 for a buried one, whatever the part's shape or how much
+of it faces the sensor. The rank orders copies by visible fraction, most visible first (ties:
+more pixels first): the copies a picking robot should take first.
 
-The scan is the sensor's raw point cloud (about 200,000 points); downsampled at the scenes'
-``voxel_size`` (1/30 of the part's diagonal, 3.3 mm) it keeps about 20,000 points.
+The scan is the sensor's raw point cloud (about 200,000 points). ``voxel_size`` is
+:func:`pointclm.register_point_clouds`' default, 1/40 of the part's diagonal (2.5 mm); at it
+the scan keeps about 33,000 points. (A coarser voxel giving 20,000 points, 1/22 of the
+diagonal, leaves too few points on the part for FPFH: on a fandisk scene no method found a
+copy.)
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ import json
 import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +90,7 @@ BIN_MODELS_VALIDATION: tuple[str, ...] = (
 #: Surface labels of scan points that lie on no copy.
 FLOOR, WALL = -2, -3
 #: Bump when the generator changes, so that cached scenes are rebuilt.
-_VERSION = 1
+_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -266,7 +270,7 @@ def _heap(
     local = model - centre
     # Where a copy comes to rest is searched on a subsample (fast); its final height is set
     # with every sample, so that the height field stays exact.
-    coarse = local[rng.choice(len(local), size=min(len(local), 3000), replace=False)]
+    coarse = local[rng.choice(len(local), size=min(len(local), 1000), replace=False)]
     half = np.array([length / 2, width / 2])
     steps = (
         diameter
@@ -280,7 +284,9 @@ def _heap(
         best = None
         for rot in _random_rotations(rng, params.candidates):
             p = coarse @ rot.T
-            lo, hi = -half - p[:, :2].min(0), half - p[:, :2].max(0)
+            # The footprint of every sample stays inside the walls.
+            flat = local @ rot[:2].T
+            lo, hi = -half - flat.min(0), half - flat.max(0)
 
             def rest(xy: np.ndarray, p: np.ndarray = p) -> float:
                 return field.rest_height(p + np.array([xy[0], xy[1], 0.0]))[0]
@@ -402,7 +408,7 @@ def _render(
     for k, pose in enumerate(poses):
         d, p = _splat(cam, model @ pose[:3, :3].T + pose[:3, 3])
         front = d < bin_depth[p]
-        alone[k] = len(np.unique(p[front]))
+        alone[k] = np.count_nonzero(np.bincount(p[front], minlength=n_pix))
         depths.append(d[front])
         pixels.append(p[front])
         owners.append(np.full(int(front.sum()), k))
@@ -518,8 +524,10 @@ def load_bin_scene(path: str | Path) -> BinScene:
         header = json.loads(str(z["header"]))
         if header.get("version") != _VERSION:
             raise ValueError(f"{path}: bin scene format {header.get('version')}, need {_VERSION}")
-        p = header["params"]
-        params = BinParams(**{k: tuple(v) if isinstance(v, list) else v for k, v in p.items()})
+        p: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in header["params"].items()
+        }
+        params = BinParams(**p)
         arrays = {k: z[k] for k in z.files if k != "header"}
     return BinScene(
         **arrays,
