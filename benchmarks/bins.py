@@ -1,6 +1,6 @@
 """The bin-picking benchmark: dozens of copies of one part per scan (issue 18).
 
-    python benchmarks/bins.py [--scenes 3] [--validation-scenes 1] [--cache DIR]
+    python benchmarks/bins.py [--scenes 2] [--validation-scenes 1] [--cache DIR]
                               [--models held-out|validation|all|m1,m2] [--out FILE]
 
 Scenes: :func:`pointclm.datasets.bins.make_bin_scene` (20-80 copies of one part heaped in a
@@ -276,7 +276,7 @@ def main() -> None:
     )
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", type=int, default=3, help="scenes per held-out model")
+    ap.add_argument("--scenes", type=int, default=2, help="scenes per held-out model")
     ap.add_argument("--validation-scenes", type=int, default=1, help="per validation model")
     ap.add_argument("--models", default="all", help="held-out, validation, all, or m1,m2,...")
     ap.add_argument("--cache", default=None, help="folder for the built scenes (.npz)")
