@@ -3,6 +3,9 @@
     python benchmarks/bins.py [--scenes 2] [--validation-scenes 1] [--cache DIR]
                               [--models held-out|validation|all|m1,m2] [--out FILE]
 
+The default (the 7 held-out models, 2 scenes each, all three methods) took 16 minutes on 2
+shared cores; ``--models validation`` reports the validation models (1 scene each by default).
+
 Scenes: :func:`pointclm.datasets.bins.make_bin_scene` (20-80 copies of one part heaped in a
 0.4 x 0.3 m bin, part diagonal 0.1 m, one structured-light depth sensor 0.8 m above; scan
 cropped to the bin's interior, about 200k raw points, about 33k after downsampling at
@@ -319,7 +322,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", type=int, default=2, help="scenes per held-out model")
     ap.add_argument("--validation-scenes", type=int, default=1, help="per validation model")
-    ap.add_argument("--models", default="all", help="held-out, validation, all, or m1,m2,...")
+    ap.add_argument("--models", default="held-out", help="held-out, validation, all, or m1,m2,...")
     ap.add_argument("--cache", default=None, help="folder for the built scenes (.npz)")
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
     ap.add_argument("--ransac-max-fits", type=int, default=40)
