@@ -14,13 +14,15 @@ happy, armadillo, bathtub, bed and the procedural shapes) are where thresholds a
 are chosen (``realistic_thresholds.py``); they are reported apart, as in-sample figures.
 Pooled rows weight every scene alike (the same count per model).
 
-**Seeds.** Model ``m``'s benchmark scenes are ``make_realistic_scene(BENCHMARK_SEED_BASE + k)``
-for k = 0.. --scenes-per-model - 1 (1,000,000 + k). Disjoint from every other scene source:
-``realistic_thresholds.py`` uses ``THRESHOLD_SEED_BASE + k`` (2,000,000 + k); the training
-and training-time validation banks use ``training.realistic.scene_seed`` (62-bit hashes; a
-test checks that the banks' default seeds miss both ranges); the bunny benchmark
-(``realistic.py``) and the tests use small seeds (0..99). The N = 5000 scenes are the same
-scenes (same seeds, same layout) matched differently.
+**Seeds.** Model ``m``'s benchmark scenes are ``make_realistic_scene(seed)`` for the seeds
+``benchmark_seeds(m, n)`` = 1,000,000 + 1000 x slot(m) + k, k = 0..n - 1, where slot(m) is
+m's place in ``HELDOUT_MODELS + VALIDATION_MODELS`` (so models do not share layouts).
+Disjoint from every other scene source: ``realistic_thresholds.py`` uses
+``threshold_seeds`` = 2,000,000 + 1000 x slot + k; the training and training-time
+validation banks use ``training.realistic.scene_seed`` (62-bit hashes; a test checks that
+the banks' default seeds miss both ranges); the bunny benchmark (``realistic.py``) and the
+tests use small seeds (0..99). The N = 5000 scenes are the same scenes (same seeds, same
+layout) matched differently.
 
 **Correspondences.** N = 1000: the scenes' default (FPFH, mutual nearest neighbours, top
 10,000, at most 1000 drawn; a median of about 400 survive the mutual filter). N > 1000: the
@@ -80,7 +82,9 @@ if str(HERE) not in sys.path:
 #: First seed of each model's benchmark scenes, and of the threshold sweep's scenes.
 BENCHMARK_SEED_BASE = 1_000_000
 THRESHOLD_SEED_BASE = 2_000_000
-#: Scenes per model a seed range can hold before running into the next range.
+#: Seeds per model in a range (model slots follow HELDOUT_MODELS then VALIDATION_MODELS;
+#: append new models at the end so that the others keep their seeds); a range holds 1000.
+SCENES_PER_SLOT = 1000
 SEED_RANGE = 1_000_000
 
 #: Bump when the cached arrays change meaning.
@@ -91,20 +95,28 @@ QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus"
 SCALE_MODELS = ("stanford/bunny", "common3d/teapot")
 
 
-def benchmark_seeds(n: int) -> list[int]:
-    """Seeds of a model's first `n` benchmark scenes."""
-    return _seeds(BENCHMARK_SEED_BASE, n)
+def benchmark_seeds(model: str, n: int) -> list[int]:
+    """Seeds of `model`'s first `n` benchmark scenes."""
+    return _seeds(BENCHMARK_SEED_BASE, model, n)
 
 
-def threshold_seeds(n: int) -> list[int]:
-    """Seeds of a model's first `n` threshold-sweep scenes (``realistic_thresholds.py``)."""
-    return _seeds(THRESHOLD_SEED_BASE, n)
+def threshold_seeds(model: str, n: int) -> list[int]:
+    """Seeds of `model`'s first `n` threshold-sweep scenes (``realistic_thresholds.py``)."""
+    return _seeds(THRESHOLD_SEED_BASE, model, n)
 
 
-def _seeds(base: int, n: int) -> list[int]:
-    if not 0 <= n <= SEED_RANGE:
-        raise ValueError(f"scenes per model must lie in [0, {SEED_RANGE}], got {n}")
-    return list(range(base, base + n))
+def _seeds(base: int, model: str, n: int) -> list[int]:
+    """``base + 1000 * slot + k``: each model its own block of seeds, so that models do not
+    share layouts (a seed fixes the copies' count, the clutter and the sensor)."""
+    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
+
+    models = (*HELDOUT_MODELS, *VALIDATION_MODELS)
+    if model not in models:
+        raise ValueError(f"unknown model {model!r}: one of {', '.join(models)}")
+    if not 0 <= n <= SCENES_PER_SLOT:
+        raise ValueError(f"scenes per model must lie in [0, {SCENES_PER_SLOT}], got {n}")
+    first = base + SCENES_PER_SLOT * models.index(model)
+    return list(range(first, first + n))
 
 
 def scene_params(model: str, n: int, data_dir: str | None) -> Any:
@@ -282,11 +294,16 @@ def _peer(name: str) -> Callable[[Any], np.ndarray]:
     from pointclm.point_clouds import scaled_config
 
     def run(scene: Any) -> np.ndarray:
-        radius = 2.0 * scene.voxel_size  # the scenes' inlier definition
+        # In units of the model's diagonal: KISS-Matcher clamps its noise bounds at 1.0 (made
+        # for metres in large maps), which would loosen them on a model measured in
+        # millimetres. Rigid registration is otherwise unit-free; poses are scaled back.
+        unit = scene.diameter
+        radius = 2.0 * scene.voxel_size / unit  # the scenes' inlier definition
         least = scaled_config(scene.voxel_size).min_cluster_size
-        if name == "kiss":
-            return _poses(peers.sequential_kiss(scene.correspondences, radius, least))
-        return _poses(peers.sequential_ransac(scene.correspondences, radius, least))
+        solve = peers.sequential_kiss if name == "kiss" else peers.sequential_ransac
+        poses = _poses(solve(scene.correspondences / unit, radius, least))
+        poses[:, :3, 3] *= unit
+        return poses
 
     return run
 
@@ -497,7 +514,7 @@ def scale_child(path: str, threads: int) -> None:
 def run_scale(
     n: int, cache: Path, data_dir: str | None, workers: int, timeout: float = 600
 ) -> list[str]:
-    jobs = [(m, BENCHMARK_SEED_BASE, scale_params(m, n, data_dir)) for m in SCALE_MODELS]
+    jobs = [(m, benchmark_seeds(m, 1)[0], scale_params(m, n, data_dir)) for m in SCALE_MODELS]
     load_scenes(jobs, cache, workers)  # builds what the cache lacks; the children read it
     # Through sh, which forks python rather than exec'ing it: the child's ru_maxrss then starts
     # from sh's small RSS, not this process's. The address-space cap keeps a runaway
@@ -529,8 +546,8 @@ def run_scale(
     out = [
         f"### N = {n:,} realistic correspondences: time and peak memory",
         "",
-        f"Scenes: seed {BENCHMARK_SEED_BASE}, 8 copies and 3 clutter objects, voxel = diagonal / "
-        f"80, FPFH matches without the mutual filter, the top {n:,} kept. One "
+        "Scenes: each model's first benchmark seed, 8 copies and 3 clutter objects, "
+        f"voxel = diagonal / 80, FPFH matches without the mutual filter, the top {n:,} kept. One "
         "`pointclm.register` (training-free, default config scaled to the voxel, "
         "correspondences alone) per fresh child process; peak RSS = `ru_maxrss`, baseline = "
         "after loading the scene.",
@@ -622,8 +639,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     load0 = os.getloadavg()[0]
     t_start = time.perf_counter()
 
-    seeds = benchmark_seeds(args.scenes_per_model)
-    jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds]
+    seeds = {m: benchmark_seeds(m, args.scenes_per_model) for m in models}
+    jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds[m]]
     scenes = load_scenes(jobs, cache, args.workers)
     methods = make_methods(args.model, ransac=not args.no_ransac)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
@@ -644,8 +661,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"(load average {load0:.1f} at the start: times are wall clock on a shared machine). "
         "pointclm on 1 thread; KISS-Matcher and Open3D with their default threads.",
         f"- Code: pointclm {pointclm.__version__}, git {_git_commit()}.",
-        f"- Scenes: {args.scenes_per_model} per model, seeds {seeds[0]}..{seeds[-1]} "
-        f"(disjoint from threshold and training scenes); "
+        f"- Scenes: {args.scenes_per_model} per model, model i (in the order below) seeds "
+        f"{BENCHMARK_SEED_BASE} + 1000 i + 0..{args.scenes_per_model - 1} "
+        "(disjoint from threshold and training scenes); "
         + (
             f"FPFH, mutual nearest neighbours, top 10,000, at most {args.n} drawn"
             if args.n <= 1000

@@ -12,10 +12,11 @@ stage alone, with ``--refine`` also for its poses refined and verified on the cl
     python benchmarks/realistic_thresholds.py [--scenes-per-model 10] [--refine] [--model default]
     python benchmarks/realistic_thresholds.py --bank VAL_BANK.npz [--model default ...]
 
-**Seeds.** Model ``m``'s sweep scenes are ``make_realistic_scene(THRESHOLD_SEED_BASE + k)``
-(2,000,000 + k, ``realistic_models.threshold_seeds``), built as the benchmark builds its own
-(``realistic_models.scene_params``, same ``--n``) and cached beside them (``--cache``, npz).
-They share no seed with the benchmark's scenes (1,000,000 + k) or the training banks.
+**Seeds.** Model ``m``'s sweep scenes are ``make_realistic_scene(seed)`` for the seeds
+``realistic_models.threshold_seeds(m, n)`` (2,000,000 + 1000 x the model's slot + k), built
+as the benchmark builds its own (``realistic_models.scene_params``, same ``--n``) and cached
+beside them (``--cache``, npz).
+They share no seed with the benchmark's scenes (1,000,000 + ...) or the training banks.
 
 A network is scored only on the validation models it never trained on (not in
 ``training.config.TRAIN_SHAPES`` or ``REALISTIC_MODELS``: armadillo and bed). ``--bank``
@@ -194,8 +195,11 @@ def main() -> None:
                 f"thresholds); choose from {', '.join(VALIDATION_MODELS)}"
             )
         data_dir = args.data_dir or str(default_data_dir())
-        seeds = threshold_seeds(args.scenes_per_model)
-        jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds]
+        jobs = [
+            (m, s, scene_params(m, args.n, data_dir))
+            for m in models
+            for s in threshold_seeds(m, args.scenes_per_model)
+        ]
         scenes = load_scenes(jobs, Path(args.cache), args.workers)
         scorer = Scorer(scenes)
         every = list(range(len(scenes)))

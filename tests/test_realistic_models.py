@@ -53,30 +53,38 @@ def test_split_covers_every_model_once() -> None:
 def test_every_model_file_is_in_the_data_folder() -> None:
     for rel, up in _MODELS.values():
         assert (DATA / rel).is_file(), rel
-        assert up in ("x", "y", "z")
+        assert up in ("x", "y", "z", "-z")
 
 
-@pytest.mark.parametrize("up", ["x", "y", "z"])
+@pytest.mark.parametrize("up", ["x", "y", "z", "-z"])
 def test_up_rotation_is_proper_and_lifts_the_axis(up: str) -> None:
     r = _up_rotation(up)
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
     assert np.isclose(np.linalg.det(r), 1.0)
-    np.testing.assert_allclose(r @ np.eye(3)["xyz".index(up)], [0, 0, 1], atol=1e-12)
+    axis = np.eye(3)["xyz".index(up[-1])] * (-1 if up.startswith("-") else 1)
+    np.testing.assert_allclose(r @ axis, [0, 0, 1], atol=1e-12)
 
 
 def test_benchmark_seeds_miss_threshold_and_training_seeds() -> None:
     from pointclm.training.realistic import scene_seed
 
-    bench, thresholds = set(rm.benchmark_seeds(1000)), set(rm.threshold_seeds(1000))
-    assert len(bench) == 1000 and not bench & thresholds
+    models = (*HELDOUT_MODELS, *VALIDATION_MODELS)
+    bench = [s for m in models for s in rm.benchmark_seeds(m, 1000)]
+    thresholds = [s for m in models for s in rm.threshold_seeds(m, 1000)]
+    assert len(set(bench)) == len(bench) == 1000 * len(models)  # no two models share a seed
+    assert not set(bench) & set(thresholds)
+    assert rm.benchmark_seeds("common3d/spot", 3) == rm.benchmark_seeds("common3d/spot", 5)[:3]
     # The training banks (run seed s) and their validation banks (s + 1), for the first runs.
     banks = {scene_seed(b, i, k) for b in range(3) for i in range(12) for k in range(200)}
     lo, hi = rm.BENCHMARK_SEED_BASE, rm.THRESHOLD_SEED_BASE + rm.SEED_RANGE
     assert not any(lo <= s < hi for s in banks)
+    assert max(bench + thresholds) < hi
     # ... and the bunny benchmark's and the tests' small seeds.
-    assert min(bench | thresholds) > 10_000
+    assert min(bench + thresholds) > 10_000
     with pytest.raises(ValueError, match="scenes per model"):
-        rm.benchmark_seeds(rm.SEED_RANGE + 1)
+        rm.benchmark_seeds("torus", rm.SCENES_PER_SLOT + 1)
+    with pytest.raises(ValueError, match="unknown model"):
+        rm.threshold_seeds("bunny", 1)
 
 
 def test_scene_params_by_n() -> None:
@@ -142,7 +150,7 @@ def test_quick_run_writes_the_report(tmp_path: Path) -> None:
     assert "| pointclm, training-free, correspondences alone |" in text
     record = json.loads(out.with_suffix(".json").read_text())
     assert {r["method"] for r in record["rows"]} >= {"pointclm", "pointclm+refine", "oracle"}
-    assert all(r["seed"] == rm.BENCHMARK_SEED_BASE for r in record["rows"])
+    assert {r["seed"] for r in record["rows"]} == set(rm.benchmark_seeds("torus", 1))
     with pytest.raises(SystemExit, match="unknown model"):
         rm.main(["--models", "no-such-model", "--out", str(out)])
 

@@ -57,7 +57,8 @@ __all__ = [
 #: bunny (no data folder needed); it shares the Stanford bunny's frame. The up axes were read
 #: off each mesh: the animals, the teapot and the car stand on their feet, base or wheels
 #: (y up); the two CAD parts rest as they would on a table or in a bin: the fandisk on its
-#: one large flat face (z = min), the rocker arm lying flat, its bore vertical (x up).
+#: largest flat face (z = max, "-z" up: its block stands on the fan plate), the rocker arm
+#: lying flat, its bore vertical (x up).
 _MODELS: dict[str, tuple[str, str]] = {
     "stanford/bunny": ("stanford/bunny/reconstruction/bun_zipper_res2.ply", "y"),
     "stanford/dragon": ("stanford/dragon/dragon_spica_21790v.ply", "y"),
@@ -68,7 +69,7 @@ _MODELS: dict[str, tuple[str, str]] = {
     "common3d/spot": ("common3d/spot.ply", "y"),
     "common3d/cow": ("common3d/cow.ply", "y"),
     "common3d/teapot": ("common3d/teapot.ply", "y"),
-    "common3d/fandisk": ("common3d/fandisk.ply", "z"),
+    "common3d/fandisk": ("common3d/fandisk.ply", "-z"),
     "common3d/rocker-arm": ("common3d/rocker-arm.ply", "x"),
     "common3d/beetle": ("common3d/beetle.ply", "y"),
 }
@@ -238,6 +239,8 @@ def _up_rotation(up: str) -> np.ndarray:
         return np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
     if up == "x":
         return np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]])
+    if up == "-z":
+        return np.diag([1.0, -1, -1])
     return np.eye(3)
 
 
