@@ -49,7 +49,7 @@ time and the peak RSS (``ru_maxrss``; baseline after loading the scene), on 1 th
 all cores, under an 8 GB address-space limit.
 
 **Cache.** Built scenes are kept as ``.npz`` (no pickle) under ``--cache`` (default
-``.cache/realistic_scenes``), keyed by model, seed and scene parameters; delete the folder
+``out/realistic_scenes``), keyed by model, seed and scene parameters; delete the folder
 when ``datasets/scenes.py`` or the FPFH code changes.
 
 Results: a markdown report (``--out``) with date, command, hardware, git commit, and a JSON file
@@ -614,7 +614,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--scale", type=int, default=50_000, help="N of the timed run (0: skip)")
     ap.add_argument("--no-ransac", action="store_true", help="leave the slow RANSAC peer out")
     ap.add_argument("--quick", action="store_true", help="CI-sized: 2 scenes of 4 models")
-    ap.add_argument("--cache", default=".cache/realistic_scenes")
+    ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", default="benchmarks/results/realistic_models.md")

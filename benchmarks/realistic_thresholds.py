@@ -164,7 +164,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=1000, help="correspondences per scene")
     ap.add_argument("--refine", action="store_true", help="also score refined, verified poses")
     ap.add_argument("--model", action="append", default=[], help="network(s); repeatable")
-    ap.add_argument("--cache", default=".cache/realistic_scenes", help="built scenes (npz)")
+    ap.add_argument("--cache", default="out/realistic_scenes", help="built scenes (npz)")
     ap.add_argument("--data-dir", default=None)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", help="write the full sweep as JSON")

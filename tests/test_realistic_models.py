@@ -170,3 +170,40 @@ def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
     r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert r["n"] == 600 and r["threads"] == 1 and r["gt"] == 2
     assert r["seconds"] > 0 and r["peak_mb"] >= r["baseline_mb"] > 0
+
+
+def _load_thresholds() -> types.ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "realistic_thresholds", ROOT / "benchmarks" / "realistic_thresholds.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_threshold_sweep_refuses_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    rt = _load_thresholds()
+    monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/dragon,common3d/spot"])
+    with pytest.raises(SystemExit, match="not validation models: common3d/spot"):
+        rt.main()
+
+
+def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
+    import pointclm
+    from pointclm.metrics import score_scene
+    from pointclm.point_clouds import scaled_config
+
+    rt = _load_thresholds()
+    scene = make_realistic_scene(2, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
+    params = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
+    cfg = scaled_config(scene.voxel_size, pointclm.Config(**params))
+    raw = pointclm.register(scene.correspondences, None, cfg, seed=0).transformations
+    refined = pointclm.refine_poses(
+        scene.source_points, scene.target_points, raw, scene.voxel_size
+    ).transformations
+    scorer = rt.Scorer([scene])
+    for poses, refine in ((raw, False), (refined, True)):
+        want = score_scene(poses, scene.poses, 15.0, scene.max_translation)
+        ((_, got),) = scorer.sweep(None, [params], [0], refine)
+        assert got["mean_recall"] == want.recall and got["mean_precision"] == want.precision
