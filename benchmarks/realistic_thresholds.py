@@ -1,26 +1,27 @@
-"""Pipeline thresholds for realistic scenes, chosen on validation models only.
+"""Pipeline thresholds for realistic scenes, chosen on the VALIDATION models only.
 
 Realistic scenes (range-sensor views, FPFH matches) hold a handful of inliers per instance,
 where the synthetic protocol holds dozens: the count thresholds (tau_n, min_cluster_size) that
 suit one do not suit the other. This sweeps them on realistic scenes of the validation models
-(stanford/armadillo, modelnet/bed; never trained on, never the benchmark's bunny), for the
-training-free pipeline and for each network, and prints the best of each: the source of a
-network's ``recommended_point_cloud_config``. The training-free pipeline learns nothing, so
-any scenes but the benchmark's may choose its thresholds (add the training bank); its pick
-did not carry over to the bunny (BENCHMARKS.md), so ``register_point_clouds`` keeps
-``Config()``'s.
+(``pointclm.datasets.scenes.VALIDATION_MODELS``: dragon, happy, armadillo, bathtub, bed and
+the procedural shapes) and prints the best: for the training-free pipeline's correspondence
+stage alone, with ``--refine`` also for its poses refined and verified on the clouds (what
+``register_point_clouds`` returns), and for each network of ``--model``. The held-out models
+(``HELDOUT_MODELS``: the bunny and the common3d meshes) are refused: they only report.
 
+    python benchmarks/realistic_thresholds.py [--scenes-per-model 10] [--refine] [--model default]
     python benchmarks/realistic_thresholds.py --bank VAL_BANK.npz [--model default ...]
-    python benchmarks/realistic_thresholds.py --build 40 --data-dir ../shared/data
-    python benchmarks/realistic_thresholds.py --refine --build 40 --train 40 --model default
 
-``--refine`` scores what ``register_point_clouds`` returns by default: the poses refined and
-verified on the clouds (`pointclm.refine_poses`). The scenes then keep their clouds, so they
-are built in the run (``--cache DIR`` keeps them). ``--train N`` adds N scenes of each training
-model (dragon, happy, bathtub) to the training-free sweep only: a network is scored on models
-it never saw.
+**Seeds.** Model ``m``'s sweep scenes are ``make_realistic_scene(seed)`` for the seeds
+``realistic_models.threshold_seeds(m, n)`` (2,000,000 + 1000 x the model's slot + k), built
+as the benchmark builds its own (``realistic_models.scene_params``, same ``--n``) and cached
+beside them (``--cache``, npz).
+They share no seed with the benchmark's scenes (1,000,000 + ...) or the training banks.
 
-Needs torch for the networks.
+A network is scored only on the validation models it never trained on (not in
+``training.config.TRAIN_SHAPES`` or ``REALISTIC_MODELS``: armadillo and bed). ``--bank``
+sweeps a saved ``SceneBank`` instead (correspondences only, no ``--refine``), e.g. a
+network's validation bank. Needs torch for the networks.
 """
 
 from __future__ import annotations
@@ -28,19 +29,22 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pointclm
 from pointclm.metrics import score_scene, summarize
-from pointclm.point_clouds import embed_scaled, scaled_config
+from pointclm.point_clouds import REFINED_THRESHOLDS, embed_scaled, scaled_config
 from pointclm.training.realistic import SceneBank, score_bank
+from realistic_models import load_scenes, scene_params, threshold_seeds
 
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)
 MIN_CLUSTER = (3, 4, 5, 7, 10)
 
 
-def sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
+def bank_sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
     feats = [
         None
         if model is None
@@ -50,23 +54,11 @@ def sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[di
     return [(params, score_bank(bank, feats, pointclm.Config(**params))) for params in grid]
 
 
-def build_cloud_scenes(models: tuple[str, ...], n: int, base: int, data_dir: str) -> list:
-    """`n` realistic scenes of each model, clouds kept, with the bank's seeds and clutter."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    from pointclm.training.realistic import bank_scene, scene_seed
-
-    jobs = [(m, scene_seed(base, i, k)) for i, m in enumerate(models) for k in range(n)]
-    names, seeds = zip(*jobs, strict=True)
-    with ProcessPoolExecutor() as pool:
-        return list(pool.map(bank_scene, names, seeds, itertools.repeat(data_dir), chunksize=2))
-
-
-class _RefinedScorer:
-    """Scores configs with the poses refined on the clouds. ICP of one pose does not depend
-    on the other poses, so each distinct raw pose is refined once per scene and only the
-    verification (which does) runs per config: the same result as `refine_poses` on the raw
-    poses, at a fraction of the cost."""
+class Scorer:
+    """Scores configs on scenes with their clouds, raw or refined. ICP of one pose does not
+    depend on the other poses, so each distinct raw pose is refined once per scene and only
+    the verification (which does) runs per config: the same result as `refine_poses` on the
+    raw poses, at a fraction of the cost."""
 
     def __init__(self, scenes: list) -> None:
         self.scenes = scenes
@@ -92,7 +84,9 @@ class _RefinedScorer:
             sc.source_points, sc.target_points, icped, sc.voxel_size, icp=False
         ).transformations
 
-    def sweep(self, model: str | None, grid: list[dict], scenes: range) -> list[tuple[dict, dict]]:
+    def sweep(
+        self, model: str | None, grid: list[dict], scenes: list[int], refine: bool
+    ) -> list[tuple[dict, dict]]:
         feats = {
             i: None
             if model is None
@@ -111,34 +105,12 @@ class _RefinedScorer:
                 sc = self.scenes[i]
                 cfg = scaled_config(sc.voxel_size, pointclm.Config(**params))
                 raw = pointclm.register(sc.correspondences, feats[i], cfg, seed=0)
-                poses = self.refined(i, np.asarray(raw.transformations).reshape(-1, 4, 4))
+                poses = np.asarray(raw.transformations).reshape(-1, 4, 4)
+                if refine:
+                    poses = self.refined(i, poses)
                 scores.append(score_scene(poses, sc.poses, 15.0, sc.max_translation))
             out.append((params, summarize(scores).as_dict()))
         return out
-
-
-def _cloud_scenes(args: argparse.Namespace) -> tuple[list, list]:
-    """(validation scenes, training-model scenes), from ``--cache`` when there."""
-    import pickle
-    from pathlib import Path
-
-    from pointclm.training.config import REALISTIC_MODELS, VAL_SHAPES
-
-    out = []
-    for models, n, base, name in (
-        (VAL_SHAPES, args.build, 1, "val"),
-        (REALISTIC_MODELS, args.train, 0, "train"),
-    ):
-        path = Path(args.cache or ".", f"clouds_{name}_{n}.pkl")
-        if n == 0:
-            out.append([])
-        elif args.cache and path.exists():
-            out.append(pickle.loads(path.read_bytes()))
-        else:
-            out.append(build_cloud_scenes(models, n, base, args.data_dir))
-            if args.cache:
-                path.write_bytes(pickle.dumps(out[-1]))
-    return out[0], out[1]
 
 
 def _concat(banks: list[SceneBank], every: int) -> SceneBank:
@@ -155,8 +127,12 @@ def _concat(banks: list[SceneBank], every: int) -> SceneBank:
     )
 
 
-def _report(res: list[tuple[dict, dict]]) -> list[tuple[dict, dict]]:
-    """Sort by MF (strict F1 breaks ties), print the best 5 and ``Config()``'s."""
+def _key(p: dict) -> tuple:
+    return (p["tau_s"], p["tau_n"], p["min_cluster_size"])
+
+
+def _report(res: list[tuple[dict, dict]], refine: bool) -> list[tuple[dict, dict]]:
+    """Sort by MF (strict F1 breaks ties), print the best 5 and the current defaults'."""
     res.sort(key=lambda r: (r[1]["mean_f1"], r[1]["strict_f1"]), reverse=True)
     print(f"  best 5 of {len(res)}")
     for params, m in res[:5]:
@@ -166,66 +142,80 @@ def _report(res: list[tuple[dict, dict]]) -> list[tuple[dict, dict]]:
             f"strict F1 {100 * m['strict_f1']:.2f}"
         )
     base = pointclm.Config()
-    default = [
-        m
-        for p, m in res
-        if (p["tau_s"], p["tau_n"], p["min_cluster_size"])
-        == (base.tau_s, base.tau_n, base.min_cluster_size)
-    ]
-    print(f"  (Config() thresholds: MF {100 * default[0]['mean_f1']:.2f})", flush=True)
+    defaults = {"Config()": (base.tau_s, base.tau_n, base.min_cluster_size)}
+    if refine:
+        defaults["REFINED_THRESHOLDS"] = _key(REFINED_THRESHOLDS)
+    for name, key in defaults.items():
+        hit = [m for p, m in res if _key(p) == key]
+        if hit:
+            print(f"  ({name} thresholds: MF {100 * hit[0]['mean_f1']:.2f})", flush=True)
     return res
 
 
 def main() -> None:
+    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS, default_data_dir
+    from pointclm.training.config import REALISTIC_MODELS, TRAIN_SHAPES
+
     ap = argparse.ArgumentParser()
     ap.add_argument(
-        "--bank",
-        action="append",
-        default=[],
-        help="saved SceneBank(s); repeatable. For the training-free pipeline any scenes but the "
-        "benchmark's qualify (it learns nothing); for a network, only models it never saw",
+        "--models", default=",".join(VALIDATION_MODELS), help="validation models to sweep on"
     )
-    ap.add_argument("--every", type=int, default=1, help="take every k-th scene of each bank")
-    ap.add_argument("--build", type=int, default=40, help="scenes per validation model")
-    ap.add_argument("--data-dir", default="../shared/data")
+    ap.add_argument("--scenes-per-model", type=int, default=10)
+    ap.add_argument("--n", type=int, default=1000, help="correspondences per scene")
+    ap.add_argument("--refine", action="store_true", help="also score refined, verified poses")
     ap.add_argument("--model", action="append", default=[], help="network(s); repeatable")
+    ap.add_argument("--cache", default="out/realistic_scenes", help="built scenes (npz)")
+    ap.add_argument("--data-dir", default=None)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", help="write the full sweep as JSON")
-    ap.add_argument("--refine", action="store_true", help="score refined, verified poses")
-    ap.add_argument("--train", type=int, default=0, help="--refine: scenes per training model")
-    ap.add_argument("--cache", help="--refine: folder keeping the built scenes (pickles)")
+    ap.add_argument("--bank", action="append", default=[], help="sweep saved SceneBank(s)")
+    ap.add_argument("--every", type=int, default=1, help="--bank: every k-th scene")
     args = ap.parse_args()
     grid = [
         {"tau_s": s, "tau_n": n, "min_cluster_size": m}
         for s, n, m in itertools.product(TAU_S, TAU_N, MIN_CLUSTER)
     ]
-    if args.refine:
-        val, train = _cloud_scenes(args)
-        scorer = _RefinedScorer(val + train)
-        on_val, on_all = range(len(val)), range(len(val) + len(train))
-        runs = [("training-free", None, on_val)]
-        if train:
-            runs.append(("training-free, training and validation models", None, on_all))
-        runs += [(m, m, on_val) for m in args.model]
-        report = {}
-        for name, model, scenes in runs:
-            print(f"\n{name}, refined on the clouds: {len(scenes)} scenes", flush=True)
-            report[name] = _report(scorer.sweep(model, grid, scenes))
-        if args.out:
-            with open(args.out, "w") as f:
-                json.dump(report, f, indent=1)
-        return
+    report = {}
     if args.bank:
         bank = _concat([SceneBank.load(b) for b in args.bank], args.every)
+        leak = sorted(set(bank.models) & {*HELDOUT_MODELS, "bunny"})
+        if leak:
+            raise SystemExit(f"held-out models never pick thresholds: {', '.join(leak)}")
+        print(f"{len(bank)} scenes of {', '.join(bank.models)}")
+        for model in [None, *args.model]:
+            name = model or "training-free"
+            print(f"\n{name}")
+            report[name] = _report(bank_sweep(bank, model, grid), False)
     else:
-        from pointclm.training.config import VAL_SHAPES
-
-        bank = SceneBank.build(VAL_SHAPES, args.build, 1, args.data_dir, progress=True)
-    print(f"{len(bank)} validation scenes of {', '.join(bank.models)}")
-    report = {}
-    for model in [None, *args.model]:
-        name = model or "training-free"
-        print(f"\n{name}")
-        report[name] = _report(sweep(bank, model, grid))
+        models = [m.strip() for m in args.models.split(",") if m.strip()]
+        bad = [m for m in models if m not in VALIDATION_MODELS]
+        if bad:
+            raise SystemExit(
+                f"not validation models: {', '.join(bad)} (held-out models never pick "
+                f"thresholds); choose from {', '.join(VALIDATION_MODELS)}"
+            )
+        data_dir = args.data_dir or str(default_data_dir())
+        jobs = [
+            (m, s, scene_params(m, args.n, data_dir))
+            for m in models
+            for s in threshold_seeds(m, args.scenes_per_model)
+        ]
+        scenes = load_scenes(jobs, Path(args.cache), args.workers)
+        scorer = Scorer(scenes)
+        every = list(range(len(scenes)))
+        unseen = [
+            i for i, sc in enumerate(scenes) if sc.model not in (*TRAIN_SHAPES, *REALISTIC_MODELS)
+        ]
+        runs = [("training-free", None, every)]
+        runs += [(m, m, unseen) for m in args.model]
+        for name, model, idx in runs:
+            names = sorted({scenes[i].model for i in idx})
+            for refine in (False, True) if args.refine else (False,):
+                label = (
+                    f"{name}{', refined on the clouds' if refine else ', correspondences alone'}"
+                )
+                print(f"\n{label}: {len(idx)} scenes of {', '.join(names)}", flush=True)
+                report[label] = _report(scorer.sweep(model, grid, idx, refine), refine)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(report, f, indent=1)

@@ -1,0 +1,209 @@
+"""The multi-model realistic benchmark: model split, seeds kept apart, the scene cache, the
+report, and the N = 50,000 child's measurement (`benchmarks/realistic_models.py`)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pointclm.datasets.procedural import PROCEDURAL_SHAPES
+from pointclm.datasets.scenes import (
+    _MODELS,
+    HELDOUT_MODELS,
+    VALIDATION_MODELS,
+    SceneParams,
+    _up_rotation,
+    make_realistic_scene,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+
+
+def _load() -> types.ModuleType:
+    # The module imports its siblings (peers.py, realistic.py) by name, as a script does.
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(
+        "realistic_models", ROOT / "benchmarks" / "realistic_models.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["realistic_models"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+rm = _load()
+
+
+def test_split_covers_every_model_once() -> None:
+    assert not set(VALIDATION_MODELS) & set(HELDOUT_MODELS)
+    assert set(VALIDATION_MODELS) | set(HELDOUT_MODELS) == set(_MODELS) | set(PROCEDURAL_SHAPES)
+    assert "stanford/bunny" in HELDOUT_MODELS
+    assert sum(m.startswith("common3d/") for m in HELDOUT_MODELS) == 6
+
+
+@needs_data
+def test_every_model_file_is_in_the_data_folder() -> None:
+    for rel, up in _MODELS.values():
+        assert (DATA / rel).is_file(), rel
+        assert up in ("x", "y", "z", "-z")
+
+
+@pytest.mark.parametrize("up", ["x", "y", "z", "-z"])
+def test_up_rotation_is_proper_and_lifts_the_axis(up: str) -> None:
+    r = _up_rotation(up)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.isclose(np.linalg.det(r), 1.0)
+    axis = np.eye(3)["xyz".index(up[-1])] * (-1 if up.startswith("-") else 1)
+    np.testing.assert_allclose(r @ axis, [0, 0, 1], atol=1e-12)
+
+
+def test_benchmark_seeds_miss_threshold_and_training_seeds() -> None:
+    from pointclm.training.realistic import scene_seed
+
+    models = (*HELDOUT_MODELS, *VALIDATION_MODELS)
+    bench = [s for m in models for s in rm.benchmark_seeds(m, 1000)]
+    thresholds = [s for m in models for s in rm.threshold_seeds(m, 1000)]
+    assert len(set(bench)) == len(bench) == 1000 * len(models)  # no two models share a seed
+    assert not set(bench) & set(thresholds)
+    assert rm.benchmark_seeds("common3d/spot", 3) == rm.benchmark_seeds("common3d/spot", 5)[:3]
+    # The training banks (run seed s) and their validation banks (s + 1), for the first runs.
+    banks = {scene_seed(b, i, k) for b in range(3) for i in range(12) for k in range(200)}
+    lo, hi = rm.BENCHMARK_SEED_BASE, rm.THRESHOLD_SEED_BASE + rm.SEED_RANGE
+    assert not any(lo <= s < hi for s in banks)
+    assert max(bench + thresholds) < hi
+    # ... and the bunny benchmark's and the tests' small seeds.
+    assert min(bench + thresholds) > 10_000
+    with pytest.raises(ValueError, match="scenes per model"):
+        rm.benchmark_seeds("torus", rm.SCENES_PER_SLOT + 1)
+    with pytest.raises(ValueError, match="unknown model"):
+        rm.threshold_seeds("bunny", 1)
+
+
+def test_scene_params_by_n() -> None:
+    small = rm.scene_params("stanford/bunny", 1000, None)
+    assert small.mutual and small.n_correspondences == 1000 and small.top_k == 10_000
+    big = rm.scene_params("stanford/bunny", 5000, None)
+    assert not big.mutual and big.top_k == 5000 and big.n_correspondences is None
+    # Only the matching differs: the same seed lays out the same scene.
+    assert SceneParams(**{**big.__dict__, "mutual": True, "top_k": 10_000}) == SceneParams(
+        **{**small.__dict__, "n_correspondences": None}
+    )
+    with pytest.raises(ValueError, match="positive"):
+        rm.scene_params("stanford/bunny", 0, None)
+
+
+def test_cache_round_trip_and_keys(tmp_path: Path) -> None:
+    params = SceneParams(model="bunny", data_dir=None, instances=(2, 2), clutter=(0, 0))
+    scene = make_realistic_scene(3, params)
+    path = rm.cache_path(tmp_path, "bunny", 3, params)
+    rm.save_scene(path, scene)
+    back = rm.load_scene(path)
+    for k in rm._ARRAYS:
+        np.testing.assert_array_equal(getattr(back, k), getattr(scene, k))
+    assert (back.voxel_size, back.diameter, back.model, back.seed) == (
+        scene.voxel_size,
+        scene.diameter,
+        scene.model,
+        scene.seed,
+    )
+    assert back.timings == scene.timings
+    with np.load(path, allow_pickle=False) as z:  # plain arrays only
+        assert "correspondences" in z.files
+    other = SceneParams(model="bunny", data_dir=None, instances=(2, 2), clutter=(0, 1))
+    assert rm.cache_path(tmp_path, "bunny", 3, other) != path
+    assert rm.cache_path(tmp_path, "bunny", 4, params) != path
+    # The data folder's location is not part of the key.
+    moved = SceneParams(model="bunny", data_dir="/elsewhere", instances=(2, 2), clutter=(0, 0))
+    assert rm.cache_path(tmp_path, "bunny", 3, moved) == path
+    # A cached scene is read, not rebuilt.
+    assert rm.load_scenes([("bunny", 3, params)], tmp_path, 1, progress=False)[0].seed == 3
+
+
+def test_summary_counts_predictions_over_ground_truth() -> None:
+    rows = [
+        {"n_pred": 3, "n_gt": 2, "precision": 2 / 3, "recall": 1.0, "strict_precision": 2 / 3,
+         "strict_recall": 1.0, "strict_f1": 0.8, "n_matched": 2, "seconds": 0.1},
+        {"n_pred": 1, "n_gt": 2, "precision": 1.0, "recall": 0.5, "strict_precision": 1.0,
+         "strict_recall": 0.5, "strict_f1": 2 / 3, "n_matched": 1, "seconds": 0.3},
+    ]  # fmt: skip
+    s = rm.summary(rows)
+    assert s["pred/GT"] == pytest.approx(1.0)
+    assert s["MR"] == pytest.approx(75.0) and s["MP"] == pytest.approx(100 * 5 / 6)
+    assert s["median ms"] == pytest.approx(200.0)
+
+
+def test_quick_run_writes_the_report(tmp_path: Path) -> None:
+    out = tmp_path / "r.md"
+    argv = ["--models", "torus", "--scenes-per-model", "1", "--scale", "0", "--no-ransac"]
+    argv += ["--cache", str(tmp_path / "cache"), "--workers", "1", "--out", str(out)]
+    rm.main(argv)
+    text = out.read_text()
+    assert "Validation models, pooled (torus)" in text and "Headline" not in text
+    assert "| pointclm, training-free, correspondences alone |" in text
+    record = json.loads(out.with_suffix(".json").read_text())
+    assert {r["method"] for r in record["rows"]} >= {"pointclm", "pointclm+refine", "oracle"}
+    assert {r["seed"] for r in record["rows"]} == set(rm.benchmark_seeds("torus", 1))
+    with pytest.raises(SystemExit, match="unknown model"):
+        rm.main(["--models", "no-such-model", "--out", str(out)])
+
+
+def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
+    params = SceneParams(
+        model="bunny",
+        data_dir=None,
+        instances=(2, 2),
+        mutual=False,
+        top_k=600,
+        n_correspondences=None,
+    )
+    path = rm.cache_path(tmp_path, "bunny", 1, params)
+    rm.save_scene(path, make_realistic_scene(1, params))
+    rm.main(["--scale-child", str(path), "--threads", "1"])
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert r["n"] == 600 and r["threads"] == 1 and r["gt"] == 2
+    assert r["seconds"] > 0 and r["peak_mb"] >= r["baseline_mb"] > 0
+
+
+def _load_thresholds() -> types.ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "realistic_thresholds", ROOT / "benchmarks" / "realistic_thresholds.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_threshold_sweep_refuses_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    rt = _load_thresholds()
+    monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/dragon,common3d/spot"])
+    with pytest.raises(SystemExit, match="not validation models: common3d/spot"):
+        rt.main()
+
+
+def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
+    import pointclm
+    from pointclm.metrics import score_scene
+    from pointclm.point_clouds import scaled_config
+
+    rt = _load_thresholds()
+    scene = make_realistic_scene(2, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
+    params = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
+    cfg = scaled_config(scene.voxel_size, pointclm.Config(**params))
+    raw = pointclm.register(scene.correspondences, None, cfg, seed=0).transformations
+    refined = pointclm.refine_poses(
+        scene.source_points, scene.target_points, raw, scene.voxel_size
+    ).transformations
+    scorer = rt.Scorer([scene])
+    for poses, refine in ((raw, False), (refined, True)):
+        want = score_scene(poses, scene.poses, 15.0, scene.max_translation)
+        ((_, got),) = scorer.sweep(None, [params], [0], refine)
+        assert got["mean_recall"] == want.recall and got["mean_precision"] == want.precision
