@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .mesh import sample_mesh, triangulate
+from .files import atomic_path, check_output_path
 from .pointcloud import PointCloud, check_integers, finite_cloud, unit_colors
 
 __all__ = ["parse_ply", "write_ply"]
@@ -556,13 +557,16 @@ def write_ply(
     Raises
     ------
     ValueError
-        On a wrong shape, non-finite values, or colours out of range.
+        On a wrong shape, non-finite values, colours out of range, or a path that is not a
+        writable file name (checked before anything is written). The file is written to a
+        temporary name and renamed, so a failure never leaves a partial PLY behind.
     """
+    file = check_output_path(path, "path")
     if isinstance(points, PointCloud):
         colors = points.colors if colors is None else colors
         normals = points.normals if normals is None else normals
         points = points.points
-    pts = np.asarray(points, dtype=np.float64)
+    pts = _real(points, "points")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"points must be a non-empty (N, 3) array, got shape {pts.shape}")
     if not np.isfinite(pts).all():
@@ -570,7 +574,7 @@ def write_ply(
     fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     nrm = None
     if normals is not None:
-        nrm = np.asarray(normals, dtype=np.float64)
+        nrm = _real(normals, "normals")
         if nrm.shape != pts.shape:
             raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
         if not np.isfinite(nrm).all():
@@ -597,13 +601,25 @@ def write_ply(
         *(f"property {names[code]} {name}" for name, code in fields),
         "end_header",
     ]
-    with open(path, "wb") as fh:
+    with atomic_path(file) as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         fh.write(record.tobytes())
 
 
+def _real(values: Any, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} could not be read as an array: {e}") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64)
+
+
 def _colors_u8(colors: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     arr = np.asarray(colors)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"colors must hold real numbers, got dtype {arr.dtype}")
     if arr.shape != shape:
         raise ValueError(f"colors must have shape {shape}, got {arr.shape}")
     if np.issubdtype(arr.dtype, np.integer):

@@ -47,7 +47,7 @@ class PointCloud:
     colors: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        pts = np.ascontiguousarray(self.points, dtype=np.float64)
+        pts = _real_array(self.points, "points")
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be (N, 3), got shape {pts.shape}")
         if len(pts) == 0:
@@ -59,7 +59,7 @@ class PointCloud:
             value = getattr(self, name)
             if value is None:
                 continue
-            arr = np.ascontiguousarray(value, dtype=np.float64)
+            arr = _real_array(value, name)
             if arr.shape != pts.shape:
                 raise ValueError(f"{name} must have the points' shape {pts.shape}, got {arr.shape}")
             if not np.isfinite(arr).all():
@@ -75,6 +75,17 @@ class PointCloud:
         extras = [name for name in ("normals", "colors") if getattr(self, name) is not None]
         with_ = f" with {' and '.join(extras)}" if extras else ""
         return f"PointCloud({len(self)} points{with_})"
+
+
+def _real_array(value: object, name: str) -> np.ndarray:
+    """A C-contiguous float64 array of real numbers, or a ValueError naming ``name``."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as e:  # ragged nested lists and the like
+        raise ValueError(f"{name} could not be read as an array: {e}") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float64)
 
 
 def finite_cloud(
