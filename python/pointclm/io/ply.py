@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .mesh import sample_mesh, triangulate
 from .files import atomic_path, check_output_path
+from .mesh import sample_mesh, triangulate
 from .pointcloud import PointCloud, check_integers, finite_cloud, unit_colors
 
 __all__ = ["parse_ply", "write_ply"]
