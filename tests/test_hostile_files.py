@@ -26,7 +26,7 @@ from pointclm.io import PointCloud, read_open3d_feature, read_point_cloud
 
 #: Fixed budget and derandomised search: CI sees the same cases every run.
 SETTINGS = settings(
-    max_examples=150,
+    max_examples=200,
     derandomize=True,
     database=None,
     deadline=None,

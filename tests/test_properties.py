@@ -45,6 +45,12 @@ def _counts() -> object:
     write_counts("args")
 
 
+@pytest.fixture(autouse=True)
+def _in_scratch_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Drawn strings are relative paths: a writer must create them in a scratch folder."""
+    monkeypatch.chdir(tmp_path)
+
+
 _rng = np.random.default_rng(0)
 CORR = np.ascontiguousarray(make_scene(0, n_keep=80).correspondences)
 SRC = np.ascontiguousarray(_rng.normal(size=(150, 3)))
@@ -172,7 +178,7 @@ def one_bad_argument(
 
 # --- one bad argument ------------------------------------------------------------------------
 
-CASES_PER_FUNCTION = 60
+CASES_PER_FUNCTION = 100
 
 FUNCTIONS: dict[str, tuple[Callable[..., Any], dict[str, Any], tuple[str, ...]]] = {
     "register": (
