@@ -123,3 +123,37 @@ def test_resumed_run_equals_uninterrupted_run(tmp_path: Path) -> None:
     for k in a:
         np.testing.assert_array_equal(a[k].numpy(), b[k].numpy())
     assert not list((tmp_path / "split").glob("*.pt"))
+
+
+def test_training_caches_are_read_without_pickle(tmp_path: Path) -> None:
+    from pointclm.training.data import ShapeBank
+    from pointclm.training.realistic import SceneBank
+
+    bank = ShapeBank({"a": np.ones((4, 3)), "b": np.zeros((5, 3))})
+    bank.save(tmp_path / "shapes.npz")
+    back = ShapeBank.load(tmp_path / "shapes.npz")
+    assert sorted(back.clouds) == ["a", "b"] and back["b"].shape == (5, 3)
+    np.savez(tmp_path / "objects.npz", a=np.array([object()], dtype=object))
+    with pytest.raises(ValueError, match="pickle"):
+        ShapeBank.load(tmp_path / "objects.npz")
+    with pytest.raises(FileNotFoundError):
+        ShapeBank.load(tmp_path / "missing.npz")
+
+    scenes = SceneBank(
+        [np.zeros((3, 6)), np.ones((2, 6))],
+        [np.zeros(3, np.int64), np.ones(2, np.int64)],
+        np.array([0.1, 0.2]),
+        np.array([1.0, 2.0]),
+        [np.stack([np.eye(4)]), np.stack([np.eye(4), np.eye(4)])],
+        ["m"],
+        np.array([0, 0]),
+    )
+    scenes.save(tmp_path / "scenes.npz")
+    again = SceneBank.load(tmp_path / "scenes.npz")
+    assert len(again) == 2 and again.poses[1].shape == (2, 4, 4) and again.models == ["m"]
+    with np.load(tmp_path / "scenes.npz") as z:
+        arrays = dict(z)
+    arrays["counts"] = np.array([3, 10**6])  # more rows than the file holds
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ValueError, match="inconsistent"):
+        SceneBank.load(tmp_path / "bad.npz")

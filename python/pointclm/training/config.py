@@ -115,8 +115,10 @@ class TrainConfig:
     @classmethod
     def from_file(cls, path: str | Path, **overrides: Any) -> TrainConfig:
         """A JSON file of fields; `"preset": NAME` starts from a preset."""
+        from ..io.files import read_checked  # only a regular file (a FIFO would block)
+
         try:
-            raw = json.loads(Path(path).read_text())
+            raw = json.loads(read_checked(path, "training config file")[1])
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not a JSON text file") from None
         except json.JSONDecodeError as e:
