@@ -52,9 +52,17 @@ def _positive(value: float, name: str) -> float:
     return v
 
 
+#: Largest count the core takes (its sizes are 64-bit); the core bounds what it allocates.
+MAX_COUNT = 2**63 - 1
+
+
 def _count(value: int, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not minimum <= value <= MAX_COUNT
+    ):
+        raise ValueError(f"{name} must be an int in [{minimum}, 2**63 - 1], got {value!r}")
     return int(value)
 
 
