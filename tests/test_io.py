@@ -591,8 +591,10 @@ def test_bad_n_samples() -> None:
     path = data_file("modelnet/bathtub_0154.ply")
     with pytest.raises(ValueError, match="n_samples"):
         read_point_cloud(path, n_samples=0)
-    with pytest.raises(TypeError, match="n_samples"):
+    with pytest.raises(ValueError, match="n_samples"):
         read_point_cloud(path, n_samples=2.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="n_samples"):
+        read_point_cloud(path, n_samples=10**12)
 
 
 def test_point_cloud_validates() -> None:

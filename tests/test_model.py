@@ -131,7 +131,7 @@ def test_cpu_training_smoke_run_and_resume(tmp_path: Path) -> None:
     cfg = TrainConfig.preset("smoke", data_dir=str(DATA))
     first = train(cfg, tmp_path, progress=False)
     assert first["finished"] and (tmp_path / "model.safetensors").is_file()
-    assert (tmp_path / "train_config.json").is_file() and (tmp_path / "checkpoint.pt").is_file()
+    assert (tmp_path / "train_config.json").is_file() and (tmp_path / "checkpoint.json").is_file()
     more = TrainConfig.preset("smoke", data_dir=str(DATA), iterations=9)
     again = train(more, tmp_path, resume=True, progress=False)
     assert again["iteration"] == 9

@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import math
+import os
 import sys
+import traceback
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -15,8 +19,75 @@ from . import __version__
 from .config import Config
 from .datasets import make_scenes
 from .evaluation import evaluate
+from .io.files import atomic_path, check_output_path
 from .metrics import Summary, rotation_error_deg, score_scene, summarize
 from .registration import register
+
+#: Set to 1 to get the Python traceback of an unexpected error instead of one line.
+DEBUG_ENV = "POINTCLM_DEBUG"
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors on one line, like every other error of the command."""
+
+    def error(self, message: str) -> Any:  # argparse's signature is NoReturn
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _int_at_least(minimum: int) -> Any:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def _finite_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def _xyz(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+    return (values[0], values[1], values[2])
+
+
+def _write_json(path: str, payload: dict[str, Any]) -> None:
+    """Written to a temporary file and renamed: never a half-written JSON."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(payload, indent=2) + "\n")
+
+
+def _check_folder_creatable(path: str, what: str) -> None:
+    """An output folder that exists (a writable directory) or can be made."""
+    folder = Path(path)
+    if folder.exists():
+        if not folder.is_dir():
+            raise ValueError(f"{what} {folder} exists and is not a directory")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise ValueError(f"{what} {folder} is not writable")
+        return
+    parent = folder.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{what} {folder} cannot be created: {parent} is not a writable folder")
 
 
 def _config(args: argparse.Namespace) -> Config | None:
@@ -34,11 +105,15 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("method (defaults: pointclm.Config())")
     g.add_argument("--pruning", choices=["paper", "authors", "none"])
     g.add_argument("--assignment", choices=["kmeans", "discretize"])
-    g.add_argument("--ransac-iterations", type=int, dest="ransac_iterations")
-    g.add_argument("--sigma-d", type=float, dest="sigma_d")
-    g.add_argument("--inlier-threshold", type=float, dest="inlier_threshold")
-    p.add_argument("--seed", type=int, default=0, help="dataset and method seed (default 0)")
-    p.add_argument("--num-threads", type=int, default=None, help="threads (default: all)")
+    g.add_argument("--ransac-iterations", type=_int_at_least(0), dest="ransac_iterations")
+    g.add_argument("--sigma-d", type=_finite_float, dest="sigma_d")
+    g.add_argument("--inlier-threshold", type=_finite_float, dest="inlier_threshold")
+    p.add_argument(
+        "--seed", type=_int_at_least(0), default=0, help="dataset and method seed (default 0)"
+    )
+    p.add_argument(
+        "--num-threads", type=_int_at_least(1), default=None, help="threads (default: all)"
+    )
     p.add_argument(
         "--model",
         help="learned embedding: default, paper or a weight file (run by the Rust core); "
@@ -92,6 +167,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     config = _config(args)
+    if args.json:
+        check_output_path(args.json, "--json")
+    if args.data_dir is not None and not Path(args.data_dir).is_dir():
+        raise ValueError(f"--data-dir {args.data_dir} is not a folder")
     shapes = args.shapes.split(",") if args.shapes else None
     scenes: Any
     if args.dataset == "scenes":
@@ -126,19 +205,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
     name = f"pointclm ({args.model})" if args.model else "pointclm"
     print(f"{ev.summary.as_row(name)} {ev.median_ms:7.2f} {ev.p90_ms:7.2f}")
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(
-                {
-                    "config": config.to_dict() if config else None,
-                    "model": args.model,
-                    "dataset": args.dataset,
-                    "scenes": args.scenes,
-                    "seed": args.seed,
-                    **ev.as_dict(),
-                },
-                fh,
-                indent=2,
-            )
+        _write_json(
+            args.json,
+            {
+                "config": config.to_dict() if config else None,
+                "model": args.model,
+                "dataset": args.dataset,
+                "scenes": args.scenes,
+                "seed": args.seed,
+                **ev.as_dict(),
+            },
+        )
     return 0
 
 
@@ -176,22 +253,32 @@ def cmd_register(args: argparse.Namespace) -> int:
     from .point_clouds import register_point_clouds
     from .visualize import save_ply, save_png
 
+    # Everything that can be checked is checked before the (long) work: outputs, extras.
+    for flag in ("out", "png", "ply"):
+        if getattr(args, flag):
+            check_output_path(getattr(args, flag), f"--{flag}")
+    if args.png:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise ImportError("--png needs matplotlib: pip install 'pointclm[viz]'") from None
+    config = _config(args) if _has_config_flags(args) else None
     stages = ["load", "register", *(["png"] if args.png else []), *(["ply"] if args.ply else [])]
-    with tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet) as bar:
+    bar = tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet, leave=False)
+    with bar:
         bar.set_postfix_str("loading")
         model = load_points(args.model_file)
         scene = load_points(args.scene_file)
         bar.update()
         bar.set_postfix_str("FPFH, matching, registration")
-        viewpoint = [float(v) for v in args.viewpoint.split(",")] if args.viewpoint else (0, 0, 0)
         reg = register_point_clouds(
             model,
             scene,
             voxel_size=args.voxel_size,
-            config=_config(args) if _has_config_flags(args) else None,
+            config=config,
             seed=args.seed,
             model=args.model,
-            viewpoint=viewpoint,
+            viewpoint=args.viewpoint or (0.0, 0.0, 0.0),
             mutual=not args.no_mutual,
             n_samples=None if args.all_correspondences else args.correspondences,
             refine=not args.no_refine,
@@ -202,35 +289,35 @@ def cmd_register(args: argparse.Namespace) -> int:
         radius = 1.5 * reg.voxel_size
         if args.png:
             bar.set_postfix_str("png")
-            save_png(args.png, reg.target_points, reg.source_points, poses, radius)
+            with atomic_path(args.png) as tmp:
+                save_png(tmp, reg.target_points, reg.source_points, poses, radius)
             bar.update()
         if args.ply:
             bar.set_postfix_str("ply")
-            save_ply(args.ply, reg.target_points, reg.source_points, poses, radius)
+            with atomic_path(args.ply) as tmp:
+                save_ply(tmp, reg.target_points, reg.source_points, poses, radius)
             bar.update()
     _report(reg)
     if args.out:
-        with open(args.out, "w") as fh:
-            json.dump(
-                {
-                    "model": args.model_file,
-                    "scene": args.scene_file,
-                    "voxel_size": reg.voxel_size,
-                    "config": reg.config.to_dict(),
-                    "instances": [
-                        {
-                            "T_target_source": inst.transformation.tolist(),
-                            "inliers": len(inst),
-                            "fitness": inst.fitness,
-                            "inlier_rmse": inst.inlier_rmse,
-                        }
-                        for inst in reg.instances
-                    ],
-                    "timings_s": reg.timings,
-                },
-                fh,
-                indent=2,
-            )
+        _write_json(
+            args.out,
+            {
+                "model": args.model_file,
+                "scene": args.scene_file,
+                "voxel_size": reg.voxel_size,
+                "config": reg.config.to_dict(),
+                "instances": [
+                    {
+                        "T_target_source": inst.transformation.tolist(),
+                        "inliers": len(inst),
+                        "fitness": inst.fitness,
+                        "inlier_rmse": inst.inlier_rmse,
+                    }
+                    for inst in reg.instances
+                ],
+                "timings_s": reg.timings,
+            },
+        )
     return 0
 
 
@@ -267,6 +354,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     except ImportError as e:
         print(f"pointclm train needs torch: pip install 'pointclm[train]' ({e})", file=sys.stderr)
         return 2
+    _check_folder_creatable(args.out, "--out")
+    if args.config is not None and not Path(args.config).is_file():
+        raise FileNotFoundError(2, "no such training config file", args.config)
+    if args.max_minutes is not None and args.max_minutes < 0:
+        raise ValueError(f"--max-minutes must be >= 0, got {args.max_minutes}")
+    _check_device(args.device)
     overrides = {
         k: v
         for k, v in (
@@ -305,13 +398,28 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_device(device: str) -> None:
+    import torch
+
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, ValueError, TypeError):
+        raise ValueError(
+            f"--device {device!r} is not a torch device (cpu, cuda, cuda:1...)"
+        ) from None
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {device}: CUDA is not available on this machine")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pointclm", description=__doc__)
+    p = _Parser(prog="pointclm", description=__doc__)
     p.add_argument("--version", action="version", version=f"pointclm {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     d = sub.add_parser("demo", help="register a few synthetic scenes built from bundled data")
-    d.add_argument("--scenes", type=int, default=3, help="number of scenes (default 3)")
+    d.add_argument(
+        "--scenes", type=_int_at_least(1), default=3, help="number of scenes (default 3)"
+    )
     _add_config_flags(d)
     d.set_defaults(func=cmd_demo)
 
@@ -323,12 +431,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="synthetic: the paper's protocol; scenes: realistic scans with FPFH matches "
         "(TE threshold 10%% of the model's diagonal)",
     )
-    e.add_argument("--scenes", type=int, default=500, help="number of scenes (default 500)")
+    e.add_argument(
+        "--scenes", type=_int_at_least(1), default=500, help="number of scenes (default 500)"
+    )
     e.add_argument("--shapes", help="comma-separated shape names or mesh paths (default bunny)")
     e.add_argument("--data-dir", help="folder with meshes (e.g. ../shared/data)")
     e.add_argument(
         "--outlier-blocks",
-        type=int,
+        type=_int_at_least(0),
         default=40,
         help="outlier blocks of 256 rows: 40 = 98%% outliers (test), 10 = training",
     )
@@ -350,9 +460,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
     r.add_argument("scene_file", metavar="SCENE", help="the scan holding its copies")
-    r.add_argument("--voxel-size", type=float, help="default: model diagonal / 40")
-    r.add_argument("--viewpoint", help="sensor position x,y,z for scene normals (default 0,0,0)")
-    r.add_argument("--correspondences", type=int, default=1000, help="sampled (default 1000)")
+    r.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
+    r.add_argument(
+        "--viewpoint", type=_xyz, help="sensor position x,y,z for scene normals (default 0,0,0)"
+    )
+    r.add_argument(
+        "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"
+    )
     r.add_argument("--all-correspondences", action="store_true", help="keep all of the top-K")
     r.add_argument("--no-mutual", action="store_true", help="skip mutual-NN filtering")
     r.add_argument(
@@ -374,10 +488,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("--out", required=True, help="output folder (weights, checkpoints, log)")
     t.add_argument("--device", default="cpu", help="cpu or cuda")
-    t.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    t.add_argument("--max-minutes", type=float, help="stop after a checkpoint past this time")
-    t.add_argument("--iterations", type=int)
-    t.add_argument("--num-workers", type=int, dest="num_workers")
+    t.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue from OUT/checkpoint.safetensors + checkpoint.json",
+    )
+    t.add_argument(
+        "--max-minutes", type=_finite_float, help="stop after a checkpoint past this time"
+    )
+    t.add_argument("--iterations", type=_int_at_least(1))
+    t.add_argument("--num-workers", type=_int_at_least(0), dest="num_workers")
     t.add_argument("--data-dir", help="folder with the training meshes (e.g. ../shared/data)")
     t.add_argument("--shape-bank", help="a shape_bank.npz from an earlier run (no meshes needed)")
     t.add_argument("--quiet", action="store_true")
@@ -386,16 +506,36 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command; an error is one line on stderr and a non-zero exit code (2: bad input
+    or environment, 1: an internal error, 130: interrupted), never a traceback unless
+    ``POINTCLM_DEBUG=1``."""
     args = build_parser().parse_args(argv)
-    for name in ("scenes",):
-        if getattr(args, name, 1) < 1:
-            print(f"pointclm: --{name} must be >= 1", file=sys.stderr)
-            return 2
     try:
         return int(args.func(args))
-    except (ValueError, OSError, ImportError) as e:
-        print(f"pointclm: {e}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print("pointclm: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError, ImportError, MemoryError) as e:
+        if os.environ.get(DEBUG_ENV):
+            traceback.print_exc()
+        reason = str(e) or type(e).__name__
+        if isinstance(e, MemoryError):
+            reason = f"out of memory ({reason})"
+        print(f"pointclm: {_one_line(reason)}", file=sys.stderr)
         return 2
+    except Exception as e:  # a bug: still one line, with a way to see the traceback
+        if os.environ.get(DEBUG_ENV):
+            traceback.print_exc()
+        print(
+            f"pointclm: internal error ({type(e).__name__}: {_one_line(str(e))}); "
+            f"run with {DEBUG_ENV}=1 for the traceback",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
 from .refinement import refine_poses
-from .registration import register
+from .registration import _as_threads, as_config, register
 
 __all__ = [
     "REFINED_THRESHOLDS",
@@ -171,6 +171,9 @@ def register_point_clouds(
         Threads (default: all cores).
     """
     t0 = time.perf_counter()
+    _as_threads(num_threads)  # argument errors before the files are read
+    pp._flag(refine, "refine")
+    pp._flag(mutual, "mutual")
     src = _load(source, "source")
     tgt = _load(target, "target")
     t_load = time.perf_counter() - t0
@@ -288,7 +291,7 @@ def _config(
     if isinstance(config, Config):
         return config
     if isinstance(config, dict):
-        return Config(**config)
+        return Config(**as_config(config))  # unknown keys: a ValueError naming them
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
     base = Config(**REFINED_THRESHOLDS) if refine else Config()
@@ -297,5 +300,5 @@ def _config(
 
         meta = load_metadata(model)
         key = "recommended_point_cloud_config" + ("" if refine else "_no_refine")
-        base = Config(**meta.get(key, meta.get("recommended_config", {})))
+        base = Config(**as_config(meta.get(key, meta.get("recommended_config", {}))))
     return scaled_config(voxel, base)

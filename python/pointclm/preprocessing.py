@@ -15,6 +15,7 @@ Open3D wrote to its feature files.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -22,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _core
-from .registration import as_matrix
+from .registration import _as_threads, as_matrix
 
 __all__ = [
     "DescribedCloud",
@@ -36,23 +37,46 @@ __all__ = [
 
 
 def _positive(value: float, name: str) -> float:
+    # bool and str convert with float() but are not lengths: refused, as register refuses them.
+    real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool | np.bool_
+    )
     try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (np.isfinite(v) and v > 0):
+        v = float(value) if real else math.nan
+    except OverflowError:  # an int beyond float range
+        v = math.inf
+    if not real:
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
     return v
 
 
+#: Largest count the core takes (its sizes are 64-bit); the core bounds what it allocates.
+MAX_COUNT = 2**63 - 1
+
+
 def _count(value: int, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not minimum <= value <= MAX_COUNT
+    ):
+        raise ValueError(f"{name} must be an int in [{minimum}, 2**63 - 1], got {value!r}")
     return int(value)
 
 
+def _flag(value: bool, name: str) -> bool:
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def _point(value: ArrayLike, name: str) -> tuple[float, float, float]:
-    a = np.asarray(value, dtype=np.float64).reshape(-1)
+    try:
+        a = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}") from None
     if a.shape != (3,) or not np.isfinite(a).all():
         raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
     return (float(a[0]), float(a[1]), float(a[2]))
@@ -96,7 +120,7 @@ def estimate_normals(
         _count(max_nn, "max_nn", 3),
         towards=t,
         away_from=a,
-        num_threads=num_threads,
+        num_threads=_as_threads(num_threads),
     )
 
 
@@ -114,7 +138,7 @@ def compute_fpfh(
     `variant` is "open3d" (current Open3D: the weighted neighbour histograms plus the point's
     own) or "pcl" (the neighbour part only).
     """
-    if variant not in ("open3d", "pcl"):
+    if not isinstance(variant, str) or variant not in ("open3d", "pcl"):
         raise ValueError(f"variant must be 'open3d' or 'pcl', got {variant!r}")
     p = _points(points, "points")
     n = as_matrix(normals, "normals", 3)
@@ -126,7 +150,7 @@ def compute_fpfh(
         _positive(radius, "radius"),
         _count(max_nn, "max_nn", 2),
         variant=variant,
-        num_threads=num_threads,
+        num_threads=_as_threads(num_threads),
     )
 
 
@@ -162,6 +186,7 @@ def describe(
     """
     t0 = time.perf_counter()
     pts = _points(points, "points")
+    _as_threads(num_threads)  # checked before any work
     if voxel_size is not None:
         v = _positive(voxel_size, "voxel_size")
         if normals is not None:
@@ -241,9 +266,9 @@ def match_features(
         s,
         t,
         top_k=_count(top_k, "top_k", 1),
-        mutual=bool(mutual),
+        mutual=_flag(mutual, "mutual"),
         n_samples=n,
         seed=int(seed),
-        num_threads=num_threads,
+        num_threads=_as_threads(num_threads),
     )
     return Matches(src, tgt, dist)

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
+from .registration import _as_threads
 
 __all__ = ["MIN_FITNESS", "MIN_RELATIVE_FITNESS", "RefinedPoses", "refine_poses"]
 
@@ -80,7 +81,12 @@ def refine_poses(
     src = pp._points(source_points, "source_points")
     tgt = pp._points(target_points, "target_points")
     voxel = pp._positive(voxel_size, "voxel_size")
-    poses = np.asarray(transformations, dtype=np.float64)
+    try:
+        poses = np.asarray(transformations, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(
+            f"transformations must be a (K, 4, 4) array of numbers, got {type(transformations)}"
+        ) from None
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         if poses.size == 0:
             poses = np.zeros((0, 4, 4))
@@ -91,18 +97,22 @@ def refine_poses(
         tgt,
         np.ascontiguousarray(poses),
         voxel,
-        bool(icp),
+        pp._flag(icp, "icp"),
         _number(min_fitness, "min_fitness"),
         _number(min_relative_fitness, "min_relative_fitness"),
         _number(max_shared, "max_shared"),
-        num_threads=num_threads,
+        num_threads=_as_threads(num_threads),
     )
     return RefinedPoses(*out)
 
 
 def _number(value: float, name: str) -> float:
     """A float for the core, which checks the range ([0, 1]) itself."""
+    if isinstance(value, bool | str | bytes) or not isinstance(
+        value, int | float | np.integer | np.floating
+    ):
+        raise ValueError(f"{name} must be a number in [0, 1], got {value!r}")
     try:
         return float(value)
-    except (TypeError, ValueError):
+    except OverflowError:
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None

@@ -234,7 +234,7 @@ def _model_config(model: Any, config: Config | dict[str, Any] | None) -> Any:
         return None
     from .model.weights import load_metadata
 
-    return Config(**load_metadata(model).get("recommended_config", {}))
+    return Config(**as_config(load_metadata(model).get("recommended_config", {})))
 
 
 def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:

@@ -211,11 +211,18 @@ def load_mesh(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def _read_numpy(p: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    # pointclm.io's readers: no pickle, declared sizes checked before anything is allocated,
+    # only the members needed decompressed, only regular files opened.
+    from ..io.arrays import read_npy, read_npz_members
+    from ..io.files import read_checked
+
+    _, raw = read_checked(p, "mesh file")
     if p.suffix.lower() == ".npy":
-        return np.load(p, allow_pickle=False), None
-    with np.load(p, allow_pickle=False) as data:
-        faces = data["faces"] if "faces" in data.files else None
-        return data["vertices"], faces
+        return read_npy(raw), None
+    arrays, names = read_npz_members(raw, ("vertices", "faces"))
+    if "vertices" not in arrays:
+        raise ValueError(f"no 'vertices' array (arrays: {', '.join(names) or 'none'})")
+    return arrays["vertices"], arrays.get("faces")
 
 
 def _read_trimesh(p: Path, trimesh: Any) -> tuple[np.ndarray, np.ndarray | None]:

@@ -33,6 +33,15 @@ Design decisions
 - **Errors name the file**: a missing file raises :class:`FileNotFoundError`; an empty,
   truncated or malformed file, an unsupported extension, or a cloud without finite points
   raises :class:`ValueError` whose message starts with the path.
+- **Hostile files are safe to read** (``tests/test_hostile_files.py``): only regular files
+  are opened (a FIFO would block, ``/dev/zero`` never ends); every size a file declares
+  (PCD points, counts and compressed block sizes against LZF's 88x bound, PLY element
+  counts and list lengths, OFF counts, ``.npy`` shapes, ``.npz`` member sizes against
+  deflate's 1032x bound) is checked against the file's length before anything is
+  allocated, so memory stays proportional to the file; an ``.npz`` is read member by
+  member, only those needed; nothing is unpickled; an ASCII integer that its declared type
+  cannot hold (``uchar`` 300, ``int`` 2**40, NaN, 2.5, a face index that names no vertex)
+  is an error naming the element and line, never wrapped around.
 """
 
 from __future__ import annotations

@@ -1,29 +1,167 @@
 """NumPy array files: ``.npy`` and ``.npz`` holding (N, 3) points or (N, 6) points+normals.
 
-Pickled object arrays are refused (``allow_pickle=False``): loading a pickle runs code from
-the file, which a point cloud reader must never do.
+Nothing here unpickles: object arrays are refused from the header, before any data is read
+(loading a pickle runs code from the file, which a point cloud reader must never do).
+
+Sizes are checked before allocating: ``np.load`` allocates the array a header declares and
+only then notices that the file is shorter, so a 100-byte ``.npy`` claiming a (10**9, 3)
+array would reserve 24 GB. Here the header is parsed first and its shape times its item
+size must match the bytes that follow. In an ``.npz`` archive only the members needed are
+opened (``points`` or the only array, ``normals``, ``colors``); each member's declared
+uncompressed size must be one deflate can produce from its compressed size, and the member
+is streamed through its header into exactly the declared number of bytes.
 """
 
 from __future__ import annotations
 
 import io
+import math
+import zipfile
+from typing import IO
 
 import numpy as np
 
 from .pointcloud import PointCloud, finite_cloud, unit_colors
 
-__all__ = ["parse_npy", "parse_npz"]
+__all__ = ["parse_npy", "parse_npz", "read_npy", "read_npz_members"]
+
+_MAGIC = b"\x93NUMPY"
+#: Deflate's largest expansion: a 258-byte match costs at least 2 bits (1032:1), plus the
+#: block overhead the constant below absorbs.
+DEFLATE_MAX_EXPANSION = 1032
+#: Members named in an archive that the reader may open.
+_WANTED = ("points", "normals", "colors")
 
 
-def _numeric(arr: np.ndarray, what: str) -> np.ndarray:
-    if arr.dtype.kind not in "biuf":
-        raise ValueError(f"{what} has dtype {arr.dtype}, expected a numeric array")
-    return arr
+def _header(
+    fp: IO[bytes], what: str, kinds: str = "biuf"
+) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """Shape, Fortran order and dtype from a ``.npy`` header, refusing object dtypes and
+    kinds other than ``kinds``."""
+    try:
+        version = np.lib.format.read_magic(fp)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
+        elif version in ((2, 0), (3, 0)):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
+        else:
+            raise ValueError(f"unsupported .npy format version {version}")
+    except MemoryError:
+        raise
+    except Exception as exc:  # numpy's header parser raises several types on corrupt headers
+        raise ValueError(
+            f"{what}: not a readable .npy header ({type(exc).__name__}: {exc})"
+        ) from None
+    if dtype.hasobject:
+        raise ValueError(f"{what} holds Python objects (a pickle); pointclm never unpickles files")
+    if dtype.kind not in kinds or dtype.fields is not None or dtype.subdtype is not None:
+        raise ValueError(f"{what} has dtype {dtype}, expected a numeric array")
+    return tuple(int(n) for n in shape), bool(fortran), dtype
+
+
+def _array(data: bytes, shape: tuple[int, ...], fortran: bool, dtype: np.dtype) -> np.ndarray:
+    arr = np.frombuffer(data, dtype=dtype, count=math.prod(shape))
+    # A writable copy, as np.load would give (frombuffer over bytes is read-only).
+    return arr.reshape(shape, order="F" if fortran else "C").copy()
+
+
+def read_npy(raw: bytes, what: str = "the array") -> np.ndarray:
+    """A numeric array from the bytes of a ``.npy`` file, sizes checked before reading.
+
+    Raises
+    ------
+    ValueError
+        Not a ``.npy`` file, an object (pickled) or non-numeric dtype, or data shorter or
+        longer than the header declares.
+    """
+    fp = io.BytesIO(raw)
+    shape, fortran, dtype = _header(fp, what)
+    start = fp.tell()
+    need = math.prod(shape) * dtype.itemsize
+    have = len(raw) - start
+    if need != have:
+        raise ValueError(
+            f"{what}: the header declares shape {shape} of {dtype} ({need} bytes), "
+            f"the file holds {have} bytes of data"
+        )
+    return _array(raw[start:], shape, fortran, dtype)
+
+
+def read_npz_members(
+    raw: bytes, wanted: tuple[str, ...] | None = _WANTED, kinds: str = "biuf"
+) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The arrays of an ``.npz`` archive named in ``wanted`` (or its only array, when it has
+    just one; every array when ``wanted`` is None), and the names of all its arrays; no
+    other member is decompressed.
+
+    Raises
+    ------
+    ValueError
+        Not a zip archive, a member compressed with anything but deflate (or stored), a
+        declared size that its compressed size cannot hold, or a member :func:`read_npy`
+        refuses.
+    """
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(raw))
+    except MemoryError:
+        raise
+    except Exception as exc:  # BadZipFile, and a few others on corrupt directories
+        raise ValueError(f"not a readable .npz archive ({type(exc).__name__}: {exc})") from None
+    with archive:
+        members = {
+            (info.filename[:-4] if info.filename.endswith(".npy") else info.filename): info
+            for info in archive.infolist()
+            if not info.is_dir()
+        }
+        if wanted is None or len(members) == 1:
+            names = list(members)
+        else:
+            names = [n for n in wanted if n in members]
+        arrays = {name: _member(archive, members[name], len(raw), name, kinds) for name in names}
+        return arrays, list(members)
+
+
+def _member(
+    archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, name: str, kinds: str
+) -> np.ndarray:
+    what = f"array {name!r}"
+    if info.compress_type == zipfile.ZIP_STORED:
+        bound = info.compress_size
+    elif info.compress_type == zipfile.ZIP_DEFLATED:
+        bound = DEFLATE_MAX_EXPANSION * info.compress_size + 1024
+    else:
+        raise ValueError(
+            f"{what} uses zip compression method {info.compress_type}; numpy writes only "
+            "stored or deflated members"
+        )
+    if info.compress_size > total or info.file_size > bound:
+        raise ValueError(
+            f"{what}: the archive declares {info.file_size} bytes from {info.compress_size} "
+            f"compressed bytes in a {total}-byte file, which no archive can hold"
+        )
+    try:
+        with archive.open(info) as fh:
+            shape, fortran, dtype = _header(fh, what, kinds)
+            need = math.prod(shape) * dtype.itemsize
+            if need + fh.tell() != info.file_size:
+                raise ValueError(
+                    f"{what}: the header declares shape {shape} of {dtype} ({need} bytes), "
+                    f"the archive member holds {info.file_size - fh.tell()} bytes of data"
+                )
+            data = fh.read(need)
+    except (ValueError, MemoryError):
+        raise
+    except Exception as exc:  # zlib, CRC and encryption errors from zipfile
+        raise ValueError(
+            f"{what}: unreadable archive member ({type(exc).__name__}: {exc})"
+        ) from None
+    if len(data) != need:
+        raise ValueError(f"{what}: the archive member is truncated")
+    return _array(data, shape, fortran, dtype)
 
 
 def _split(arr: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None]:
     """(N, 3) -> points; (N, 6) -> points and normals."""
-    arr = _numeric(arr, what)
     if arr.ndim != 2 or arr.shape[1] not in (3, 6):
         raise ValueError(
             f"{what} has shape {arr.shape}; expected (N, 3) points or (N, 6) points+normals"
@@ -39,14 +177,10 @@ def parse_npy(raw: bytes) -> PointCloud:
     ValueError
         Not a ``.npy`` file, a pickled array, or a shape other than (N, 3) / (N, 6).
     """
-    try:
-        arr = np.load(io.BytesIO(raw), allow_pickle=False)
-    except Exception as exc:  # a corrupt header can raise from numpy's header parser
-        raise ValueError(f"not a readable .npy array ({type(exc).__name__}: {exc})") from None
-    if not isinstance(arr, np.ndarray):
-        arr.close()
-        raise ValueError("not a .npy array (an .npz archive with a .npy name?)")
-    points, normals = _split(arr, "the array")
+    if not raw.startswith(_MAGIC):
+        kind = "an .npz archive with a .npy name?" if raw.startswith(b"PK") else "no NUMPY magic"
+        raise ValueError(f"not a readable .npy array ({kind})")
+    points, normals = _split(read_npy(raw), "the array")
     return finite_cloud(points, normals)
 
 
@@ -59,35 +193,29 @@ def parse_npz(raw: bytes) -> PointCloud:
     ValueError
         Not an archive, no ``points`` key among several arrays, or mismatched shapes.
     """
-    try:
-        loaded = np.load(io.BytesIO(raw), allow_pickle=False)
-        if isinstance(loaded, np.ndarray):
-            arrays = {"points": loaded}  # a bare .npy saved under an .npz name
-        else:
-            with loaded as archive:
-                arrays = {key: archive[key] for key in archive.files}
-    except Exception as exc:  # zipfile, zlib and numpy's header parser each raise their own
-        raise ValueError(f"not a readable .npz archive ({type(exc).__name__}: {exc})") from None
+    if raw.startswith(_MAGIC):
+        arrays, names = {"points": read_npy(raw)}, ["points"]  # a .npy under an .npz name
+    else:
+        arrays, names = read_npz_members(raw)
     if "points" in arrays:
         key = "points"
-    elif len(arrays) == 1:
-        key = next(iter(arrays))
+    elif len(names) == 1:
+        key = names[0]
     else:
         raise ValueError(
-            f"archive has no 'points' array and {len(arrays)} arrays "
-            f"({', '.join(sorted(arrays)) or 'none'}); expected 'points' or a single array"
+            f"archive has no 'points' array and {len(names)} arrays "
+            f"({', '.join(sorted(names)) or 'none'}); expected 'points' or a single array"
         )
     points, normals = _split(arrays[key], f"array {key!r}")
     for name in ("normals", "colors"):
         extra = arrays.get(name)
         if extra is None or key == name:
             continue
-        extra = _numeric(extra, f"array {name!r}")
         if extra.shape != points.shape:
             raise ValueError(
                 f"array {name!r} has shape {extra.shape}, the points have {points.shape}"
             )
-    colors = arrays.get("colors")
+    colors = arrays.get("colors") if key != "colors" else None
     if "normals" in arrays and key != "normals":
         normals = arrays["normals"]
     return finite_cloud(points, normals, None if colors is None else unit_colors(colors))

@@ -10,7 +10,11 @@ NaN-filled organised clouds) are expanded by repeating the pattern rather than b
 
 from __future__ import annotations
 
-__all__ = ["lzf_decompress"]
+__all__ = ["LZF_MAX_EXPANSION", "lzf_decompress"]
+
+#: The most output LZF makes per input byte: a 3-byte back-reference copies 264 bytes. A
+#: header promising more than this many times its compressed size is lying.
+LZF_MAX_EXPANSION = 88
 
 
 def lzf_decompress(data: bytes | bytearray | memoryview, out_size: int) -> bytes:
@@ -36,6 +40,12 @@ def lzf_decompress(data: bytes | bytearray | memoryview, out_size: int) -> bytes
     """
     src = bytes(data)
     n_in = len(src)
+    if out_size < 0 or out_size > LZF_MAX_EXPANSION * n_in:
+        # Refused before the output buffer is allocated.
+        raise ValueError(
+            f"LZF block of {n_in} bytes cannot decompress to {out_size} bytes "
+            f"(at most {LZF_MAX_EXPANSION}x)"
+        )
     out = bytearray(out_size)
     ip = 0
     op = 0

@@ -19,6 +19,9 @@ __all__ = ["check_n_samples", "default_n_samples", "sample_mesh", "triangulate"]
 
 #: Fewest points :func:`sample_mesh` draws by default (more for meshes with more vertices).
 MIN_DEFAULT_SAMPLES = 10_000
+#: Most points one call may draw (about 5 GB of points, normals and draws): a larger count
+#: is refused up front rather than left to fail, or to swap, inside numpy.
+MAX_SAMPLES = 100_000_000
 
 
 def default_n_samples(n_vertices: int) -> int:
@@ -126,7 +129,7 @@ def sample_mesh(
 def check_n_samples(n_samples: int) -> int:
     """Validate a sample count up front, so a bad one fails the same way for every format."""
     if isinstance(n_samples, bool) or not isinstance(n_samples, int | np.integer):
-        raise TypeError(f"n_samples must be an int, got {type(n_samples).__name__}")
-    if n_samples < 1:
-        raise ValueError(f"n_samples must be at least 1, got {n_samples}")
+        raise ValueError(f"n_samples must be an int, got {type(n_samples).__name__}")
+    if not 1 <= n_samples <= MAX_SAMPLES:
+        raise ValueError(f"n_samples must lie in [1, {MAX_SAMPLES:_}], got {n_samples}")
     return int(n_samples)

@@ -25,8 +25,11 @@ def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
         Not an OFF file, binary OFF, truncated data, or face indices out of range.
     """
     text = raw.decode("latin-1")
-    lines = [line.split("#", 1)[0].strip() for line in text.splitlines()]
-    lines = [line for line in lines if line]
+    # (file line number, content): comments and blank lines are skipped, but errors name the
+    # line of the file.
+    numbered = [(i + 1, line.split("#", 1)[0].strip()) for i, line in enumerate(text.splitlines())]
+    numbered = [(i, line) for i, line in numbered if line]
+    lines = [line for _, line in numbered]
     if not lines:
         raise ValueError("OFF file has no content")
     first = lines[0]
@@ -43,10 +46,9 @@ def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
             raise ValueError("OFF file is truncated (no vertex/face counts)")
         rest = lines[1].split()
         body = 2
-    try:
-        n_vertices, n_faces = int(rest[0]), int(rest[1])
-    except (IndexError, ValueError):
-        raise ValueError(f"OFF counts line is malformed: {' '.join(rest)[:60]!r}") from None
+    if len(rest) < 2 or not all(w.isascii() and w.lstrip("+-").isdigit() for w in rest[:2]):
+        raise ValueError(f"OFF counts line is malformed: {' '.join(rest)[:60]!r}")
+    n_vertices, n_faces = int(rest[0]), int(rest[1])
     if n_vertices < 0 or n_faces < 0:
         raise ValueError("OFF counts are negative")
     vertex_lines = lines[body : body + n_vertices]
@@ -68,23 +70,25 @@ def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
     if n_faces == 0:
         normals = table[:, 3:6] if "N" in stem[:-3] and table.shape[1] >= 6 else None
         return finite_cloud(vertices, normals)
-    counts, items = _faces(face_lines)
+    face_numbers = [i for i, _ in numbered[body + n_vertices : body + n_vertices + n_faces]]
+    counts, items = _faces(face_lines, face_numbers)
+    _check_indices(counts, items, n_vertices, face_numbers)
     return sample_mesh(vertices, triangulate(counts, items), n_samples, seed)
 
 
-def _faces(face_lines: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _faces(face_lines: list[str], numbers: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """Per-face vertex counts and flat indices (trailing colour values are ignored)."""
     try:
         table = np.loadtxt(face_lines, dtype=np.int64, ndmin=2, comments=None)
-    except ValueError:
-        table = None  # ragged rows: mixed polygon sizes, or colours on some faces only
+    except (ValueError, OverflowError):
+        table = None  # ragged rows (mixed polygon sizes, colours on some faces) or bad values
     if table is not None:
         n = int(table[0, 0])
         if n >= 0 and (table[:, 0] == n).all() and table.shape[1] >= n + 1:
             return np.full(len(table), n, np.int64), table[:, 1 : n + 1].reshape(-1)
     counts: list[int] = []
     items: list[int] = []
-    for line in face_lines:
+    for number, line in zip(numbers, face_lines, strict=True):
         words = line.split()
         try:
             n = int(words[0])
@@ -92,6 +96,34 @@ def _faces(face_lines: list[str]) -> tuple[np.ndarray, np.ndarray]:
                 raise ValueError
             items.extend(int(w) for w in words[1 : n + 1])
         except (IndexError, ValueError):
-            raise ValueError(f"malformed OFF face line {line[:80]!r}") from None
+            raise ValueError(f"malformed OFF face on line {number}: {line[:80]!r}") from None
         counts.append(n)
-    return np.asarray(counts, np.int64), np.asarray(items, np.int64)
+    return np.asarray(counts, np.int64), _indices(items, counts, numbers)
+
+
+def _indices(items: list[int], counts: list[int], numbers: list[int]) -> np.ndarray:
+    """The flat indices as int64; a value beyond int64 (Python parses any length) names its
+    line instead of overflowing."""
+    try:
+        return np.asarray(items, np.int64)
+    except OverflowError:
+        big = next(k for k, v in enumerate(items) if not -(2**63) <= v < 2**63)
+        face = int(np.searchsorted(np.cumsum(counts), big, side="right"))
+        raise ValueError(
+            f"OFF face on line {numbers[face]}: vertex index {items[big]} is out of range"
+        ) from None
+
+
+def _check_indices(
+    counts: np.ndarray, items: np.ndarray, n_vertices: int, numbers: list[int]
+) -> None:
+    """Every face index names a vertex; the message names the face's line."""
+    bad = (items < 0) | (items >= n_vertices)
+    if not bad.any():
+        return
+    flat = int(np.argmax(bad))
+    face = int(np.searchsorted(np.cumsum(counts), flat, side="right"))
+    raise ValueError(
+        f"OFF face on line {numbers[face]}: vertex index {int(items[flat])} is not a vertex "
+        f"of the {n_vertices} in the file"
+    )

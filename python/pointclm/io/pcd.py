@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lzf import lzf_decompress
-from .pointcloud import PointCloud, finite_cloud
+from .lzf import LZF_MAX_EXPANSION, lzf_decompress
+from .pointcloud import PointCloud, check_integers, finite_cloud
 
 __all__ = ["parse_pcd"]
 
@@ -97,35 +97,61 @@ def _parse_header(raw: bytes) -> _Header:
             "PCD header's FIELDS, SIZE, TYPE and COUNT lines have different lengths "
             f"({len(names)}, {len(sizes)}, {len(types)}, {len(counts)})"
         )
-    try:
-        width = int(entries["WIDTH"][0])
-        height = int(entries.get("HEIGHT", ["1"])[0])
-        n_points = int(entries["POINTS"][0]) if "POINTS" in entries else width * height
-        fields = []
-        for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
-            char = _TYPE_CHARS.get((kind.upper(), int(size)))
-            if char is None:
-                raise ValueError(f"PCD field {name!r} has unsupported TYPE {kind} SIZE {size}")
-            fields.append(_Field(name, np.dtype("<" + char), int(count)))
-    except (IndexError, TypeError) as exc:
-        raise ValueError(f"malformed PCD header ({exc})") from None
-    if n_points < 0 or any(f.count < 1 for f in fields):
-        raise ValueError("malformed PCD header (negative POINTS or COUNT < 1)")
+    width = _header_int(entries, "WIDTH")
+    height = _header_int(entries, "HEIGHT") if "HEIGHT" in entries else 1
+    n_points = _header_int(entries, "POINTS") if "POINTS" in entries else width * height
+    fields = []
+    for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
+        char = _TYPE_CHARS.get((kind.upper(), _as_int(size, f"SIZE of field {name!r}")))
+        if char is None:
+            raise ValueError(f"PCD field {name!r} has unsupported TYPE {kind} SIZE {size}")
+        n = _as_int(count, f"COUNT of field {name!r}")
+        if n < 1:
+            raise ValueError(f"malformed PCD header: COUNT of field {name!r} is {n}, need >= 1")
+        if n * int(size) > len(raw):
+            # No point can be longer than the whole file (and numpy could not even describe
+            # a record that size): a lying COUNT is refused before any allocation.
+            raise ValueError(
+                f"malformed PCD header: field {name!r} has COUNT {n} ({n * int(size)} bytes "
+                f"per point), more than the file's {len(raw)} bytes"
+            )
+        fields.append(_Field(name, np.dtype("<" + char), n))
+    if n_points < 0 or width < 0 or height < 0:
+        raise ValueError("malformed PCD header (negative WIDTH, HEIGHT or POINTS)")
     data = entries["DATA"][0].lower() if entries["DATA"] else ""
     return _Header(tuple(fields), n_points, data, pos)
 
 
+def _header_int(entries: dict[str, list[str]], key: str) -> int:
+    values = entries[key]
+    if not values:
+        raise ValueError(f"malformed PCD header: {key} has no value")
+    return _as_int(values[0], key)
+
+
+def _as_int(word: str, what: str) -> int:
+    # int() alone accepts "1_000" and unbounded digit strings; a header holds plain decimals.
+    if not (word.isascii() and word.lstrip("+-").isdigit()) or len(word) > 20:
+        raise ValueError(f"malformed PCD header: {what} is {word[:30]!r}, not an integer")
+    return int(word)
+
+
+def _record_size(header: _Header) -> int:
+    return sum(f.count * f.dtype.itemsize for f in header.fields)
+
+
 def _columns_binary(raw: bytes, header: _Header) -> list[np.ndarray]:
-    record = np.dtype(
-        [(f"f{i}", f.dtype, (f.count,)) for i, f in enumerate(header.fields)], align=False
-    )
-    need = header.n_points * record.itemsize
+    size = _record_size(header)
+    need = header.n_points * size
     have = len(raw) - header.data_start
     if have < need:
         raise ValueError(
-            f"binary PCD data is truncated: {header.n_points} points of {record.itemsize} "
+            f"binary PCD data is truncated: {header.n_points} points of {size} "
             f"bytes need {need} bytes, the file has {have}"
         )
+    record = np.dtype(
+        [(f"f{i}", f.dtype, (f.count,)) for i, f in enumerate(header.fields)], align=False
+    )
     table = np.frombuffer(raw, dtype=record, count=header.n_points, offset=header.data_start)
     return [table[f"f{i}"] for i in range(len(header.fields))]
 
@@ -135,18 +161,26 @@ def _columns_compressed(raw: bytes, header: _Header) -> list[np.ndarray]:
     if len(raw) < start + 8:
         raise ValueError("binary_compressed PCD data is truncated (no block sizes)")
     packed, unpacked = struct.unpack_from("<II", raw, start)
-    expected = sum(header.n_points * f.count * f.dtype.itemsize for f in header.fields)
+    expected = header.n_points * _record_size(header)
     if unpacked != expected:
         raise ValueError(
             f"binary_compressed PCD block holds {unpacked} bytes, but {header.n_points} points "
             f"of these fields need {expected}"
         )
-    block = raw[start + 8 : start + 8 + packed]
-    if len(block) < packed:
+    have = len(raw) - start - 8
+    if packed > have:
         raise ValueError(
             f"binary_compressed PCD data is truncated: the block is {packed} bytes, "
-            f"the file has {len(block)}"
+            f"the file has {have}"
         )
+    # Checked before the output buffer is allocated: LZF cannot expand more than this, so a
+    # header claiming more is lying (a few hundred bytes must not reserve gigabytes).
+    if unpacked > LZF_MAX_EXPANSION * packed:
+        raise ValueError(
+            f"binary_compressed PCD block claims {unpacked} bytes from {packed} compressed "
+            f"bytes; LZF expands at most {LZF_MAX_EXPANSION}x"
+        )
+    block = raw[start + 8 : start + 8 + packed]
     data = lzf_decompress(block, unpacked) if unpacked else b""
     columns = []
     offset = 0
@@ -159,14 +193,17 @@ def _columns_compressed(raw: bytes, header: _Header) -> list[np.ndarray]:
 
 
 def _columns_ascii(raw: bytes, header: _Header) -> list[np.ndarray]:
-    lines = raw[header.data_start :].decode("ascii", errors="replace").splitlines()
+    first_line = raw.count(b"\n", 0, header.data_start) + 1  # file line of the first row
+    text = raw[header.data_start :].decode("ascii", errors="replace").splitlines()
     width = sum(f.count for f in header.fields)
-    lines = [line for line in lines if line.strip()][: header.n_points]
-    if len(lines) < header.n_points:
+    numbered = [(first_line + i, line) for i, line in enumerate(text) if line.strip()]
+    numbered = numbered[: header.n_points]
+    if len(numbered) < header.n_points:
         raise ValueError(
             f"ASCII PCD data is truncated: header says {header.n_points} points, "
-            f"found {len(lines)} lines"
+            f"found {len(numbered)} lines"
         )
+    lines = [line for _, line in numbered]
     try:
         table = np.loadtxt(lines, dtype=np.float64, ndmin=2) if lines else np.empty((0, width))
     except ValueError as exc:
@@ -181,7 +218,13 @@ def _columns_ascii(raw: bytes, header: _Header) -> list[np.ndarray]:
             columns.append(values.astype(f.dtype))
         else:
             # Integer fields (e.g. rgb written as uint32) are exact in float64 up to 2**53.
-            columns.append(np.nan_to_num(values).astype(f.dtype))
+            bad = check_integers(values, f.dtype)
+            if bad is not None:
+                row, value, why = bad
+                raise ValueError(
+                    f"ASCII PCD field {f.name!r} on line {numbered[row][0]} holds {value}, {why}"
+                )
+            columns.append(values.astype(f.dtype))
         col += f.count
     return columns
 

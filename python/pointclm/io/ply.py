@@ -22,8 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from .files import atomic_path, check_output_path
 from .mesh import sample_mesh, triangulate
-from .pointcloud import PointCloud, finite_cloud, unit_colors
+from .pointcloud import PointCloud, check_integers, finite_cloud, unit_colors
 
 __all__ = ["parse_ply", "write_ply"]
 
@@ -112,8 +113,10 @@ def _parse_header(raw: bytes) -> tuple[str, list[_Element], int]:
                 raise ValueError(f"unsupported PLY format line {line!r}")
             fmt = words[1]
         elif key == "element":
-            if len(words) != 3 or not words[2].isdigit():
+            if len(words) != 3 or not (words[2].isascii() and words[2].isdigit()):
                 raise ValueError(f"malformed PLY element line {line!r}")
+            if len(words[2]) > 19:  # beyond int64: no file holds that many records
+                raise ValueError(f"PLY element count too large in {line!r}")
             current = []
             elements.append(_Element(words[1], int(words[2]), ()))
         elif key == "property":
@@ -167,6 +170,8 @@ def _first_record_layout(
         n = int(np.frombuffer(raw, count_dt, 1, pos)[0])
         if n < 0:
             raise ValueError(f"PLY element {el.name!r} has a list of negative length {n}")
+        if pos + count_dt.itemsize + n * np.dtype(p.code).itemsize > len(raw):
+            return None  # longer than the file: the record-by-record reader reports where
         lengths.append(n)
         fields.append((f"n{i}", count_dt))
         if n > 0:
@@ -175,10 +180,24 @@ def _first_record_layout(
     return np.dtype(fields), lengths
 
 
+def _min_record_size(el: _Element) -> int:
+    """Bytes of the smallest possible record: scalars, and each list's length field."""
+    return sum(np.dtype(p.count_code or p.code).itemsize for p in el.props)
+
+
 def _binary_table(raw: bytes, offset: int, el: _Element, endian: str) -> tuple[_Table, int]:
     """Read one element table from binary data; returns it and the offset after it."""
-    if el.count == 0:
+    if el.count == 0 or not el.props:  # a record without properties holds no bytes
         return _empty_table(el, endian), offset
+    # Checked before anything is allocated: every record takes at least this many bytes, so
+    # a count the remaining bytes cannot hold is a lie (or a truncated file).
+    need = el.count * _min_record_size(el)
+    if need > len(raw) - offset:
+        raise ValueError(
+            f"binary PLY data is truncated: element {el.name!r} declares {el.count} records "
+            f"of at least {_min_record_size(el)} bytes ({need} bytes), "
+            f"{max(len(raw) - offset, 0)} remain"
+        )
     layout = _first_record_layout(raw, offset, el, endian)
     if layout is not None:
         record, lengths = layout
@@ -204,45 +223,92 @@ def _binary_table(raw: bytes, offset: int, el: _Element, endian: str) -> tuple[_
     return _binary_table_slow(raw, offset, el, endian)
 
 
+#: Records the record-by-record readers hold as Python objects before packing them into
+#: arrays: memory stays a small multiple of the file's size, not ~40 bytes per value.
+_CHUNK = 65_536
+
+
+class _Columns:
+    """Per-property values of an element table, packed into typed arrays every `_CHUNK`
+    records."""
+
+    def __init__(self, el: _Element, endian: str = "") -> None:
+        self.el, self.endian = el, endian
+        self.scalars: list[list[Any]] = [[] for _ in el.props]
+        self.counts: list[list[int]] = [[] for _ in el.props]
+        self.items: list[list[Any]] = [[] for _ in el.props]
+        self.done: list[list[Any]] = [[] for _ in el.props]
+
+    def pack(self) -> None:
+        for i, p in enumerate(self.el.props):
+            dt = np.dtype(self.endian + p.code) if self.endian else np.float64
+            if p.count_code is None:
+                self.done[i].append(np.asarray(self.scalars[i], dtype=dt))
+            else:
+                counts = np.asarray(self.counts[i], np.int64)
+                self.done[i].append((counts, np.asarray(self.items[i], dtype=dt)))
+            self.scalars[i], self.counts[i], self.items[i] = [], [], []
+
+    def table(self) -> dict[int, Any]:
+        self.pack()
+        out: dict[int, Any] = {}
+        for i, p in enumerate(self.el.props):
+            if p.count_code is None:
+                out[i] = np.concatenate(self.done[i])
+            else:
+                counts = np.concatenate([c for c, _ in self.done[i]])
+                out[i] = (counts, np.concatenate([v for _, v in self.done[i]]))
+        return out
+
+
 def _binary_table_slow(raw: bytes, offset: int, el: _Element, endian: str) -> tuple[_Table, int]:
     """Record-by-record reading, for lists whose lengths vary."""
-    scalars: list[list[Any]] = [[] for _ in el.props]
-    counts: list[list[int]] = [[] for _ in el.props]
-    items: list[list[Any]] = [[] for _ in el.props]
+    cols = _Columns(el, endian)
     formats = []
     for p in el.props:
         value = struct.Struct(endian + _struct_char(p.code))
         count = struct.Struct(endian + _struct_char(p.count_code)) if p.count_code else None
         formats.append((value, count, _struct_char(p.code)))
     pos = offset
-    try:
-        for _ in range(el.count):
-            for i, (value, count, char) in enumerate(formats):
-                if count is None:
-                    scalars[i].append(value.unpack_from(raw, pos)[0])
-                    pos += value.size
-                else:
-                    n = count.unpack_from(raw, pos)[0]
-                    if n < 0:
-                        raise ValueError(
-                            f"PLY element {el.name!r} has a list of negative length {n}"
-                        )
-                    pos += count.size
-                    counts[i].append(n)
-                    items[i].extend(struct.unpack_from(f"{endian}{n}{char}", raw, pos))
-                    pos += n * value.size
-    except struct.error:
-        raise ValueError(
-            f"binary PLY data is truncated inside element {el.name!r} ({el.count} records expected)"
-        ) from None
+    size = len(raw)
+    for record in range(el.count):
+        if record and record % _CHUNK == 0:
+            cols.pack()
+        for i, (value, count, char) in enumerate(formats):
+            if count is None:
+                if pos + value.size > size:
+                    raise _truncated(el, record)
+                cols.scalars[i].append(value.unpack_from(raw, pos)[0])
+                pos += value.size
+                continue
+            if pos + count.size > size:
+                raise _truncated(el, record)
+            n = count.unpack_from(raw, pos)[0]
+            if n < 0:
+                raise ValueError(
+                    f"PLY element {el.name!r} record {record} has a list of negative length {n}"
+                )
+            pos += count.size
+            if pos + n * value.size > size:  # checked before struct builds an n-item tuple
+                raise _truncated(el, record)
+            cols.counts[i].append(n)
+            cols.items[i].extend(struct.unpack_from(f"{endian}{n}{char}", raw, pos))
+            pos += n * value.size
+    table = cols.table()
     out: _Table = {}
     for i, p in enumerate(el.props):
-        dt = np.dtype(p.code)
         if p.count_code is None:
-            out[p.name] = np.asarray(scalars[i], dtype=dt)
+            out[p.name] = table[i]
         else:
-            out[p.name] = _ListValues(np.asarray(counts[i], np.int64), np.asarray(items[i], dt))
+            out[p.name] = _ListValues(*table[i])
     return out, pos
+
+
+def _truncated(el: _Element, record: int) -> ValueError:
+    return ValueError(
+        f"binary PLY data is truncated inside element {el.name!r} at record {record} "
+        f"({el.count} records expected)"
+    )
 
 
 def _struct_char(code: str | None) -> str:
@@ -258,8 +324,9 @@ def _struct_char(code: str | None) -> str:
     }[code or ""]
 
 
-def _ascii_table(lines: list[str], start: int, el: _Element) -> _Table:
-    """Read one element table from ASCII lines (one record per line, as writers do)."""
+def _ascii_table(lines: list[str], start: int, el: _Element, first_line: int) -> _Table:
+    """Read one element table from ASCII lines (one record per line, as writers do);
+    ``first_line`` is the file line number of ``lines[start]``, for error messages."""
     rows = lines[start : start + el.count]
     if len(rows) < el.count:
         raise ValueError(
@@ -273,99 +340,149 @@ def _ascii_table(lines: list[str], start: int, el: _Element) -> _Table:
     except ValueError:
         table = None  # ragged (lists of varying length) or malformed: the slow path tells
     if table is not None and table.shape[0] == el.count:
-        columns = _split_uniform(table, el)
+        columns = _split_uniform(table, el, first_line)
         if columns is not None:
             return columns
-    return _ascii_table_slow(rows, el)
+    return _ascii_table_slow(rows, el, first_line)
 
 
-def _as_declared(values: np.ndarray, code: str) -> np.ndarray:
+def _as_declared(values: np.ndarray, code: str, el: _Element, name: str, lines: Any) -> np.ndarray:
     """Round ASCII values to their declared type, as a binary file of the same data would
-    hold them (and as other readers do): ``float`` properties become float32."""
+    hold them (and as other readers do): ``float`` properties become float32. An integer
+    value the type cannot hold (uchar 300, NaN, 2.5) is an error naming its line, never
+    wrapped around. ``lines`` maps a row of ``values`` to its file line number."""
     if code[0] == "f":
         return values.astype(code)
-    if not np.isfinite(values).all():
-        raise ValueError("integer property holds a non-numeric value")
-    return values.astype(np.int64).astype(code)
+    bad = check_integers(values, code)
+    if bad is not None:
+        row, value, why = bad
+        raise ValueError(
+            f"ASCII PLY element {el.name!r}, property {name!r}, line {lines(row)}: {value} is {why}"
+        )
+    return values.astype(code)
 
 
-def _split_uniform(table: np.ndarray, el: _Element) -> _Table | None:
+def _split_uniform(table: np.ndarray, el: _Element, first_line: int) -> _Table | None:
     """Cut a rectangular ASCII table into properties (None: lists vary in length)."""
     out: _Table = {}
     col = 0
+
+    def line(row: int) -> int:
+        return first_line + row
+
     for p in el.props:
         if col >= table.shape[1]:
             return None
         if p.count_code is None:
-            out[p.name] = _as_declared(table[:, col], p.code)
+            out[p.name] = _as_declared(table[:, col], p.code, el, p.name, line)
             col += 1
             continue
-        n = int(table[0, col])
-        if n < 0 or not (table[:, col] == n).all() or col + 1 + n > table.shape[1]:
+        n = table[0, col]
+        if not (np.isfinite(n) and n >= 0 and n == int(n)) or not (table[:, col] == n).all():
             return None
-        items = _as_declared(table[:, col + 1 : col + 1 + n].reshape(-1), p.code)
-        out[p.name] = _ListValues(np.full(el.count, n, np.int64), items)
+        n = int(n)
+        if col + 1 + n > table.shape[1]:
+            return None
+        _as_declared(table[:, col], p.count_code, el, p.name, line)
+        items = _as_declared(table[:, col + 1 : col + 1 + n], p.code, el, p.name, line)
+        out[p.name] = _ListValues(np.full(el.count, n, np.int64), items.reshape(-1))
         col += 1 + n
     return out if col == table.shape[1] else None
 
 
-def _ascii_table_slow(rows: list[str], el: _Element) -> _Table:
+def _ascii_table_slow(rows: list[str], el: _Element, first_line: int) -> _Table:
     """Record-by-record reading, for lists whose lengths vary."""
-    scalars: list[list[float]] = [[] for _ in el.props]
-    counts: list[list[int]] = [[] for _ in el.props]
-    items: list[list[float]] = [[] for _ in el.props]
+    cols = _Columns(el)
     row = ""
+    k_row = 0
     try:
-        for row in rows:
+        for k_row, row in enumerate(rows):
+            if k_row and k_row % _CHUNK == 0:
+                cols.pack()
             words = row.split()
             k = 0
             for i, p in enumerate(el.props):
                 if p.count_code is None:
-                    scalars[i].append(float(words[k]))
+                    cols.scalars[i].append(float(words[k]))
                     k += 1
                 else:
                     n = int(words[k])
                     if n < 0 or k + 1 + n > len(words):
                         raise IndexError
-                    counts[i].append(n)
-                    items[i].extend(float(w) for w in words[k + 1 : k + 1 + n])
+                    cols.counts[i].append(n)
+                    cols.items[i].extend(float(w) for w in words[k + 1 : k + 1 + n])
                     k += 1 + n
-    except (IndexError, ValueError):
+    except (IndexError, ValueError, OverflowError):
         props = " ".join(p.name if p.count_code is None else f"[{p.name}]" for p in el.props)
         raise ValueError(
-            f"malformed ASCII PLY data in element {el.name!r} (properties: {props}): "
-            f"line {row[:80]!r}"
+            f"malformed ASCII PLY data in element {el.name!r} (properties: {props}) "
+            f"on line {first_line + k_row}: {row[:80]!r}"
         ) from None
+    table = cols.table()
     out: _Table = {}
     for i, p in enumerate(el.props):
         if p.count_code is None:
-            out[p.name] = _as_declared(np.asarray(scalars[i]), p.code)
+
+            def line(r: int) -> int:
+                return first_line + r
+
+            out[p.name] = _as_declared(table[i], p.code, el, p.name, line)
         else:
-            values = _as_declared(np.asarray(items[i], np.float64), p.code)
-            out[p.name] = _ListValues(np.asarray(counts[i], np.int64), values)
+            counts, flat = table[i]
+            ends = np.cumsum(counts)
+
+            def item_line(r: int, ends: np.ndarray = ends) -> int:
+                return first_line + int(np.searchsorted(ends, r, side="right"))
+
+            out[p.name] = _ListValues(counts, _as_declared(flat, p.code, el, p.name, item_line))
     return out
 
 
-def _read_tables(raw: bytes) -> dict[str, _Table]:
-    """Tables of the needed elements (the first of each name), parsed in file order."""
+def _read_tables(raw: bytes) -> tuple[dict[str, _Table], dict[str, int | None]]:
+    """Tables of the needed elements (the first of each name), parsed in file order, and
+    for ASCII files the file line number of each one's first record (None for binary)."""
     fmt, elements, start = _parse_header(raw)
     wanted = [i for i, el in enumerate(elements) if el.name in _NEEDED]
     stop = max(wanted) + 1 if wanted else 0
     tables: dict[str, _Table] = {}
+    first_lines: dict[str, int | None] = {}
     if fmt == "ascii":
         lines = raw[start:].decode("latin-1").splitlines()
+        header_lines = raw.count(b"\n", 0, start)
         line = 0
         for el in elements[:stop]:
             if el.name in _NEEDED and el.name not in tables:
-                tables[el.name] = _ascii_table(lines, line, el)
+                first = header_lines + line + 1
+                tables[el.name] = _ascii_table(lines, line, el, first)
+                first_lines[el.name] = first
             line += el.count
     else:
         offset = start
         endian = _FORMATS[fmt]
         for el in elements[:stop]:
             table, offset = _binary_table(raw, offset, el, endian)
-            tables.setdefault(el.name, table)
-    return tables
+            if el.name not in tables:
+                tables[el.name] = table
+                first_lines[el.name] = None
+    return tables, first_lines
+
+
+def _check_face_indices(faces: _ListValues, n_vertices: int, first_line: int | None) -> None:
+    """Every face index names a vertex; the message says which record (or line) does not."""
+    items = faces.items
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(items) | (items != np.round(items)) | (items < 0)
+        bad |= items >= n_vertices
+    if not bad.any():
+        return
+    flat = int(np.argmax(bad))
+    record = int(np.searchsorted(np.cumsum(faces.counts), flat, side="right"))
+    where = f"line {first_line + record}" if first_line is not None else f"record {record}"
+    value = items[flat]
+    raise ValueError(
+        f"PLY element 'face', {where}: vertex index {value} is not a vertex of the "
+        f"{n_vertices} in the file"
+    )
 
 
 def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) -> PointCloud:
@@ -377,7 +494,7 @@ def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
         Malformed header, truncated data, no x/y/z vertex properties, face indices out of
         range, or no finite point (messages without the path; the caller adds it).
     """
-    tables = _read_tables(raw)
+    tables, first_lines = _read_tables(raw)
     vertex = tables.get("vertex")
     if vertex is None:
         raise ValueError("PLY file has no 'vertex' element")
@@ -406,10 +523,8 @@ def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
         if faces is None and face:
             raise ValueError("PLY face element has no list of vertex indices")
         if faces is not None and len(faces.counts):
-            items = faces.items
-            if not np.isfinite(items).all() or (items != np.round(items)).any():
-                raise ValueError("PLY face vertex indices are not integers")
-            triangles = triangulate(faces.counts, items.astype(np.int64))
+            _check_face_indices(faces, len(points), first_lines.get("face"))
+            triangles = triangulate(faces.counts, faces.items.astype(np.int64))
             return sample_mesh(points, triangles, n_samples, seed, vertex_colors=colors)
     return finite_cloud(points, None if normals is None else normals.astype(np.float64), colors)
 
@@ -442,13 +557,16 @@ def write_ply(
     Raises
     ------
     ValueError
-        On a wrong shape, non-finite values, or colours out of range.
+        On a wrong shape, non-finite values, colours out of range, or a path that is not a
+        writable file name (checked before anything is written). The file is written to a
+        temporary name and renamed, so a failure never leaves a partial PLY behind.
     """
+    file = check_output_path(path, "path")
     if isinstance(points, PointCloud):
         colors = points.colors if colors is None else colors
         normals = points.normals if normals is None else normals
         points = points.points
-    pts = np.asarray(points, dtype=np.float64)
+    pts = _real(points, "points")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"points must be a non-empty (N, 3) array, got shape {pts.shape}")
     if not np.isfinite(pts).all():
@@ -456,7 +574,7 @@ def write_ply(
     fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     nrm = None
     if normals is not None:
-        nrm = np.asarray(normals, dtype=np.float64)
+        nrm = _real(normals, "normals")
         if nrm.shape != pts.shape:
             raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
         if not np.isfinite(nrm).all():
@@ -483,13 +601,25 @@ def write_ply(
         *(f"property {names[code]} {name}" for name, code in fields),
         "end_header",
     ]
-    with open(path, "wb") as fh:
+    with atomic_path(file) as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         fh.write(record.tobytes())
 
 
+def _real(values: Any, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(values)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} could not be read as an array: {e}") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64)
+
+
 def _colors_u8(colors: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     arr = np.asarray(colors)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"colors must hold real numbers, got dtype {arr.dtype}")
     if arr.shape != shape:
         raise ValueError(f"colors must have shape {shape}, got {arr.shape}")
     if np.issubdtype(arr.dtype, np.integer):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PointCloud"]
+__all__ = ["PointCloud", "check_integers", "finite_cloud", "unit_colors"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,7 +47,7 @@ class PointCloud:
     colors: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        pts = np.ascontiguousarray(self.points, dtype=np.float64)
+        pts = _real_array(self.points, "points")
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be (N, 3), got shape {pts.shape}")
         if len(pts) == 0:
@@ -59,7 +59,7 @@ class PointCloud:
             value = getattr(self, name)
             if value is None:
                 continue
-            arr = np.ascontiguousarray(value, dtype=np.float64)
+            arr = _real_array(value, name)
             if arr.shape != pts.shape:
                 raise ValueError(f"{name} must have the points' shape {pts.shape}, got {arr.shape}")
             if not np.isfinite(arr).all():
@@ -75,6 +75,17 @@ class PointCloud:
         extras = [name for name in ("normals", "colors") if getattr(self, name) is not None]
         with_ = f" with {' and '.join(extras)}" if extras else ""
         return f"PointCloud({len(self)} points{with_})"
+
+
+def _real_array(value: object, name: str) -> np.ndarray:
+    """A C-contiguous float64 array of real numbers, or a ValueError naming ``name``."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as e:  # ragged nested lists and the like
+        raise ValueError(f"{name} could not be read as an array: {e}") from None
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float64)
 
 
 def finite_cloud(
@@ -130,3 +141,34 @@ def unit_colors(channels: np.ndarray) -> np.ndarray:
         return np.clip(arr.astype(np.float64) / top, 0.0, 1.0)
     out = np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     return np.clip(out, 0.0, 1.0)
+
+
+def check_integers(values: np.ndarray, dtype: np.dtype | str) -> tuple[int, str, str] | None:
+    """Find the first value of an ASCII integer field that its declared type cannot hold.
+
+    Text readers parse numbers as float64 (exact for integers up to 2**53, beyond every
+    32-bit type PLY and PCD declare). A value that is NaN/inf, not a whole number, or outside
+    the type's range would otherwise be silently wrapped or truncated by ``astype``.
+
+    Returns
+    -------
+    tuple or None
+        ``(row, value, reason)`` of the first bad value (row index along the first axis), or
+        None when every value fits.
+    """
+    arr = np.asarray(values, dtype=np.float64)
+    info = np.iinfo(np.dtype(dtype))
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(arr) | (arr != np.floor(arr)) | (arr < info.min) | (arr > info.max)
+    if not bad.any():
+        return None
+    index = np.unravel_index(int(np.argmax(bad.reshape(-1))), arr.shape)
+    value = float(arr[index])
+    if not np.isfinite(value):
+        shown, why = str(value), "not a finite number, which an integer field cannot hold"
+    elif value != np.floor(value):
+        shown, why = f"{value:.17g}", "not a whole number, which an integer field cannot hold"
+    else:
+        kind = np.dtype(dtype).name
+        shown, why = f"{value:.0f}", f"outside the range of {kind} [{info.min}, {info.max}]"
+    return (int(index[0]) if arr.ndim else 0), shown, why

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .arrays import parse_npy, parse_npz
-from .files import read_checked
+from .files import as_path, read_checked
 from .mesh import check_n_samples
 from .off import parse_off
 from .pcd import parse_pcd
@@ -73,11 +73,18 @@ def read_point_cloud(
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If the file is empty, truncated or malformed, its extension is not supported, or
-        it has no finite point; the message starts with the path.
+        If the file is empty, truncated or malformed, not a regular file (a FIFO, a
+        device), its extension is not supported, or it has no finite point; the message
+        starts with the path. Sizes a file declares are checked against its length before
+        anything is allocated, and integer fields that their type cannot hold are errors
+        naming the line.
     """
     if n_samples is not None:
         check_n_samples(n_samples)
+    if seed is not None and (
+        isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0
+    ):
+        raise ValueError(f"seed must be a non-negative int or None, got {seed!r}")
     file, raw = _open(path)
     suffix = file.suffix.lower()
     try:
@@ -96,7 +103,7 @@ def load_points(
 
 
 def _open(path: str | os.PathLike[str]) -> tuple[Path, bytes]:
-    file = Path(os.fspath(path))
+    file = as_path(path)
     if file.suffix.lower() not in SUPPORTED_SUFFIXES:
         # Checked before reading, so a wrong extension fails fast even on a huge file.
         if not file.exists():

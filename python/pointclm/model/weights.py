@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import _core
+from ..io.files import read_checked
 
 if TYPE_CHECKING:
     from .network import SCNonlocal
@@ -41,6 +42,13 @@ def weights_path(model: str | os.PathLike[str]) -> Path:
     """A shipped name ("default", "paper") or a path -> the .safetensors path."""
     if isinstance(model, str) and model in SHIPPED:
         return SHIPPED[model]
+    if not isinstance(model, str | os.PathLike) or isinstance(os.fspath(model), bytes):
+        raise ValueError(
+            f"model must be a shipped name ({', '.join(SHIPPED)}) or a path to a "
+            f".safetensors file, got {type(model).__name__}"
+        )
+    if os.fspath(model) == "" or "\x00" in os.fspath(model):
+        raise ValueError(f"model {os.fspath(model)!r} is not a valid path")
     return Path(model)
 
 
@@ -48,9 +56,13 @@ def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The JSON beside a weight file (architecture, training config, metrics)."""
     cfg = weights_path(path).with_suffix(".json")
     try:
-        return dict(json.loads(cfg.read_text()))
-    except (OSError, json.JSONDecodeError) as e:
+        _, raw = read_checked(cfg, "weight metadata file")
+        meta = json.loads(raw)
+    except (OSError, ValueError) as e:  # JSONDecodeError and UnicodeDecodeError included
         raise ValueError(f"unreadable weight metadata {cfg}: {e}") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"unreadable weight metadata {cfg}: expected a JSON object")
+    return meta
 
 
 def _torch() -> Any:

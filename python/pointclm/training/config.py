@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -78,6 +79,8 @@ class TrainConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for f in fields(self):
+            _check_type(f.name, str(f.type), getattr(self, f.name))
         if self.negatives not in ("hardest", "random"):
             raise ValueError(f"negatives must be 'hardest' or 'random', got {self.negatives!r}")
         for name in (
@@ -102,22 +105,37 @@ class TrainConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> TrainConfig:
-        if name not in PRESETS:
+        if not isinstance(name, str) or name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}")
+        unknown = set(overrides) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown training config fields: {sorted(unknown)}")
         return cls(**{**PRESETS[name], **overrides})
 
     @classmethod
     def from_file(cls, path: str | Path, **overrides: Any) -> TrainConfig:
         """A JSON file of fields; `"preset": NAME` starts from a preset."""
-        raw = json.loads(Path(path).read_text())
-        base = PRESETS.get(raw.pop("preset", "cpu"), {})
+        from ..io.files import read_checked  # only a regular file (a FIFO would block)
+
+        try:
+            raw = json.loads(read_checked(path, "training config file")[1])
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a JSON text file") from None
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not valid JSON ({e})") from None
+        if not isinstance(raw, dict):
+            raise ValueError(f"{path}: expected a JSON object of TrainConfig fields")
+        preset = raw.pop("preset", "cpu")
+        if not isinstance(preset, str) or preset not in PRESETS:
+            raise ValueError(f"{path}: unknown preset {preset!r}; choose from {sorted(PRESETS)}")
+        base = PRESETS[preset]
         known = {f.name for f in fields(cls)}
         unknown = set(raw) - known
         if unknown:
             raise ValueError(f"unknown training config fields: {sorted(unknown)}")
         merged = {**base, **raw, **overrides}
         for key in ("train_shapes", "val_shapes", "realistic_models"):
-            if key in merged:
+            if isinstance(merged.get(key), list):
                 merged[key] = tuple(merged[key])
         return cls(**merged)
 
@@ -129,6 +147,30 @@ class TrainConfig:
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+
+def _check_type(name: str, annotation: str, value: Any) -> None:
+    """Each field holds what its annotation says, so a JSON config with ``"depth": [1]`` or
+    ``"lr": "fast"`` fails with a ValueError naming the field rather than deep in training."""
+    optional = annotation.endswith("| None")
+    if optional and value is None:
+        return
+    kind = annotation.removesuffix("| None").strip()
+    if kind == "int":
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif kind == "float":
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        ok = ok and math.isfinite(value)
+    elif kind == "str":
+        ok = isinstance(value, str)
+    elif kind.startswith("tuple"):
+        ok = isinstance(value, tuple) and all(isinstance(v, str) for v in value)
+    elif kind.startswith("dict"):
+        ok = isinstance(value, dict) and all(isinstance(k, str) for k in value)
+    else:  # pragma: no cover - a new field type must be added above
+        ok = True
+    if not ok:
+        raise ValueError(f"training config field {name} must be {annotation}, got {value!r}")
 
 
 PRESETS: dict[str, dict[str, Any]] = {

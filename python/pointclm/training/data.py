@@ -11,6 +11,8 @@ import numpy as np
 
 from ..datasets import load_shape, make_scene
 from ..datasets.synthetic import label_correspondences
+from ..io.arrays import read_npz_members
+from ..io.files import read_checked
 
 __all__ = ["ShapeBank", "make_batch", "structured_outliers"]
 
@@ -30,8 +32,22 @@ class ShapeBank:
 
     @classmethod
     def load(cls, path: str | Path) -> ShapeBank:
-        with np.load(path) as z:
-            return cls({k: z[k] for k in z.files})
+        """A bank saved by :meth:`save`; read without pickle, sizes checked before reading.
+
+        Raises FileNotFoundError for a missing file, ValueError for anything else wrong."""
+        file, raw = read_checked(path, "shape bank")
+        try:
+            arrays, _ = read_npz_members(raw, None)
+        except ValueError as e:
+            raise ValueError(f"{file}: {e}") from None
+        for name, cloud in arrays.items():
+            if cloud.ndim != 2 or cloud.shape[1] != 3 or len(cloud) == 0:
+                raise ValueError(f"{file}: shape {name!r} has shape {cloud.shape}, not (N, 3)")
+            if not np.isfinite(cloud).all():
+                raise ValueError(f"{file}: shape {name!r} has non-finite points")
+        if not arrays:
+            raise ValueError(f"{file}: the shape bank is empty")
+        return cls({k: v.copy() for k, v in arrays.items()})
 
     def save(self, path: str | Path) -> None:
         np.savez_compressed(path, **self.clouds)  # type: ignore[arg-type]

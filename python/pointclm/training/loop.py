@@ -17,6 +17,7 @@ from ..config import Config
 from ..datasets import make_scene
 from ..metrics import score_scene, summarize
 from ..registration import register
+from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .data import ShapeBank, make_batch
 from .realistic import SceneBank, realistic_sample, score_bank
@@ -187,8 +188,12 @@ def train(
     max_minutes: float | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Train, writing to `out_dir`: `train_config.json`, `checkpoint.pt` (resumable),
-    `model.safetensors` + `model.json` (best validation weights) and `log.jsonl`.
+    """Train, writing to `out_dir`: `train_config.json`, `checkpoint.json` +
+    `checkpoint-<iteration>.safetensors` (resumable, no pickle), `model.safetensors` +
+    `model.json` (best validation weights) and `log.jsonl`.
+
+    With `resume=True` a run continues from the folder's checkpoint and reproduces the
+    uninterrupted run (batches are seeded by iteration; model, optimizer and RNG restored).
 
     `max_minutes` stops cleanly after a checkpoint once the time is spent (for machines that
     limit a command's run time); run again with `resume=True` to continue.
@@ -249,13 +254,11 @@ def train(
     val_real_config = Config(**cfg.val_realistic_config)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     start, best, elapsed = 0, None, 0.0
-    ckpt = out / "checkpoint.pt"
-    if resume and ckpt.is_file():
-        state = torch.load(ckpt, map_location=device, weights_only=False)
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        start, best, elapsed = state["iteration"], state["best"], state["elapsed"]
-        torch.set_rng_state(state["torch_rng"].cpu())
+    if resume:
+        # safetensors + JSON: nothing in a run folder is unpickled (training/checkpoint.py)
+        restored = load_checkpoint(out, model, opt, device)
+        if restored is not None:
+            start, best, elapsed = restored["iteration"], restored["best"], restored["elapsed"]
     # Cosine decay computed from the iteration, so a resumed run may change the total.
     for group in opt.param_groups:
         group.setdefault("initial_lr", cfg.lr)
@@ -329,16 +332,8 @@ def train(
         done = it == cfg.iterations
         out_of_time = max_minutes is not None and (time.perf_counter() - t0) > 60 * max_minutes
         if it % cfg.checkpoint_every == 0 or done or out_of_time:
-            torch.save(
-                {
-                    "model": model.state_dict(),
-                    "optimizer": opt.state_dict(),
-                    "iteration": it,
-                    "best": best,
-                    "elapsed": time.perf_counter() - t0,
-                    "torch_rng": torch.get_rng_state(),
-                },
-                ckpt,
+            save_checkpoint(
+                out, model, opt, iteration=it, best=best, elapsed=time.perf_counter() - t0
             )
         if out_of_time and not done:
             break

@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from ..io.arrays import read_npz_members
+from ..io.files import read_checked
 from ..point_clouds import network_units, scaled_config
 from .config import VAL_SHAPES
 
@@ -113,18 +115,53 @@ class SceneBank:
 
     @classmethod
     def load(cls, path: str | Path) -> SceneBank:
-        with np.load(path) as z:
-            split = np.cumsum(z["counts"])[:-1]
-            pose_split = np.cumsum(z["instances"])[:-1]
-            return cls(
-                list(np.split(z["correspondences"], split)),
-                list(np.split(z["labels"], split)),
-                z["voxels"],
-                z["diameters"],
-                list(np.split(z["poses"], pose_split)),
-                [str(m) for m in z["models"]],
-                z["model_of"],
-            )
+        """A bank saved by :meth:`save`; read without pickle, every size checked.
+
+        Raises FileNotFoundError for a missing file, ValueError for anything else wrong."""
+        file, raw = read_checked(path, "scene bank")
+        try:
+            z, _ = read_npz_members(raw, None, kinds="biufU")
+            return cls._from_arrays(z)
+        except (ValueError, KeyError) as e:
+            raise ValueError(f"{file}: not a scene bank ({e})") from None
+
+    @classmethod
+    def _from_arrays(cls, z: dict[str, np.ndarray]) -> SceneBank:
+        counts, instances = z["counts"], z["instances"]
+        corr, labels, poses = z["correspondences"], z["labels"], z["poses"]
+        n = len(counts)
+        ok = (
+            counts.ndim == 1
+            and instances.shape == (n,)
+            and counts.dtype.kind in "iu"
+            and instances.dtype.kind in "iu"
+            and (counts >= 0).all()
+            and (instances >= 0).all()
+            and corr.ndim == 2
+            and corr.shape[1] == 6
+            and int(counts.sum()) == len(corr)
+            and labels.shape == (len(corr),)
+            and poses.ndim == 3
+            and poses.shape[1:] == (4, 4)
+            and int(instances.sum()) == len(poses)
+            and all(z[k].shape == (n,) for k in ("voxels", "diameters", "model_of"))
+            and z["models"].ndim == 1
+            and z["model_of"].dtype.kind in "iu"
+            and (n == 0 or (0 <= z["model_of"].min() and z["model_of"].max() < len(z["models"])))
+        )
+        if not ok:
+            raise ValueError("its arrays have inconsistent shapes")
+        split = np.cumsum(counts)[:-1]
+        pose_split = np.cumsum(instances)[:-1]
+        return cls(
+            list(np.split(corr, split)),
+            list(np.split(labels, split)),
+            z["voxels"],
+            z["diameters"],
+            list(np.split(poses, pose_split)),
+            [str(m) for m in z["models"]],
+            z["model_of"],
+        )
 
     def save(self, path: str | Path) -> None:
         np.savez_compressed(
