@@ -3,9 +3,9 @@
 A pose fitted to a few descriptor matches is off by a few voxels and degrees, and realistic
 scenes hold consistent groups of wrong matches that yield wrong poses. The clouds settle
 both: ICP pulls each pose onto its copy, and the share of the model the scan then explains
-(Open3D's ``fitness``) rejects poses over clutter and duplicates of one copy. On realistic
-validation scenes this raises MF by about 10 points (BENCHMARKS.md, "Refinement on the
-clouds").
+(Open3D's ``fitness``) rejects poses over clutter and duplicates of one copy. With the
+sensor's position, each pose is judged instead by what the sensor could see of the model at
+that pose, so that copies hidden in part by others are kept (``benchmarks/verification.py``).
 """
 
 from __future__ import annotations

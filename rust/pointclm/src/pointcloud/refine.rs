@@ -5,8 +5,11 @@
 //! anywhere within about a voxel of the true point), and realistic scenes hold consistent
 //! groups of wrong matches that yield wrong poses. The clouds settle both. ICP pulls a nearly
 //! right pose onto the copy, and the share of the model the scan then explains (Open3D's
-//! `fitness`) tells a copy from a pose floating over clutter. Poses that converge onto a copy
-//! that a better pose already explains are duplicates.
+//! `fitness`) tells a copy from a pose floating over clutter. But a copy hidden in part by its
+//! neighbours shows only part of itself, so with the sensor's position each pose is judged by
+//! what the sensor could see of the model at that pose ([`super::visibility`]): the share of
+//! it the scan explains, and the share where the sensor saw free space. Poses that converge
+//! onto a copy that a surer pose already explains are duplicates.
 
 use nalgebra::Matrix3;
 use rayon::prelude::*;
