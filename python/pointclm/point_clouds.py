@@ -70,14 +70,22 @@ class CloudInstance:
 
     ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of
     the (downsampled) model's points with a scan point within 1.5 voxels, and their RMS
-    distance. ``matches`` is the correspondence-stage instance the pose was refined from
-    (its ``inliers`` index ``PointCloudRegistration.correspondences``).
+    distance. ``confidence`` in [0, 1] says how sure the pose is (instances come surest
+    first): with a trusted viewpoint, the share of what the sensor could see of the copy at
+    that pose that the scan explains, times one minus the share where the sensor saw free
+    space (``visible_fitness``, ``contradiction``); without one, ``fitness``
+    (:func:`pointclm.refinement.refine_poses`). ``matches`` is the correspondence-stage
+    instance the pose was refined from (its ``inliers`` index
+    ``PointCloudRegistration.correspondences``).
     """
 
     transformation: np.ndarray
     fitness: float
     inlier_rmse: float
     matches: Instance
+    confidence: float = float("nan")
+    visible_fitness: float = float("nan")
+    contradiction: float = float("nan")
 
     @property
     def inliers(self) -> np.ndarray:
@@ -91,9 +99,10 @@ class CloudInstance:
 class PointCloudRegistration:
     """The result of :func:`register_point_clouds`.
 
-    ``instances`` are the refined and verified copies, best fitness first. ``result`` is the
-    correspondence stage's :class:`pointclm.RegistrationResult` over ``correspondences``
-    (rows: downsampled model point | downsampled scene point), before refinement.
+    ``instances`` are the refined and verified copies, surest first (``confidence``).
+    ``result`` is the correspondence stage's :class:`pointclm.RegistrationResult` over
+    ``correspondences`` (rows: downsampled model point | downsampled scene point), before
+    refinement.
     ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
     pruning, clustering, poses, refinement, total).
     """
@@ -158,14 +167,17 @@ def register_point_clouds(
         The learned embedding ("default", "paper", a weight file): PointCLM proper. The
         correspondences are rescaled to the network's training units (sigma_d) first.
     viewpoint : array_like
-        The scan's sensor position (scan normals point towards it); the model's normals point
-        away from its centroid.
+        The scan's sensor position: scan normals point towards it, and verification judges
+        each pose by what the sensor there could see of it. The model's normals point away
+        from its centroid.
     top_k, mutual, n_samples
         Correspondence building (paper appendix): keep the `top_k` most similar matches
         (mutual nearest neighbours only if `mutual`), then sample `n_samples` (None: all).
     refine : bool
-        Refine each pose by ICP on the clouds and keep those the scan supports
-        (:func:`pointclm.refinement.refine_poses` with its defaults). False: the
+        Refine each pose by ICP on the clouds and keep those the scan supports, judged by
+        what the sensor at `viewpoint` could see of each (:func:`pointclm.refinement.
+        refine_poses` with its defaults; when the scan does not look like one view from
+        `viewpoint`, by the share of the model explained). False: the
         correspondence stage's poses as they are (their fitness is still measured).
     num_threads : int, optional
         Threads (default: all cores).
@@ -208,17 +220,27 @@ def register_point_clouds(
     t3 = time.perf_counter()
     result = register(corr, features, cfg, seed, num_threads=num_threads)
     t4 = time.perf_counter()
+    # Without refinement every pose is kept, scored only, in the correspondence stage's
+    # order (most inliers first).
+    keep_all = {
+        "min_fitness": 0.0,
+        "min_relative_fitness": 0.0,
+        "min_visible_fitness": 0.0,
+        "max_contradiction": 1.0,
+        "min_seen": 0.0,
+        "max_shared": 1.0,
+    }
     refined = refine_poses(
         src_d.points,
         tgt_d.points,
         np.asarray(result.transformations).reshape(-1, 4, 4),
         voxel,
+        viewpoint=viewpoint,
         icp=refine,
-        **({} if refine else {"min_fitness": 0.0, "min_relative_fitness": 0.0, "max_shared": 1.0}),
+        **({} if refine else keep_all),
         num_threads=num_threads,
     )
     found = list(result.instances)
-    # Without refinement the poses keep the correspondence stage's order (most inliers first).
     order = np.arange(len(refined.origin)) if refine else np.argsort(refined.origin)
     instances = [
         CloudInstance(
@@ -226,6 +248,9 @@ def register_point_clouds(
             float(refined.fitness[i]),
             float(refined.inlier_rmse[i]),
             found[int(refined.origin[i])],
+            float(refined.confidence[i]),
+            float(refined.visible_fitness[i]),
+            float(refined.contradiction[i]),
         )
         for i in order
     ]

@@ -169,6 +169,7 @@ class RealisticScene:
     target_ids : (T,) int64, per scene point: instance k, -1 clutter, -2 floor.
     voxel_size, diameter : float, the voxel and the model's bounding-box diagonal.
     real_scan : (M,) bool, instances taken from a real range scan.
+    viewpoint : (3,) float64, the sensor's position (None for scenes built elsewhere).
     """
 
     correspondences: np.ndarray
@@ -183,6 +184,7 @@ class RealisticScene:
     model: str
     seed: int
     timings: dict[str, float] = field(default_factory=dict)
+    viewpoint: np.ndarray | None = None
 
     @property
     def n_instances(self) -> int:
@@ -509,6 +511,7 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
             **{f"source_{k}": v for k, v in source.timings.items()},
             "total": t_end - t_start,
         },
+        viewpoint=eye,
     )
 
 

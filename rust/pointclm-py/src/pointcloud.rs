@@ -183,13 +183,14 @@ pub fn nearest_neighbours<'py>(
 
 type RefinedArrays<'py> = (
     Bound<'py, PyArray3<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Bound<'py, PyArray1<f64>>,
+    [Bound<'py, PyArray1<f64>>; 6],
     Bound<'py, PyArray1<i64>>,
+    bool,
 );
 
 /// Rigid poses from (M, 4, 4) `T_target_source` matrices: the rotation block must be a
-/// rotation (orthonormal, det +1, to 1e-6) and the last row (0, 0, 0, 1).
+/// rotation up to rounding (`||R^T R - I||_F <= 1e-3`, det > 0; it is replaced by the nearest
+/// rotation) and the last row (0, 0, 0, 1) to 1e-6.
 fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
     let v = a.as_array();
     if v.shape()[1..] != [4, 4] {
@@ -206,15 +207,21 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
                     "transformations[{k}] has a non-finite value (NaN or inf)"
                 )));
             }
-            let rotation = Matrix3::from_fn(|i, j| m[(i, j)]);
-            let orthonormal = (rotation.transpose() * rotation - Matrix3::identity()).amax() < 1e-6;
-            let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)]] == [0.0, 0.0, 0.0, 1.0];
-            if !(orthonormal && rotation.determinant() > 0.0 && bottom) {
+            let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)] - 1.0];
+            if bottom.iter().any(|x| x.abs() > 1e-6) {
                 return Err(PyValueError::new_err(format!(
-                    "transformations[{k}] is not a rigid motion: its 3x3 block must be a \
-                     rotation and its last row (0, 0, 0, 1)"
+                    "transformations[{k}] is not a rigid motion: its last row must be (0, 0, 0, 1)"
                 )));
             }
+            let rotation = pointcloud::nearest_rotation(&Matrix3::from_fn(|i, j| m[(i, j)]))
+                .map_err(|deviation| {
+                    PyValueError::new_err(format!(
+                        "transformations[{k}] is not a rigid motion: its 3x3 block must be a \
+                         rotation (||R^T R - I|| = {deviation:.2e}, at most {:.0e} is taken for \
+                         rounding; determinant must be positive)",
+                        pointcloud::MAX_ROTATION_DEVIATION
+                    ))
+                })?;
             Ok(RigidTransform {
                 rotation,
                 translation: Vector3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
@@ -224,11 +231,13 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
 }
 
 /// ICP refinement of each pose against the target cloud (the schedule of
-/// `RefineParams::for_voxel`; none if `icp` is false), then verification: returns the
-/// accepted poses (M', 4, 4), their fitness (share of source points explained), inlier RMSE,
-/// and the index of the input pose each came from; best fitness first.
+/// `RefineParams::for_voxel`; none if `icp` is false), then verification, by what the sensor
+/// at `viewpoint` could see of each pose when given (and the scan is one view from it), else
+/// by the share of the model explained. Returns the accepted poses (M', 4, 4), surest first;
+/// per pose [confidence, fitness, visible fitness, contradiction, seen share, inlier RMSE]; the
+/// index of the input pose each came from; and whether the viewpoint judged them.
 #[pyfunction]
-#[pyo3(signature = (source, target, transformations, voxel_size, icp, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
+#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
@@ -237,6 +246,10 @@ pub fn refine_poses<'py>(
     transformations: PyReadonlyArray3<'py, f64>,
     voxel_size: f64,
     icp: bool,
+    viewpoint: Option<[f64; 3]>,
+    min_visible_fitness: f64,
+    max_contradiction: f64,
+    min_seen: f64,
     min_fitness: f64,
     min_relative_fitness: f64,
     max_shared: f64,
@@ -248,6 +261,9 @@ pub fn refine_poses<'py>(
     let defaults = RefineParams::for_voxel(voxel_size);
     let params = RefineParams {
         radii: if icp { defaults.radii.clone() } else { vec![] },
+        min_visible_fitness,
+        max_contradiction,
+        min_seen,
         min_fitness,
         min_relative_fitness,
         max_shared,
@@ -256,20 +272,27 @@ pub fn refine_poses<'py>(
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, move || {
         on_pool(threads, || {
-            pointcloud::refine_poses(&s, &t, &poses, &params)
+            pointcloud::refine_poses(&s, &t, &poses, viewpoint, &params)
         })
     })?;
-    let mats = Array3::from_shape_fn((out.len(), 4, 4), |(k, i, j)| out[k].pose.to_matrix()[i][j]);
+    let poses = &out.poses;
+    let mats = Array3::from_shape_fn((poses.len(), 4, 4), |(k, i, j)| {
+        poses[k].pose.to_matrix()[i][j]
+    });
+    let column = |f: fn(&pointcloud::RefinedPose) -> f64| {
+        poses.iter().map(f).collect::<Vec<_>>().into_pyarray(py)
+    };
     Ok((
         mats.into_pyarray(py),
-        out.iter()
-            .map(|r| r.fitness)
-            .collect::<Vec<_>>()
-            .into_pyarray(py),
-        out.iter()
-            .map(|r| r.inlier_rmse)
-            .collect::<Vec<_>>()
-            .into_pyarray(py),
-        indices(py, &out.iter().map(|r| r.origin).collect::<Vec<_>>()),
+        [
+            column(|r| r.confidence),
+            column(|r| r.fitness),
+            column(|r| r.visible_fitness),
+            column(|r| r.contradiction),
+            column(|r| r.seen),
+            column(|r| r.inlier_rmse),
+        ],
+        indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
+        out.by_visibility,
     ))
 }

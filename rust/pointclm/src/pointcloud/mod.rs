@@ -12,12 +12,15 @@ pub mod fpfh;
 pub mod normals;
 pub mod refine;
 pub mod search;
+pub mod visibility;
 pub mod voxel;
 
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{estimate_normals, Orientation};
-pub use refine::{refine_poses, RefineParams, RefinedPose};
+pub use refine::{
+    nearest_rotation, refine_poses, RefineParams, Refined, RefinedPose, MAX_ROTATION_DEVIATION,
+};
 pub use search::{Neighbourhoods, PointIndex};
 pub use voxel::voxel_downsample;
 

@@ -5,11 +5,16 @@
 //! anywhere within about a voxel of the true point), and realistic scenes hold consistent
 //! groups of wrong matches that yield wrong poses. The clouds settle both. ICP pulls a nearly
 //! right pose onto the copy, and the share of the model the scan then explains (Open3D's
-//! `fitness`) tells a copy from a pose floating over clutter. Poses that converge onto a copy
-//! that a better pose already explains are duplicates.
+//! `fitness`) tells a copy from a pose floating over clutter. But a copy hidden in part by its
+//! neighbours shows only part of itself, so with the sensor's position each pose is judged by
+//! what the sensor could see of the model at that pose ([`super::visibility`]): the share of
+//! it the scan explains, and the share where the sensor saw free space. Poses that converge
+//! onto a copy that a surer pose already explains are duplicates.
 
+use nalgebra::Matrix3;
 use rayon::prelude::*;
 
+use super::visibility::{DepthMap, Sight};
 use super::{check_points, check_positive, PointIndex};
 use crate::correspondences::Correspondences;
 use crate::error::{Error, Result};
@@ -26,25 +31,55 @@ pub struct RefineParams {
     pub iterations: usize,
     /// A model point is explained when a scan point lies within this distance.
     pub fit_radius: f64,
-    /// Poses explaining a smaller share of the model are rejected.
+    /// With a viewpoint: poses explaining a smaller share of what the sensor could see of
+    /// the model at that pose are rejected.
+    pub min_visible_fitness: f64,
+    /// With a viewpoint: poses putting more than this share of their visible points where
+    /// the sensor saw free space are rejected.
+    pub max_contradiction: f64,
+    /// With a viewpoint: poses of which the sensor could see less than this share of the
+    /// model are rejected (too little to judge).
+    pub min_seen: f64,
+    /// Width of a depth-map cell at the scan's median range.
+    pub depth_cell: f64,
+    /// Ranges closer than this along a ray are one surface.
+    pub depth_tolerance: f64,
+    /// The viewpoint is trusted when at most `max_hidden_scan` of the scan lies more than
+    /// `trust_tolerance` behind another scan point in a cell `trust_cell` wide (a single view
+    /// has almost none: slanted surfaces and edges); else the rules without a viewpoint.
+    pub trust_cell: f64,
+    pub trust_tolerance: f64,
+    pub max_hidden_scan: f64,
+    /// Without a viewpoint: poses explaining a smaller share of the model are rejected.
     pub min_fitness: f64,
-    /// Poses explaining less than this share of the best pose's fitness are rejected: copies
-    /// of one object seen by one sensor are seen alike, whatever the object.
+    /// Without a viewpoint: poses explaining less than this share of the best pose's
+    /// fitness are rejected (copies seen alike by one sensor, which heaps break).
     pub min_relative_fitness: f64,
     /// A pose is a duplicate when more than this share of the scan points it explains are
-    /// already explained by a better pose.
+    /// already explained by a surer pose.
     pub max_shared: f64,
 }
 
 impl RefineParams {
     /// The defaults for clouds downsampled at `voxel`: ICP at 3, 2 and 1.5 voxels, fitness
     /// within 1.5 voxels (a downsampled point lies within about half a voxel of the surface,
-    /// on each side, plus noise).
+    /// on each side, plus noise); depth cells of 1.5 voxels (a downsampled surface has a
+    /// point about every voxel, so cells on a surface are rarely empty) and one surface
+    /// within 3 voxels along a ray (noise plus the depth spread of a slanted surface within
+    /// a cell).
     pub fn for_voxel(voxel: f64) -> Self {
         Self {
             radii: vec![3.0 * voxel, 2.0 * voxel, 1.5 * voxel],
             iterations: 10,
             fit_radius: 1.5 * voxel,
+            min_visible_fitness: 0.85,
+            max_contradiction: 0.05,
+            min_seen: 0.05,
+            depth_cell: 1.5 * voxel,
+            depth_tolerance: 3.0 * voxel,
+            trust_cell: voxel,
+            trust_tolerance: 5.0 * voxel,
+            max_hidden_scan: 0.12,
             min_fitness: 0.3,
             min_relative_fitness: 0.8,
             max_shared: 0.5,
@@ -56,7 +91,15 @@ impl RefineParams {
             check_positive("radii", r)?;
         }
         check_positive("fit_radius", self.fit_radius)?;
+        check_positive("depth_cell", self.depth_cell)?;
+        check_positive("depth_tolerance", self.depth_tolerance)?;
+        check_positive("trust_cell", self.trust_cell)?;
+        check_positive("trust_tolerance", self.trust_tolerance)?;
         for (name, v) in [
+            ("min_visible_fitness", self.min_visible_fitness),
+            ("max_contradiction", self.max_contradiction),
+            ("min_seen", self.min_seen),
+            ("max_hidden_scan", self.max_hidden_scan),
             ("min_fitness", self.min_fitness),
             ("min_relative_fitness", self.min_relative_fitness),
             ("max_shared", self.max_shared),
@@ -78,23 +121,50 @@ impl RefineParams {
 pub struct RefinedPose {
     /// `T_target_source` after ICP.
     pub pose: RigidTransform,
+    /// How sure the pose is, in [0, 1]: `visible_fitness * (1 - contradiction)` with a
+    /// viewpoint, `fitness` without.
+    pub confidence: f64,
     /// Share of the model's points with a scan point within `fit_radius`.
     pub fitness: f64,
-    /// RMS distance from those model points to their nearest scan points.
+    /// Share of what the sensor could see of the model at this pose that the scan explains
+    /// (NaN without a trusted viewpoint).
+    pub visible_fitness: f64,
+    /// Share of what the sensor could see of the model at this pose that lies where the
+    /// sensor saw free space (NaN without a trusted viewpoint).
+    pub contradiction: f64,
+    /// Share of the model's points the sensor could see at this pose (NaN without a trusted
+    /// viewpoint).
+    pub seen: f64,
+    /// RMS distance from the explained model points to their nearest scan points.
     pub inlier_rmse: f64,
     /// Index of the input pose this one came from.
     pub origin: usize,
 }
 
+/// The accepted poses, surest first, and which rules judged them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refined {
+    pub poses: Vec<RefinedPose>,
+    /// True when the poses were judged by what the sensor could see from the viewpoint;
+    /// false when no viewpoint was given or the scan is not a single view from it.
+    pub by_visibility: bool,
+}
+
 /// Refines every pose by ICP against `target` (in parallel on the current rayon pool), then
-/// keeps the poses that pass [`RefineParams`]' rules, best fitness first (ties: input order).
-/// The result does not depend on the number of threads.
+/// keeps the poses that pass [`RefineParams`]' rules, surest first (ties: input order).
+///
+/// With `viewpoint` (the sensor's position, when `target` is one view from it) each pose is
+/// judged by what the sensor could see of the model at that pose; without it, or when the
+/// scan does not look like one view from there, by the share of the model explained,
+/// absolute and relative to the best pose. The result does not depend on the number of
+/// threads.
 pub fn refine_poses(
     source: &[[f64; 3]],
     target: &[[f64; 3]],
     poses: &[RigidTransform],
+    viewpoint: Option<[f64; 3]>,
     params: &RefineParams,
-) -> Result<Vec<RefinedPose>> {
+) -> Result<Refined> {
     check_points(source, "source points", 3)?;
     check_points(target, "target points", 3)?;
     params.check()?;
@@ -103,85 +173,187 @@ pub fn refine_poses(
     }) {
         return Err(Error::NonFinite { what: "poses", row });
     }
+    if let Some(v) = viewpoint {
+        if !v.iter().all(|c| c.is_finite()) {
+            return Err(Error::NonFinite {
+                what: "viewpoint",
+                row: 0,
+            });
+        }
+    }
     let index = PointIndex::new(target)?;
-    let fitted: Vec<(RigidTransform, Explained)> = poses
+    let trusted = viewpoint.filter(|&v| {
+        DepthMap::new(target, v, params.trust_cell, params.trust_tolerance).hidden_share(target)
+            <= params.max_hidden_scan
+    });
+    let depth =
+        trusted.map(|v| DepthMap::new(target, v, params.depth_cell, params.depth_tolerance));
+    let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
         .map(|pose| {
             let refined = icp(source, target, &index, *pose, params);
-            (
-                refined,
-                explained(source, &index, &refined, params.fit_radius),
-            )
+            let judged = judge(source, &index, depth.as_ref(), &refined, params.fit_radius);
+            (refined, judged)
         })
         .collect();
 
-    let best = fitted.iter().map(|(_, e)| e.fitness).fold(0.0, f64::max);
-    let floor = params.min_fitness.max(params.min_relative_fitness * best);
+    let floor = match depth {
+        Some(_) => 0.0,
+        None => {
+            let best = fitted.iter().map(|(_, j)| j.fitness).fold(0.0, f64::max);
+            params.min_fitness.max(params.min_relative_fitness * best)
+        }
+    };
+    let passes = |j: &Judged| match depth {
+        Some(_) => {
+            j.seen >= params.min_seen
+                && j.visible_fitness >= params.min_visible_fitness
+                && j.contradiction <= params.max_contradiction
+        }
+        None => j.fitness >= floor,
+    };
     let mut order: Vec<usize> = (0..fitted.len()).collect();
     order.sort_by(|&a, &b| {
         fitted[b]
             .1
-            .fitness
-            .total_cmp(&fitted[a].1.fitness)
+            .confidence
+            .total_cmp(&fitted[a].1.confidence)
             .then(a.cmp(&b))
     });
     let mut claimed = vec![false; target.len()];
     let mut kept = Vec::new();
     for k in order {
-        let (pose, e) = &fitted[k];
-        if e.fitness < floor || e.targets.is_empty() {
+        let (pose, j) = &fitted[k];
+        if !passes(j) || j.targets.is_empty() {
             continue;
         }
-        let shared = e.targets.iter().filter(|&&j| claimed[j]).count();
-        if shared as f64 > params.max_shared * e.targets.len() as f64 {
+        let shared = j.targets.iter().filter(|&&t| claimed[t]).count();
+        if shared as f64 > params.max_shared * j.targets.len() as f64 {
             continue;
         }
-        for &j in &e.targets {
-            claimed[j] = true;
+        for &t in &j.targets {
+            claimed[t] = true;
         }
         kept.push(RefinedPose {
             pose: *pose,
-            fitness: e.fitness,
-            inlier_rmse: e.rmse,
+            confidence: j.confidence,
+            fitness: j.fitness,
+            visible_fitness: j.visible_fitness,
+            contradiction: j.contradiction,
+            seen: j.seen,
+            inlier_rmse: j.rmse,
             origin: k,
         });
     }
-    Ok(kept)
+    Ok(Refined {
+        poses: kept,
+        by_visibility: depth.is_some(),
+    })
 }
 
-/// What a pose explains: the share of model points near the scan, their RMS distance, and
-/// the scan points they land on (sorted, distinct).
-struct Explained {
+/// How far from a rotation a 3x3 block may be (`||R^T R - I||_F`) and still be taken for
+/// one: poses written with 6 to 8 significant digits, or composed from several such, are
+/// off by 1e-6 to 1e-4; 1e-3 moves no point of a unit-sized object by more than 1e-3.
+pub const MAX_ROTATION_DEVIATION: f64 = 1e-3;
+
+/// The rotation nearest to `m` (its polar factor, from the SVD) when `m` is a rotation up to
+/// rounding: `||m^T m - I||_F <= MAX_ROTATION_DEVIATION` and `det m > 0`. Otherwise the
+/// deviation found, for the caller's message.
+pub fn nearest_rotation(m: &Matrix3<f64>) -> std::result::Result<Matrix3<f64>, f64> {
+    let deviation = (m.transpose() * m - Matrix3::identity()).norm();
+    if !(deviation <= MAX_ROTATION_DEVIATION && m.determinant() > 0.0) {
+        return Err(deviation);
+    }
+    let svd = m.svd(true, true);
+    match (svd.u, svd.v_t) {
+        (Some(u), Some(v_t)) => Ok(u * v_t),
+        _ => Err(deviation),
+    }
+}
+
+/// What a pose explains and what the sensor could see of it.
+struct Judged {
     fitness: f64,
+    visible_fitness: f64,
+    contradiction: f64,
+    seen: f64,
+    confidence: f64,
     rmse: f64,
+    /// The scan points the model lands on (sorted, distinct).
     targets: Vec<usize>,
 }
 
-fn explained(
+fn judge(
     source: &[[f64; 3]],
     index: &PointIndex,
+    depth: Option<&DepthMap>,
     pose: &RigidTransform,
     radius: f64,
-) -> Explained {
+) -> Judged {
     let r_sq = radius * radius;
+    let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
     let (mut sum, mut targets) = (0.0, Vec::new());
-    for p in source {
-        let (j, d_sq) = index.nearest(&pose.apply(*p));
-        if d_sq < r_sq {
-            sum += d_sq;
-            targets.push(j);
-        }
-    }
+    let explained: Vec<bool> = posed
+        .iter()
+        .map(|q| {
+            let (j, d_sq) = index.nearest(q);
+            let hit = d_sq < r_sq;
+            if hit {
+                sum += d_sq;
+                targets.push(j);
+            }
+            hit
+        })
+        .collect();
     let hits = targets.len();
     targets.sort_unstable();
     targets.dedup();
-    Explained {
-        fitness: hits as f64 / source.len() as f64,
-        rmse: if hits > 0 {
-            (sum / hits as f64).sqrt()
+    let n = source.len() as f64;
+    let fitness = hits as f64 / n;
+    let rmse = if hits > 0 {
+        (sum / hits as f64).sqrt()
+    } else {
+        0.0
+    };
+    let Some(depth) = depth else {
+        return Judged {
+            fitness,
+            visible_fitness: f64::NAN,
+            contradiction: f64::NAN,
+            seen: f64::NAN,
+            confidence: fitness,
+            rmse,
+            targets,
+        };
+    };
+    // A point the scan explains was evidently seen, whatever its depth cell says (cells
+    // straddle occlusion edges); the others count by the sensor's verdict.
+    let (mut seen, mut contradicted) = (hits, 0usize);
+    for (sight, hit) in depth.judge(&posed).into_iter().zip(&explained) {
+        match (sight, hit) {
+            (_, true) | (Sight::Hidden, _) => {}
+            (Sight::Seen, false) => seen += 1,
+            (Sight::Contradicted, false) => {
+                seen += 1;
+                contradicted += 1;
+            }
+        }
+    }
+    let share = |k: usize| {
+        if seen > 0 {
+            k as f64 / seen as f64
         } else {
             0.0
-        },
+        }
+    };
+    let (visible_fitness, contradiction) = (share(hits), share(contradicted));
+    Judged {
+        fitness,
+        visible_fitness,
+        contradiction,
+        seen: seen as f64 / n,
+        confidence: visible_fitness * (1.0 - contradiction),
+        rmse,
         targets,
     }
 }

@@ -62,7 +62,9 @@ fn icp_pulls_a_nearly_right_pose_onto_the_copy() {
         translation: truth.translation + Vector3::new(0.12, -0.08, 0.05),
         ..motion([0.3, 1.0, 0.2], 44.0, [0.0; 3])
     };
-    let out = refine_poses(&model, &scene, &[start], &params()).unwrap();
+    let out = refine_poses(&model, &scene, &[start], None, &params())
+        .unwrap()
+        .poses;
     assert_eq!(out.len(), 1);
     let got = &out[0];
     assert!(angle_deg(&got.pose.rotation, &truth.rotation) < 0.2);
@@ -85,7 +87,9 @@ fn poses_over_empty_space_and_duplicates_are_rejected() {
         translation: a.translation + Vector3::new(0.05, 0.0, 0.0),
         ..a
     };
-    let out = refine_poses(&model, &scene, &[far, a, b, near_a], &params()).unwrap();
+    let out = refine_poses(&model, &scene, &[far, a, b, near_a], None, &params())
+        .unwrap()
+        .poses;
     let origins: Vec<usize> = out.iter().map(|r| r.origin).collect();
     // The far pose explains nothing; the nudged copy of `a` converges onto `a` and goes as a
     // duplicate (equal fitness: input order wins).
@@ -107,7 +111,9 @@ fn relative_fitness_drops_a_pose_that_explains_much_less_than_the_best() {
         min_relative_fitness: 0.0,
         ..RefineParams::for_voxel(0.1)
     };
-    let both = refine_poses(&model, &scene, &[b, a], &loose).unwrap();
+    let both = refine_poses(&model, &scene, &[b, a], None, &loose)
+        .unwrap()
+        .poses;
     assert_eq!(
         both.iter().map(|r| r.origin).collect::<Vec<_>>(),
         vec![1, 0]
@@ -117,7 +123,9 @@ fn relative_fitness_drops_a_pose_that_explains_much_less_than_the_best() {
         min_relative_fitness: 0.8,
         ..loose
     };
-    let kept = refine_poses(&model, &scene, &[b, a], &strict).unwrap();
+    let kept = refine_poses(&model, &scene, &[b, a], None, &strict)
+        .unwrap()
+        .poses;
     assert_eq!(kept.len(), 1);
     assert_eq!(kept[0].origin, 1);
 }
@@ -126,7 +134,7 @@ fn relative_fitness_drops_a_pose_that_explains_much_less_than_the_best() {
 fn same_result_on_one_thread_and_many() {
     let model = blob(16);
     let truth = motion([1.0, 1.0, 0.0], 25.0, [1.0, 2.0, 3.0]);
-    let scene = moved(&model, &truth);
+    let scene = sensed(&moved(&blob(60), &truth), 0.06);
     let starts: Vec<RigidTransform> = (0..8)
         .map(|k| RigidTransform {
             translation: truth.translation + Vector3::new(0.02 * k as f64, 0.0, 0.0),
@@ -138,9 +146,13 @@ fn same_result_on_one_thread_and_many() {
             .num_threads(threads)
             .build()
             .unwrap()
-            .install(|| refine_poses(&model, &scene, &starts, &params()).unwrap())
+            .install(|| {
+                refine_poses(&model, &scene, &starts, Some([0.0, 0.0, -50.0]), &params()).unwrap()
+            })
     };
-    assert_eq!(run(1), run(4));
+    let one = run(1);
+    assert!(one.by_visibility && !one.poses.is_empty());
+    assert_eq!(one, run(4));
 }
 
 #[test]
@@ -150,11 +162,11 @@ fn bad_inputs_are_typed_errors() {
     let mut nan = model.clone();
     nan[3][1] = f64::NAN;
     assert!(matches!(
-        refine_poses(&nan, &model, &[ok], &params()),
+        refine_poses(&nan, &model, &[ok], None, &params()),
         Err(Error::NonFinite { row: 3, .. })
     ));
     assert!(matches!(
-        refine_poses(&model, &model[..2], &[ok], &params()),
+        refine_poses(&model, &model[..2], &[ok], None, &params()),
         Err(Error::TooFewPoints { .. })
     ));
     let bad_pose = RigidTransform {
@@ -162,7 +174,7 @@ fn bad_inputs_are_typed_errors() {
         ..ok
     };
     assert!(matches!(
-        refine_poses(&model, &model, &[ok, bad_pose], &params()),
+        refine_poses(&model, &model, &[ok, bad_pose], None, &params()),
         Err(Error::NonFinite { row: 1, .. })
     ));
     for bad in [
@@ -178,13 +190,164 @@ fn bad_inputs_are_typed_errors() {
             radii: vec![0.3, f64::NAN],
             ..params()
         },
+        RefineParams {
+            max_contradiction: -0.1,
+            ..params()
+        },
+        RefineParams {
+            depth_tolerance: 0.0,
+            ..params()
+        },
     ] {
         assert!(matches!(
-            refine_poses(&model, &model, &[ok], &bad),
+            refine_poses(&model, &model, &[ok], None, &bad),
             Err(Error::InvalidParameter { .. })
         ));
     }
-    assert!(refine_poses(&model, &model, &[], &params())
+    assert!(matches!(
+        refine_poses(&model, &model, &[ok], Some([0.0, f64::NAN, 0.0]), &params()),
+        Err(Error::NonFinite { .. })
+    ));
+    assert!(refine_poses(&model, &model, &[], None, &params())
         .unwrap()
+        .poses
         .is_empty());
+}
+
+/// The sensor: far along -z, looking at +z (rays nearly parallel, so a test can tell what it
+/// sees by the sign of a normal's z and by x/y alone).
+const EYE: [f64; 3] = [0.0, 0.0, -200.0];
+
+/// What the sensor at [`EYE`] sees of `surfaces`: a z-buffer along z with square pixels of
+/// `pixel` (the sensor is far enough for its rays to be parallel), keeping the points
+/// within a pixel of the nearest in theirs.
+fn sensed(surfaces: &[[f64; 3]], pixel: f64) -> Vec<[f64; 3]> {
+    let key = |p: &[f64; 3]| ((p[0] / pixel).floor() as i64, (p[1] / pixel).floor() as i64);
+    let mut nearest = std::collections::HashMap::new();
+    for p in surfaces {
+        let z = nearest.entry(key(p)).or_insert(f64::INFINITY);
+        *z = p[2].min(*z);
+    }
+    surfaces
+        .iter()
+        .filter(|p| p[2] <= nearest[&key(p)] + pixel)
+        .copied()
+        .collect()
+}
+
+/// A plane `z = z0` sampled every `step` over the x and y ranges.
+fn wall(x: (f64, f64), y: (f64, f64), z0: f64, step: f64) -> Vec<[f64; 3]> {
+    let (nx, ny) = (((x.1 - x.0) / step) as usize, ((y.1 - y.0) / step) as usize);
+    (0..=nx)
+        .flat_map(|i| (0..=ny).map(move |j| [x.0 + i as f64 * step, y.0 + j as f64 * step, z0]))
+        .collect()
+}
+
+#[test]
+fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
+    let model = blob(24);
+    let (a, b) = (
+        motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]),
+        motion([1.0, 0.0, 0.0], 50.0, [4.0, 0.0, 0.0]),
+    );
+    // A board in front of copy b hides all of it but a strip on its right.
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(moved(&blob(60), &b));
+    surfaces.extend(wall((2.5, 4.6), (-2.0, 2.0), -3.0, 0.05));
+    let scene = sensed(&surfaces, 0.06);
+    let seen = refine_poses(
+        &model,
+        &scene,
+        &[a, b],
+        Some(EYE),
+        &RefineParams::for_voxel(0.1),
+    )
+    .unwrap();
+    assert!(seen.by_visibility);
+    assert_eq!(
+        seen.poses.iter().map(|r| r.origin).collect::<Vec<_>>(),
+        vec![0, 1]
+    );
+    let hidden = &seen.poses[1];
+    assert!(hidden.fitness < 0.8 * seen.poses[0].fitness);
+    assert!(hidden.seen < 0.6 * seen.poses[0].seen);
+    assert!(hidden.visible_fitness > 0.8 && hidden.contradiction < 0.05);
+    // Judged by the share of the best copy's fitness, the hidden copy goes.
+    let blind = refine_poses(&model, &scene, &[a, b], None, &RefineParams::for_voxel(0.1)).unwrap();
+    assert!(!blind.by_visibility);
+    assert_eq!(
+        blind.poses.iter().map(|r| r.origin).collect::<Vec<_>>(),
+        vec![0]
+    );
+}
+
+#[test]
+fn a_pose_where_the_sensor_saw_free_space_is_rejected() {
+    let model = blob(24);
+    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
+    // Copy a stands before a back wall; the wrong pose floats in front of the wall beside
+    // a, where the sensor saw the wall through empty space. It explains the wall where
+    // it touches it, which the model share alone would accept at a low floor.
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(wall((-3.0, 8.0), (-3.0, 3.0), 1.6, 0.05));
+    let scene = sensed(&surfaces, 0.06);
+    let wrong = motion([0.0, 1.0, 0.0], 0.0, [4.0, 0.0, 0.7]);
+    let loose = RefineParams {
+        radii: vec![],
+        min_fitness: 0.0,
+        min_relative_fitness: 0.0,
+        ..RefineParams::for_voxel(0.1)
+    };
+    let out = refine_poses(&model, &scene, &[wrong, a], Some(EYE), &loose).unwrap();
+    assert!(out.by_visibility);
+    assert_eq!(
+        out.poses.iter().map(|r| r.origin).collect::<Vec<_>>(),
+        vec![1]
+    );
+    let all = RefineParams {
+        min_visible_fitness: 0.0,
+        max_contradiction: 1.0,
+        min_seen: 0.0,
+        ..loose
+    };
+    let scored = refine_poses(&model, &scene, &[wrong, a], Some(EYE), &all).unwrap();
+    assert_eq!(scored.poses.len(), 2, "{scored:?}");
+    let wrong_stats = scored.poses.iter().find(|r| r.origin == 0).unwrap();
+    assert!(wrong_stats.contradiction > 0.5, "{wrong_stats:?}");
+    // Surest first.
+    assert!(scored
+        .poses
+        .windows(2)
+        .all(|w| w[0].confidence >= w[1].confidence));
+}
+
+#[test]
+fn a_viewpoint_the_scan_was_not_taken_from_falls_back_to_the_model_share() {
+    let model = blob(24);
+    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(wall((-1.5, 1.5), (-2.0, 2.0), 2.0, 0.05));
+    let scene = sensed(&surfaces, 0.06);
+    let p = RefineParams::for_voxel(0.1);
+    let right = refine_poses(&model, &scene, &[a], Some(EYE), &p).unwrap();
+    // From the side, the wall is seen edge-on: its points hide each other.
+    let behind = refine_poses(&model, &scene, &[a], Some([200.0, 0.0, 0.0]), &p).unwrap();
+    assert!(
+        right.by_visibility && !behind.by_visibility,
+        "{right:?} {behind:?}"
+    );
+    assert!(behind.poses[0].visible_fitness.is_nan());
+    assert_eq!(behind.poses[0].confidence, behind.poses[0].fitness);
+}
+
+#[test]
+fn near_rotations_are_orthonormalised_and_others_refused() {
+    let r = motion([0.2, 1.0, -0.4], 33.0, [0.0; 3]).rotation;
+    let rounded = r.map(|v| (v * 1e6).round() / 1e6) + Matrix3::from_element(2e-5);
+    let fixed = nearest_rotation(&rounded).unwrap();
+    assert!((fixed.transpose() * fixed - Matrix3::identity()).norm() < 1e-12);
+    assert!((fixed - r).amax() < 1e-4 && fixed.determinant() > 0.0);
+    assert!(nearest_rotation(&(r * 1.01)).is_err());
+    let mirror = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0));
+    assert!(nearest_rotation(&(r * mirror)).is_err());
 }

@@ -1,0 +1,129 @@
+//! What a range sensor at a known position could see: the scan as a depth map around the
+//! sensor, and the verdict on each point of a posed model (hidden, seen, or contradicted by
+//! free space).
+//!
+//! Why: a copy of an object partly hidden by its neighbours shows only part of itself, so
+//! the share of the model the scan explains says little about whether a pose is right. What
+//! the sensor could see of the copy at that pose does: the posed model's points that face
+//! the sensor and that no scan point hides. A right pose has them on the scan; a wrong one
+//! puts surface where the sensor looked through to something behind (free space).
+//!
+//! The map is keyed by ray direction: the unit vector from the sensor, cut into cubes of side
+//! `cell` radians. Unlike a pinhole frame or spherical angles this has no pole and no field
+//! of view to choose. Other copies found in the scene need no special care: the scan holds
+//! them, so they hide what lies behind them like any surface.
+
+use std::collections::HashMap;
+
+/// A direction cell and the range along it.
+type Ray = ([i32; 3], f64);
+
+/// The nearest scan range per ray cell around a sensor.
+pub struct DepthMap {
+    viewpoint: [f64; 3],
+    /// Cell side, in radians (as a length on the unit sphere).
+    cell: f64,
+    /// Ranges closer than this count as the same surface.
+    tolerance: f64,
+    nearest: HashMap<[i32; 3], f64>,
+}
+
+/// What the sensor says about one model point at a pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sight {
+    /// Behind the model's own surface, or behind a scan point: the sensor cannot see it.
+    Hidden,
+    /// On the sensor's first surface along its ray (or on a ray with no return).
+    Seen,
+    /// The sensor saw past it: its first return lies clearly behind the point.
+    Contradicted,
+}
+
+impl DepthMap {
+    /// The map of `scan` seen from `viewpoint`. Cells are `cell_length` wide at the scan's
+    /// median range (so about one scan point per cell when `cell_length` is a little over the
+    /// sampling step); ranges within `tolerance` of each other are one surface.
+    pub fn new(scan: &[[f64; 3]], viewpoint: [f64; 3], cell_length: f64, tolerance: f64) -> Self {
+        let mut ranges: Vec<f64> = scan.iter().map(|p| dist(p, &viewpoint)).collect();
+        let mid = ranges.len() / 2;
+        let median = if ranges.is_empty() {
+            1.0
+        } else {
+            *ranges.select_nth_unstable_by(mid, f64::total_cmp).1
+        };
+        let mut map = Self {
+            viewpoint,
+            cell: cell_length / median.max(f64::MIN_POSITIVE),
+            tolerance,
+            nearest: HashMap::new(),
+        };
+        map.nearest = map.nearest_ranges(scan);
+        map
+    }
+
+    fn ray(&self, p: &[f64; 3]) -> Option<Ray> {
+        let d = [
+            p[0] - self.viewpoint[0],
+            p[1] - self.viewpoint[1],
+            p[2] - self.viewpoint[2],
+        ];
+        let range = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        if !(range > 0.0 && range.is_finite()) {
+            return None;
+        }
+        let key = d.map(|c| (c / range / self.cell).floor() as i32);
+        Some((key, range))
+    }
+
+    fn nearest_ranges(&self, points: &[[f64; 3]]) -> HashMap<[i32; 3], f64> {
+        let mut out: HashMap<[i32; 3], f64> = HashMap::with_capacity(points.len());
+        for (key, range) in points.iter().filter_map(|p| self.ray(p)) {
+            out.entry(key)
+                .and_modify(|r| *r = r.min(range))
+                .or_insert(range);
+        }
+        out
+    }
+
+    /// The share of scan points that lie clearly behind another scan point on their ray. A
+    /// single view taken from this viewpoint has almost none (only grazing surfaces and
+    /// edges); a scan merged from several views, or a wrong viewpoint, has many.
+    pub fn hidden_share(&self, scan: &[[f64; 3]]) -> f64 {
+        if scan.is_empty() {
+            return 0.0;
+        }
+        let hidden = scan
+            .iter()
+            .filter_map(|p| self.ray(p))
+            .filter(|(key, range)| self.nearest[key] < range - self.tolerance)
+            .count();
+        hidden as f64 / scan.len() as f64
+    }
+
+    /// The verdict on each point of `posed` (a model already moved by a pose): hidden by the
+    /// model itself (a nearer point of it on the same ray) or by the scan; else contradicted
+    /// when the scan's first return on that ray lies clearly behind it; else seen.
+    pub fn judge(&self, posed: &[[f64; 3]]) -> Vec<Sight> {
+        let own = self.nearest_ranges(posed);
+        posed
+            .iter()
+            .map(|p| {
+                let Some((key, range)) = self.ray(p) else {
+                    return Sight::Hidden;
+                };
+                if own[&key] < range - self.tolerance {
+                    return Sight::Hidden;
+                }
+                match self.nearest.get(&key) {
+                    Some(&scan) if scan < range - self.tolerance => Sight::Hidden,
+                    Some(&scan) if scan > range + self.tolerance => Sight::Contradicted,
+                    _ => Sight::Seen,
+                }
+            })
+            .collect()
+    }
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
