@@ -153,6 +153,7 @@ def match_features(
     n_samples: int | None = ...,
     seed: int = 0,
     num_threads: int | None = None,
+    k: int = 1,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
 def nearest_neighbours(
     reference: npt.NDArray[np.float64],

@@ -144,6 +144,8 @@ def register_point_clouds(
     top_k: int = 10_000,
     mutual: bool = True,
     n_samples: int | None = 1000,
+    k: int = 1,
+    normals: bool = False,
     refine: bool = True,
     num_threads: int | None = None,
 ) -> PointCloudRegistration:
@@ -170,9 +172,14 @@ def register_point_clouds(
         The scan's sensor position: scan normals point towards it, and verification judges
         each pose by what the sensor there could see of it. The model's normals point away
         from its centroid.
-    top_k, mutual, n_samples
-        Correspondence building (paper appendix): keep the `top_k` most similar matches
-        (mutual nearest neighbours only if `mutual`), then sample `n_samples` (None: all).
+    top_k, mutual, n_samples, k
+        Correspondence building (paper appendix): each scan point's `k` most similar model
+        points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
+        then `n_samples` sampled (None: all); see :func:`pointclm.preprocessing.match_features`.
+    normals : bool
+        Give the pipeline the clouds' normals at both ends of each correspondence, so spatial
+        consistency also checks the angles a rigid motion preserves (`register`'s
+        ``normals=``).
     refine : bool
         Refine each pose by ICP on the clouds and keep those the scan supports, judged by
         what the sensor at `viewpoint` could see of each (:func:`pointclm.refinement.
@@ -205,8 +212,10 @@ def register_point_clouds(
         n_samples=n_samples,
         seed=seed,
         num_threads=num_threads,
+        k=k,
     )
     corr = matches.correspondences(src_d.points, tgt_d.points)
+    pair_normals = matches.normals(src_d.normals, tgt_d.normals) if normals else None
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
@@ -218,7 +227,7 @@ def register_point_clouds(
     if model is not None:
         features = embed_scaled(corr, model, cfg, num_threads)
     t3 = time.perf_counter()
-    result = register(corr, features, cfg, seed, num_threads=num_threads)
+    result = register(corr, features, cfg, seed, num_threads=num_threads, normals=pair_normals)
     t4 = time.perf_counter()
     # Without refinement every pose is kept, scored only, in the correspondence stage's
     # order (most inliers first).

@@ -239,6 +239,11 @@ class Matches:
         t = np.asarray(target_points, dtype=np.float64)
         return np.ascontiguousarray(np.hstack([s[self.source], t[self.target]]))
 
+    def normals(self, source_normals: ArrayLike, target_normals: ArrayLike) -> np.ndarray:
+        """(N, 6) rows (source normal | target normal) for these matches: the ``normals=`` of
+        :func:`pointclm.register`."""
+        return self.correspondences(source_normals, target_normals)
+
 
 def match_features(
     source: ArrayLike,
@@ -249,10 +254,16 @@ def match_features(
     n_samples: int | None = 1000,
     seed: int = 0,
     num_threads: int | None = None,
+    k: int = 1,
 ) -> Matches:
-    """Each target descriptor's nearest source descriptor (exact), the `top_k` closest kept
-    (mutual nearest neighbours only, if asked), then `n_samples` drawn at random with `seed`
-    (None keeps all), as the paper's appendix builds its correspondences."""
+    """Each target descriptor's `k` nearest source descriptors (exact), the `top_k` closest
+    matches kept (if `mutual`, only pairs where the target is also among the source's `k`
+    nearest: mutual nearest neighbours for k = 1), then `n_samples` drawn at random with
+    `seed` (None keeps all), as the paper's appendix builds its correspondences.
+
+    k > 1 matters for several copies of a model in one scan: each scan point proposes its k
+    best model points, so every copy gets matches, not only the one a model point likes best.
+    """
     s = as_matrix(source, "source descriptors", None)
     t = as_matrix(target, "target descriptors", None)
     if len(s) == 0 or len(t) == 0:
@@ -270,5 +281,6 @@ def match_features(
         n_samples=n,
         seed=int(seed),
         num_threads=_as_threads(num_threads),
+        k=_count(k, "k", 1),
     )
     return Matches(src, tgt, dist)

@@ -70,6 +70,21 @@ def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.n
     return corr, used
 
 
+def with_normals(corr: np.ndarray, normals: ArrayLike) -> np.ndarray:
+    """(N, 12) rows: the correspondences then their (N, 6) normals, checked non-zero."""
+    n = as_matrix(normals, "normals", 6)
+    if len(n) != len(corr):
+        raise ValueError(
+            f"normals must have one row (source normal | target normal) per correspondence: "
+            f"{len(corr)}, got {len(n)}"
+        )
+    for side, cols in (("source", n[:, :3]), ("target", n[:, 3:])):
+        zero = np.flatnonzero(~(np.linalg.norm(cols, axis=1) > 0))
+        if len(zero):
+            raise ValueError(f"normals: the {side} normal of row {int(zero[0])} is zero")
+    return np.ascontiguousarray(np.hstack([corr, n]))
+
+
 def as_features(features: ArrayLike | None, n: int) -> np.ndarray | None:
     if features is None:
         return None
@@ -106,6 +121,7 @@ def register(
     model: Any = None,
     backend: str = "rust",
     device: str | None = None,
+    normals: ArrayLike | None = None,
 ) -> RegistrationResult:
     """Find every copy of the source object in the target.
 
@@ -138,6 +154,12 @@ def register(
         runs on `device`).
     device : str, optional
         The torch device of ``backend="torch"`` (default "cpu"), e.g. "cuda".
+    normals : array_like, optional
+        (N, 6) rows ``(source normal | target normal)``: a surface normal at both ends of each
+        correspondence (any length, any sign). A rigid motion preserves the angle between two
+        normals and each point's distance from the other's tangent plane, so spatial
+        consistency also asks these to agree, which makes pruning and clustering far sharper.
+        :func:`pointclm.register_point_clouds` passes its clouds' normals.
 
     Returns
     -------
@@ -159,6 +181,7 @@ def register(
     feats = as_features(features, len(corr))
     network = None
     backend = _check_backend(backend, model, device)
+    rows = corr if normals is None else with_normals(corr, normals)
     if model is not None:
         if feats is not None:
             raise ValueError("pass either features or model, not both")
@@ -169,7 +192,7 @@ def register(
             feats = _torch_embed(corr, model, device)
             config = _model_config(model, config)
     return _core.register(
-        corr,
+        rows,
         feats,
         as_config(config),
         _as_seed(seed),

@@ -3,6 +3,7 @@
 
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
+use pointclm::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use pointclm::{Correspondences, Features};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -11,20 +12,41 @@ pub fn to_py_err(e: pointclm::Error) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// (N, 6) rows (source xyz | target xyz), or (N, 12) rows that add the unit normals at both
+/// ends (| source normal | target normal), which switch on the normal term of spatial
+/// consistency (`Correspondences::with_normals`, default tolerance).
 pub fn correspondences(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Correspondences> {
     let v = a.as_array();
-    if v.ncols() != 6 {
+    if v.ncols() != 6 && v.ncols() != 12 {
         return Err(PyValueError::new_err(format!(
-            "correspondences must have shape (N, 6) = (source xyz | target xyz), got {:?}",
+            "correspondences must have shape (N, 6) = (source xyz | target xyz), or (N, 12) with \
+             the normals at both ends (| source normal | target normal), got {:?}",
             v.shape()
         )));
     }
-    let rows: Vec<[f64; 6]> = v
-        .rows()
-        .into_iter()
-        .map(|r| [r[0], r[1], r[2], r[3], r[4], r[5]])
-        .collect();
-    Correspondences::from_rows(&rows).map_err(to_py_err)
+    let column = |c: usize| -> Vec<[f64; 3]> {
+        v.rows()
+            .into_iter()
+            .map(|r| [r[c], r[c + 1], r[c + 2]])
+            .collect()
+    };
+    let c = Correspondences::new(&column(0), &column(3)).map_err(to_py_err)?;
+    if v.ncols() == 6 {
+        return Ok(c);
+    }
+    let (ns, nt) = (column(6), column(9));
+    if let Some(row) = ns
+        .iter()
+        .chain(&nt)
+        .position(|n| !n.iter().all(|x| x.is_finite()))
+    {
+        return Err(to_py_err(pointclm::Error::NonFinite {
+            what: "normals",
+            row: row % v.nrows(),
+        }));
+    }
+    c.with_normals(&ns, &nt, DEFAULT_NORMAL_TOLERANCE)
+        .map_err(to_py_err)
 }
 
 pub fn features(a: Option<&PyReadonlyArray2<'_, f64>>) -> PyResult<Option<Features>> {

@@ -114,11 +114,11 @@ type MatchArrays<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
-/// Each target descriptor's nearest source descriptor; the `top_k` closest kept (mutual
-/// only, if asked), then `n_samples` drawn with `seed`. Returns (source rows, target rows,
-/// descriptor distances), closest first.
+/// Each target descriptor's `k` nearest source descriptors; the `top_k` closest matches kept
+/// (mutual only, if asked), then `n_samples` drawn with `seed`. Returns (source rows, target
+/// rows, descriptor distances), closest first.
 #[pyfunction]
-#[pyo3(signature = (source, target, top_k=10_000, mutual=false, n_samples=Some(1000), seed=0, num_threads=None))]
+#[pyo3(signature = (source, target, top_k=10_000, mutual=false, n_samples=Some(1000), seed=0, num_threads=None, k=1))]
 #[allow(clippy::too_many_arguments)]
 pub fn match_features<'py>(
     py: Python<'py>,
@@ -129,12 +129,14 @@ pub fn match_features<'py>(
     n_samples: Option<usize>,
     seed: u64,
     num_threads: Option<usize>,
+    k: usize,
 ) -> PyResult<MatchArrays<'py>> {
     let s = descriptors(&source, "source descriptors")?;
     let t = descriptors(&target, "target descriptors")?;
     let cfg = MatchingConfig {
         top_k,
         mutual,
+        k,
         n_samples,
     };
     let threads = num_threads.map(pool).transpose()?;

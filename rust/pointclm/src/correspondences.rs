@@ -1,9 +1,16 @@
-//! Validated input: correspondences (source point, target point) and optional features.
+//! Validated input: correspondences (source point, target point), optional surface normals at
+//! both ends, and optional features.
 
 use crate::error::{Error, Result};
 
 /// The smallest input a rigid pose can be estimated from.
 pub const MIN_CORRESPONDENCES: usize = 3;
+
+/// The normal term's default cosine tolerance (see [`Correspondences::with_normals`]): about
+/// the disagreement of two PCA normals estimated over 2 voxels on noisy scans (up to ~30
+/// degrees apart, |cos| moving by up to ~0.5). Not yet tuned on the validation models
+/// (`benchmarks/cloud_normals.py` is the tool for it).
+pub const DEFAULT_NORMAL_TOLERANCE: f64 = 0.5;
 
 /// `N` putative correspondences `c_i = (x_i, y_i)`, checked finite, stored as columns so the
 /// O(N^2) consistency kernels stream contiguous memory.
@@ -11,6 +18,31 @@ pub const MIN_CORRESPONDENCES: usize = 3;
 pub struct Correspondences {
     src: [Vec<f64>; 3],
     dst: [Vec<f64>; 3],
+    normals: Option<Box<PairNormals>>,
+}
+
+/// Unit surface normals at both ends of every correspondence, stored as columns like the
+/// points, and the normal term's tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct PairNormals {
+    pub(crate) src: [Vec<f64>; 3],
+    pub(crate) dst: [Vec<f64>; 3],
+    /// `1 / tolerance^2`, the tolerance on differences of cosines.
+    pub(crate) inv_tol_sq: f64,
+    /// The tolerance itself, which also widens the plane-distance terms with the line length.
+    pub(crate) tol: f64,
+}
+
+impl PairNormals {
+    #[inline(always)]
+    pub(crate) fn source(&self, i: usize) -> [f64; 3] {
+        [self.src[0][i], self.src[1][i], self.src[2][i]]
+    }
+
+    #[inline(always)]
+    pub(crate) fn target(&self, i: usize) -> [f64; 3] {
+        [self.dst[0][i], self.dst[1][i], self.dst[2][i]]
+    }
 }
 
 impl Correspondences {
@@ -43,7 +75,95 @@ impl Correspondences {
                 dst[k].push(t[k]);
             }
         }
-        Ok(Self { src, dst })
+        Ok(Self {
+            src,
+            dst,
+            normals: None,
+        })
+    }
+
+    /// Adds a unit surface normal at both ends of every correspondence (rescaled to unit
+    /// length; a zero or non-finite normal is an error). Spatial consistency then also asks the
+    /// pair's point pair feature to agree: a rigid motion preserves the angle between the two
+    /// normals and the distance of each point from the other's tangent plane, so `beta` is
+    /// multiplied by `[1 - (da / tol)^2]_+` for the cosine between the normals and by
+    /// `[1 - (dh / (tol * l + sigma))^2]_+` for each plane distance `h = n . d` (`l` the
+    /// pair's mean length, `sigma` the kernel's length tolerance: short lines say little about
+    /// angles, so their tolerance stays the length kernel's).
+    ///
+    /// Normal signs are not trusted (a model's outward normals and a scan's sensor-facing ones
+    /// disagree on concave or back-facing parts), so every term compares absolute values.
+    /// `tolerance` is on cosines, in (0, 2]; see [`DEFAULT_NORMAL_TOLERANCE`].
+    pub fn with_normals(
+        mut self,
+        source_normals: &[[f64; 3]],
+        target_normals: &[[f64; 3]],
+        tolerance: f64,
+    ) -> Result<Self> {
+        if !(tolerance.is_finite() && tolerance > 0.0 && tolerance <= 2.0) {
+            return Err(Error::InvalidParameter {
+                name: "normal_tolerance",
+                value: tolerance.to_string(),
+                reason: "must lie in (0, 2] (a tolerance on cosines)",
+            });
+        }
+        let n = self.len();
+        let mut cols: [[Vec<f64>; 3]; 2] = Default::default();
+        for (side, (normals, what)) in [
+            (source_normals, "source normals"),
+            (target_normals, "target normals"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if normals.len() != n {
+                return Err(Error::LengthMismatch {
+                    what: "normals (one per correspondence at each end)",
+                    expected: n,
+                    got: normals.len(),
+                });
+            }
+            for (row, v) in normals.iter().enumerate() {
+                let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if !(norm.is_finite() && norm > 0.0) {
+                    return Err(Error::InvalidParameter {
+                        name: what,
+                        value: format!("row {row}: {v:?}"),
+                        reason: "each normal must be a finite, non-zero vector",
+                    });
+                }
+                for k in 0..3 {
+                    cols[side][k].push(v[k] / norm);
+                }
+            }
+        }
+        let [src, dst] = cols;
+        self.normals = Some(Box::new(PairNormals {
+            src,
+            dst,
+            inv_tol_sq: 1.0 / (tolerance * tolerance),
+            tol: tolerance,
+        }));
+        Ok(self)
+    }
+
+    /// True when [`Correspondences::with_normals`] gave normals.
+    pub fn has_normals(&self) -> bool {
+        self.normals.is_some()
+    }
+
+    /// Unit normals (source end, target end) of correspondence `i`, if given.
+    pub fn normals(&self, i: usize) -> Option<([f64; 3], [f64; 3])> {
+        self.normals.as_ref().map(|p| {
+            (
+                [p.src[0][i], p.src[1][i], p.src[2][i]],
+                [p.dst[0][i], p.dst[1][i], p.dst[2][i]],
+            )
+        })
+    }
+
+    pub(crate) fn pair_normals(&self) -> Option<&PairNormals> {
+        self.normals.as_deref()
     }
 
     /// From rows `(x, y, z, x', y', z')`: source point then target point.

@@ -1,10 +1,15 @@
 //! Descriptor matching: from per-point descriptors of the source (the model) and the target
 //! (the scene) to putative correspondences, as the paper's appendix builds them for Scan2CAD.
 //!
-//! Every target point is matched to its most similar source descriptor; the descriptor
-//! distance is its saliency score. The `top_k` most salient matches are kept (optionally only
-//! mutual nearest neighbours), then `n_samples` of them are drawn at random, so that the
+//! Every target point is matched to its `k` most similar source descriptors; the descriptor
+//! distance is each match's saliency score. The `top_k` most salient matches are kept
+//! (optionally only mutual ones), then `n_samples` of them are drawn at random, so that the
 //! pipeline sees a bounded number of correspondences whatever the cloud sizes.
+//!
+//! Why more than the nearest: with several copies in the scan, a model point has one mutual
+//! nearest scan point at most, so mutual nearest matching caps every copy but the best-seen at
+//! a handful of true matches; and a noisy scan descriptor's true partner is often second or
+//! third. `k > 1` lets every scan point propose its few best model points.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, Par};
@@ -20,9 +25,11 @@ use crate::seeds::{stream, STAGE_MATCHING};
 pub struct MatchingConfig {
     /// Keep the `top_k` matches with the smallest descriptor distance (paper: 10,000).
     pub top_k: usize,
-    /// Keep only mutual nearest neighbours (the source descriptor's nearest target
-    /// descriptor is the target point that chose it).
+    /// Keep only mutual matches: the target point is also among the `k` nearest target
+    /// descriptors of the source point (with `k = 1`: mutual nearest neighbours).
     pub mutual: bool,
+    /// Source descriptors matched to each target descriptor, nearest first (>= 1).
+    pub k: usize,
     /// Then draw this many of them uniformly at random (paper: 1000); `None` keeps all.
     pub n_samples: Option<usize>,
 }
@@ -32,6 +39,7 @@ impl Default for MatchingConfig {
         Self {
             top_k: 10_000,
             mutual: false,
+            k: 1,
             n_samples: Some(1000),
         }
     }
@@ -60,7 +68,7 @@ impl Matches {
     }
 }
 
-/// Matches every target descriptor to its nearest source descriptor, then keeps and samples
+/// Matches every target descriptor to its `k` nearest source descriptors, then keeps and samples
 /// as `config` says. Parallel over target rows on the current rayon pool; the result depends
 /// only on the inputs and `seed`.
 pub fn match_features(
@@ -94,6 +102,13 @@ pub fn match_features(
             reason: "must keep at least one match",
         });
     }
+    if config.k == 0 {
+        return Err(Error::InvalidParameter {
+            name: "k",
+            value: "0".into(),
+            reason: "must match each target descriptor to at least one source descriptor",
+        });
+    }
     if config.n_samples == Some(0) {
         return Err(Error::InvalidParameter {
             name: "n_samples",
@@ -102,13 +117,19 @@ pub fn match_features(
         });
     }
 
-    let (src_of_tgt, dist2) = nearest_rows(target, source);
-    let mut order: Vec<usize> = (0..target.len()).collect();
+    let k = config.k.min(source.len());
+    // Candidate p is the (p % k)-th nearest source row of target row p / k.
+    let (src_of_tgt, dist2) = nearest_rows(target, source, k);
+    let mut order: Vec<usize> = (0..src_of_tgt.len()).collect();
     if config.mutual {
-        let (tgt_of_src, _) = nearest_rows(source, target);
-        order.retain(|&t| tgt_of_src[src_of_tgt[t]] == t);
+        let kt = config.k.min(target.len());
+        let (tgt_of_src, _) = nearest_rows(source, target, kt);
+        order.retain(|&p| {
+            let s = src_of_tgt[p];
+            tgt_of_src[s * kt..(s + 1) * kt].contains(&(p / k))
+        });
     }
-    // Ties broken by target index, so the order is total and reproducible.
+    // Ties broken by target index then rank, so the order is total and reproducible.
     order.sort_unstable_by(|&a, &b| dist2[a].total_cmp(&dist2[b]).then(a.cmp(&b)));
     order.truncate(config.top_k);
     if let Some(n) = config.n_samples {
@@ -116,13 +137,13 @@ pub fn match_features(
             let mut rng = stream(seed, STAGE_MATCHING, 0);
             let mut picked = sample(&mut rng, order.len(), n).into_vec();
             picked.sort_unstable();
-            order = picked.into_iter().map(|k| order[k]).collect();
+            order = picked.into_iter().map(|i| order[i]).collect();
         }
     }
     Ok(Matches {
-        source: order.iter().map(|&t| src_of_tgt[t]).collect(),
-        target: order.clone(),
-        distance: order.iter().map(|&t| dist2[t].max(0.0).sqrt()).collect(),
+        source: order.iter().map(|&p| src_of_tgt[p]).collect(),
+        target: order.iter().map(|&p| p / k).collect(),
+        distance: order.iter().map(|&p| dist2[p].max(0.0).sqrt()).collect(),
     })
 }
 
@@ -130,10 +151,12 @@ pub fn match_features(
 /// enough that a block of distances (`BLOCK x base rows`) stays in cache-sized memory.
 const BLOCK: usize = 128;
 
-/// For every query row, the nearest base row and the squared distance to it (exact brute
-/// force: `|q|^2 + |b|^2 - 2 q.b` by blocked matrix products, then the winner's distance
-/// recomputed directly so that no cancellation error is reported).
-fn nearest_rows(queries: &Features, base: &Features) -> (Vec<usize>, Vec<f64>) {
+/// For every query row, its `k` nearest base rows (`1 <= k <= base.len()`), nearest first, and
+/// the squared distances to them, flattened row after row (`n * k`). Exact brute force:
+/// `|q|^2 + |b|^2 - 2 q.b` by blocked matrix products selects the rows, then the winners'
+/// distances are recomputed directly (no cancellation error is reported) and re-sorted (ties
+/// by base row).
+fn nearest_rows(queries: &Features, base: &Features, k: usize) -> (Vec<usize>, Vec<f64>) {
     let dim = base.dim();
     let base_mat = Mat::<f64>::from_fn(base.len(), dim, |i, j| base.row(i)[j]);
     let base_norm: Vec<f64> = (0..base.len())
@@ -156,33 +179,51 @@ fn nearest_rows(queries: &Features, base: &Features) -> (Vec<usize>, Vec<f64>) {
                 1.0,
                 Par::Seq,
             );
-            let mut best = Vec::with_capacity(hi - lo);
-            let mut best_d2 = Vec::with_capacity(hi - lo);
+            let mut best = Vec::with_capacity((hi - lo) * k);
+            let mut best_d2 = Vec::with_capacity((hi - lo) * k);
+            let mut top: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
             for i in 0..hi - lo {
                 let col = g.col_as_slice(i);
-                let mut arg = 0;
-                let mut min = f64::INFINITY;
+                top.clear();
                 for (j, (&bn, &dot)) in base_norm.iter().zip(col).enumerate() {
-                    let v = bn - 2.0 * dot;
-                    if v < min {
-                        min = v;
-                        arg = j;
+                    // NaN (from overflowing descriptors) ranks last, as +inf.
+                    let v = match bn - 2.0 * dot {
+                        v if v.is_nan() => f64::INFINITY,
+                        v => v,
+                    };
+                    if top.len() == k && v >= top[k - 1].0 {
+                        continue;
                     }
+                    // After any equal values: among ties the lower base row stays ahead.
+                    let at = top.partition_point(|&(w, _)| w <= v);
+                    top.insert(at, (v, j));
+                    top.truncate(k);
                 }
-                let exact: f64 = queries
-                    .row(lo + i)
+                let query = queries.row(lo + i);
+                let mut exact: Vec<(f64, usize)> = top
                     .iter()
-                    .zip(base.row(arg))
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum();
-                best.push(arg);
-                best_d2.push(exact);
+                    .map(|&(_, j)| {
+                        let d2: f64 = query
+                            .iter()
+                            .zip(base.row(j))
+                            .map(|(a, b)| (a - b) * (a - b))
+                            .sum();
+                        (d2, j)
+                    })
+                    .collect();
+                if k > 1 {
+                    exact.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                }
+                for (d2, j) in exact {
+                    best.push(j);
+                    best_d2.push(d2);
+                }
             }
             (best, best_d2)
         })
         .collect();
-    let mut idx = Vec::with_capacity(n);
-    let mut d2 = Vec::with_capacity(n);
+    let mut idx = Vec::with_capacity(n * k);
+    let mut d2 = Vec::with_capacity(n * k);
     for (a, b) in blocks {
         idx.extend(a);
         d2.extend(b);

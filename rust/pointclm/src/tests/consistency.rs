@@ -40,3 +40,104 @@ fn subset_matches_full_row() {
         assert_eq!(a, b);
     }
 }
+
+/// The scene's correspondences with a random unit normal at each source point, carried by the
+/// true pose to the target for inliers (every third one flipped, as a model's outward normal
+/// and a scan's sensor-facing one may disagree) and random for outliers.
+fn with_normals(scene: &crate::testing::PlantedScene, seed: u64) -> Correspondences {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut unit = || {
+        let v: [f64; 3] = std::array::from_fn(|_| rng.random::<f64>() * 2.0 - 1.0);
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|x| x / n)
+    };
+    let n = scene.corr.len();
+    let (mut ns, mut nt) = (vec![], vec![]);
+    for i in 0..n {
+        let a = unit();
+        let b = match scene.labels[i] {
+            k if k >= 0 => {
+                let r = scene.poses[k as usize].rotation * nalgebra::Vector3::from(a);
+                let s = if i % 3 == 0 { -1.0 } else { 1.0 };
+                [s * r[0], s * r[1], s * r[2]]
+            }
+            _ => unit(),
+        };
+        ns.push(a);
+        // Not unit length on purpose: the constructor rescales.
+        nt.push(b.map(|x| 2.0 * x));
+    }
+    scene
+        .corr
+        .clone()
+        .with_normals(&ns, &nt, crate::correspondences::DEFAULT_NORMAL_TOLERANCE)
+        .unwrap()
+}
+
+#[test]
+fn normals_keep_rigid_pairs_and_cut_others() {
+    let scene = random_scene(150, 2, 0.3, 21);
+    let c = with_normals(&scene, 5);
+    assert!(c.has_normals() && !scene.corr.has_normals());
+    let n = c.len();
+    let plain = spatial_consistency(&scene.corr, 0.3).unwrap();
+    let b = spatial_consistency(&c, 0.3).unwrap();
+    let (mut cut, mut compat) = (0, 0);
+    for i in 0..n {
+        assert_eq!(b[i * n + i], 1.0);
+        for j in 0..n {
+            let (v, p) = (b[i * n + j], plain[i * n + j]);
+            assert!((0.0..=1.0).contains(&v) && v <= p + 1e-12);
+            assert_eq!(v, b[j * n + i]);
+            let (li, lj) = (scene.labels[i], scene.labels[j]);
+            if li >= 0 && li == lj {
+                // The normal term of a rigid pair is 1 (sign flips included).
+                assert!((v - p).abs() <= 1e-9, "pair ({i}, {j}): {v} vs {p}");
+            } else if p > 0.5 {
+                compat += 1;
+                cut += usize::from(v < 0.5 * p);
+            }
+        }
+    }
+    // Length-compatible pairs that are not rigid pairs mostly fail on their normals.
+    assert!(compat > 100 && cut * 2 > compat, "{cut} of {compat}");
+}
+
+#[test]
+fn subset_matches_full_row_with_normals() {
+    let scene = random_scene(60, 2, 0.4, 12);
+    let c = with_normals(&scene, 6);
+    let inv = inv_sigma_sq(0.2).unwrap();
+    let n = c.len();
+    let cols: Vec<usize> = (0..n).rev().collect();
+    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+    for i in 0..n {
+        beta_row(&c, i, inv, &mut a);
+        beta_row_subset(&c, i, &cols, inv, &mut b);
+        b.reverse();
+        assert_eq!(a, b);
+    }
+}
+
+#[test]
+fn bad_normals_are_typed_errors() {
+    let scene = random_scene(10, 1, 1.0, 1);
+    let ok = vec![[0.0, 0.0, 1.0]; 10];
+    let mut zero = ok.clone();
+    zero[4] = [0.0; 3];
+    let mut nan = ok.clone();
+    nan[2][1] = f64::NAN;
+    let c = &scene.corr;
+    for (s, t, tol) in [
+        (&ok[..9], &ok[..], 0.5),
+        (&ok[..], &zero[..], 0.5),
+        (&nan[..], &ok[..], 0.5),
+        (&ok[..], &ok[..], 0.0),
+        (&ok[..], &ok[..], f64::NAN),
+        (&ok[..], &ok[..], 3.0),
+    ] {
+        assert!(c.clone().with_normals(s, t, tol).is_err());
+    }
+    assert!(c.clone().with_normals(&ok, &ok, 0.5).is_ok());
+}

@@ -22,7 +22,7 @@ fn pseudo_random(n: usize, dim: usize, salt: u64) -> Vec<Vec<f64>> {
 fn nearest_rows_equal_brute_force() {
     let src = pseudo_random(300, 33, 1);
     let tgt = pseudo_random(517, 33, 2);
-    let (idx, d2) = nearest_rows(&features(&tgt), &features(&src));
+    let (idx, d2) = nearest_rows(&features(&tgt), &features(&src), 1);
     for (t, row) in tgt.iter().enumerate() {
         let dist = |s: &Vec<f64>| {
             row.iter()
@@ -44,6 +44,7 @@ fn exact_copies_match_themselves_most_salient_first() {
     let cfg = MatchingConfig {
         top_k: 20,
         mutual: false,
+        k: 1,
         n_samples: None,
     };
     let m = match_features(&features(&src), &features(&tgt), &cfg, 0).unwrap();
@@ -62,6 +63,7 @@ fn mutual_filter_and_sampling() {
     let all = MatchingConfig {
         top_k: usize::MAX,
         mutual: false,
+        k: 1,
         n_samples: None,
     };
     let m = match_features(&s, &t, &all, 0).unwrap();
@@ -78,13 +80,14 @@ fn mutual_filter_and_sampling() {
     )
     .unwrap();
     assert!(mutual.len() < 400 && !mutual.is_empty());
-    let (tgt_of_src, _) = nearest_rows(&s, &t);
+    let (tgt_of_src, _) = nearest_rows(&s, &t, 1);
     for k in 0..mutual.len() {
         assert_eq!(tgt_of_src[mutual.source[k]], mutual.target[k]);
     }
     let cfg = MatchingConfig {
         top_k: 300,
         mutual: false,
+        k: 1,
         n_samples: Some(100),
     };
     let a = match_features(&s, &t, &cfg, 7).unwrap();
@@ -139,4 +142,81 @@ fn bad_inputs_are_typed_errors() {
             Err(Error::InvalidParameter { .. })
         ));
     }
+}
+
+#[test]
+fn k_nearest_rows_equal_brute_force() {
+    let src = pseudo_random(200, 33, 12);
+    let tgt = pseudo_random(150, 33, 13);
+    let k = 4;
+    let (idx, d2) = nearest_rows(&features(&tgt), &features(&src), k);
+    assert_eq!(idx.len(), 150 * k);
+    for (t, row) in tgt.iter().enumerate() {
+        let mut all: Vec<(f64, usize)> = src
+            .iter()
+            .enumerate()
+            .map(|(j, s)| (row.iter().zip(s).map(|(a, b)| (a - b) * (a - b)).sum(), j))
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for r in 0..k {
+            let (want, _) = all[r];
+            assert!((d2[t * k + r] - want).abs() <= 1e-9 * want.max(1.0));
+        }
+        assert!(d2[t * k..(t + 1) * k].windows(2).all(|w| w[0] <= w[1]));
+    }
+}
+
+#[test]
+fn k_one_is_nearest_matching_and_k_adds_candidates() {
+    let src = pseudo_random(120, 33, 14);
+    let tgt = pseudo_random(300, 33, 15);
+    let (s, t) = (features(&src), features(&tgt));
+    let base = MatchingConfig {
+        top_k: usize::MAX,
+        mutual: false,
+        k: 1,
+        n_samples: None,
+    };
+    let one = match_features(&s, &t, &base, 0).unwrap();
+    let three = match_features(&s, &t, &MatchingConfig { k: 3, ..base }, 0).unwrap();
+    assert_eq!(one.len(), 300);
+    assert_eq!(three.len(), 900);
+    assert!(three.distance.windows(2).all(|w| w[0] <= w[1]));
+    // Every nearest match is among the k = 3 candidates, and each target has 3 distinct ones.
+    let pairs: std::collections::HashSet<(usize, usize)> = three
+        .source
+        .iter()
+        .copied()
+        .zip(three.target.iter().copied())
+        .collect();
+    assert_eq!(pairs.len(), 900);
+    for m in 0..one.len() {
+        assert!(pairs.contains(&(one.source[m], one.target[m])));
+    }
+    // k larger than the source set is clamped.
+    let all = match_features(&s, &t, &MatchingConfig { k: 1000, ..base }, 0).unwrap();
+    assert_eq!(all.len(), 120 * 300);
+    // Mutual with k: each kept pair is in both k-nearest lists.
+    let mutual = match_features(
+        &s,
+        &t,
+        &MatchingConfig {
+            k: 3,
+            mutual: true,
+            ..base
+        },
+        0,
+    )
+    .unwrap();
+    let (tgt_of_src, _) = nearest_rows(&s, &t, 3);
+    assert!(!mutual.is_empty() && mutual.len() < 900);
+    for m in 0..mutual.len() {
+        let sr = mutual.source[m];
+        assert!(tgt_of_src[sr * 3..sr * 3 + 3].contains(&mutual.target[m]));
+    }
+    let bad = MatchingConfig { k: 0, ..base };
+    assert!(matches!(
+        match_features(&s, &t, &bad, 0),
+        Err(Error::InvalidParameter { .. })
+    ));
 }
