@@ -16,9 +16,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 import pointclm
+import pytest
 from pointclm import _core
 
 WEIGHTS = Path(pointclm.__file__).parent / "weights"
@@ -193,9 +192,7 @@ def test_extreme_magnitudes_give_the_scaled_result(scale):
     scene = _scene(1)
     base = pointclm.register(scene, seed=0)
     assert len(base) == 2
-    r = pointclm.register(
-        scene * scale, config=pointclm.Config().scaled(scale), seed=0
-    )
+    r = pointclm.register(scene * scale, config=pointclm.Config().scaled(scale), seed=0)
     assert len(r) == len(base)
     np.testing.assert_array_equal(r.labels, base.labels)
     np.testing.assert_allclose(r.transformations[:, :3, :3], base.transformations[:, :3, :3])
@@ -220,9 +217,13 @@ THREADED = {
     "register": lambda t: _core.register(SMALL, num_threads=t),
     "register_batch": lambda t: _core.register_batch([(SMALL, None)], num_threads=t),
     "density_counts": lambda t: _core.density_counts(SMALL, num_threads=t),
-    "estimate_normals": lambda t: _core.estimate_normals(PTS, 0.5, towards=(0, 0, 1), num_threads=t),
+    "estimate_normals": lambda t: _core.estimate_normals(
+        PTS, 0.5, towards=(0, 0, 1), num_threads=t
+    ),
     "nearest_neighbours": lambda t: _core.nearest_neighbours(PTS, PTS, num_threads=t),
-    "embed": lambda t: pointclm.Network(WEIGHTS / "default.safetensors").embed(SMALL, num_threads=t),
+    "embed": lambda t: pointclm.Network(WEIGHTS / "default.safetensors").embed(
+        SMALL, num_threads=t
+    ),
 }
 
 
@@ -272,8 +273,9 @@ def test_embed_takes_float32_and_lists_like_float64():
     net = pointclm.Network(WEIGHTS / "default.safetensors")
     corr = _scene(2)
     expected = net.embed(corr)
-    np.testing.assert_array_equal(net.embed(corr.astype(np.float32).astype(np.float64)),
-                                  net.embed(corr.astype(np.float32)))
+    np.testing.assert_array_equal(
+        net.embed(corr.astype(np.float32).astype(np.float64)), net.embed(corr.astype(np.float32))
+    )
     np.testing.assert_array_equal(net.embed(corr.tolist()), expected)
 
 

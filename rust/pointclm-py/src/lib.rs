@@ -201,7 +201,10 @@ fn eigh<'py>(
 
 /// Spectral clustering of a precomputed affinity; returns (labels, n_clusters, eigenvalues).
 #[pyfunction]
-#[pyo3(signature = (affinity, n_clusters=None, max_clusters=None, assignment="kmeans".to_string(), restarts=10, seed=0))]
+#[pyo3(
+    signature = (affinity, n_clusters=None, max_clusters=None, assignment="kmeans".to_string(), restarts=10, seed=0),
+    text_signature = "(affinity, n_clusters=None, max_clusters=None, assignment='kmeans', restarts=10, seed=0)"
+)]
 #[allow(clippy::type_complexity)]
 fn spectral_clustering<'py>(
     py: Python<'py>,

@@ -85,7 +85,10 @@ pub fn estimate_normals<'py>(
 
 /// FPFH descriptors (N, 33) over hybrid neighbourhoods (at most `max_nn` within `radius`).
 #[pyfunction]
-#[pyo3(signature = (points, normals, radius, max_nn=100, variant="open3d".to_string(), num_threads=None))]
+#[pyo3(
+    signature = (points, normals, radius, max_nn=100, variant="open3d".to_string(), num_threads=None),
+    text_signature = "(points, normals, radius, max_nn=100, variant='open3d', num_threads=None)"
+)]
 pub fn compute_fpfh<'py>(
     py: Python<'py>,
     #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,

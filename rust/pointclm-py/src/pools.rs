@@ -84,7 +84,12 @@ fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
         // another thread built one meanwhile: share it, drop ours
         return Ok(p.clone());
     }
-    let held = |c: &Cache| c.pools.iter().map(|(_, p)| p.current_num_threads()).sum::<usize>();
+    let held = |c: &Cache| {
+        c.pools
+            .iter()
+            .map(|(_, p)| p.current_num_threads())
+            .sum::<usize>()
+    };
     while !cache.pools.is_empty()
         && (cache.pools.len() >= CACHED_POOLS || held(&cache) + size > budget)
     {

@@ -18,7 +18,10 @@ use crate::testing::random_scene;
 const CASES: u32 = 64;
 
 fn shipped_weights() -> (Vec<u8>, String) {
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../python/pointclm/weights/");
+    let dir = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../python/pointclm/weights/"
+    );
     (
         std::fs::read(format!("{dir}default.safetensors")).unwrap(),
         std::fs::read_to_string(format!("{dir}default.json")).unwrap(),
@@ -63,15 +66,20 @@ fn size() -> impl Strategy<Value = Value> {
 fn metadata() -> impl Strategy<Value = String> {
     prop_oneof![
         json_value().prop_map(|v| v.to_string()),
-        (size(), size(), any::<f64>(), proptest::option::of(json_value())).prop_map(
-            |(depth, width, sigma_d, rec)| {
-                let mut m = json!({"architecture": {"depth": depth, "width": width, "sigma_d": sigma_d}});
+        (
+            size(),
+            size(),
+            any::<f64>(),
+            proptest::option::of(json_value())
+        )
+            .prop_map(|(depth, width, sigma_d, rec)| {
+                let mut m =
+                    json!({"architecture": {"depth": depth, "width": width, "sigma_d": sigma_d}});
                 if let Some(r) = rec {
                     m["recommended_config"] = r;
                 }
                 m.to_string()
-            }
-        ),
+            }),
         ".{0,64}",
     ]
 }
@@ -82,18 +90,16 @@ fn weight_bytes() -> impl Strategy<Value = Vec<u8>> {
     let len = shipped.len();
     prop_oneof![
         prop::collection::vec(any::<u8>(), 0..256),
-        (
-            0..=len,
-            prop::collection::vec((0..len, any::<u8>()), 0..8)
-        )
-            .prop_map(move |(cut, edits)| {
+        (0..=len, prop::collection::vec((0..len, any::<u8>()), 0..8)).prop_map(
+            move |(cut, edits)| {
                 let mut b = shipped.clone();
                 for (at, v) in edits {
                     b[at] = v;
                 }
                 b.truncate(cut);
                 b
-            }),
+            }
+        ),
     ]
 }
 
@@ -157,11 +163,22 @@ fn only_regular_files_are_read_as_weights() {
 // ---- Config::validate ----
 
 fn count() -> impl Strategy<Value = usize> {
-    prop_oneof![0usize..64, any::<usize>(), Just(bounds::MAX_KEPT), Just(bounds::MAX_KEPT + 1)]
+    prop_oneof![
+        0usize..64,
+        any::<usize>(),
+        Just(bounds::MAX_KEPT),
+        Just(bounds::MAX_KEPT + 1)
+    ]
 }
 
 fn length() -> impl Strategy<Value = f64> {
-    prop_oneof![any::<f64>(), 1e-3f64..10.0, Just(0.0), Just(f64::NAN), Just(f64::INFINITY)]
+    prop_oneof![
+        any::<f64>(),
+        1e-3f64..10.0,
+        Just(0.0),
+        Just(f64::NAN),
+        Just(f64::INFINITY)
+    ]
 }
 
 prop_compose! {
@@ -220,12 +237,48 @@ proptest! {
 fn every_count_has_a_bound_named_in_the_message() {
     let base = Config::default();
     let cases: [(&str, Config); 6] = [
-        ("ransac_iterations", Config { ransac_iterations: 1_000_000_000_000, ..base.clone() }),
-        ("kmeans_restarts", Config { kmeans_restarts: bounds::KMEANS_RESTARTS + 1, ..base.clone() }),
-        ("max_kept", Config { max_kept: bounds::MAX_KEPT + 1, ..base.clone() }),
-        ("tau_n", Config { tau_n: usize::MAX, ..base.clone() }),
-        ("min_count", Config { min_count: usize::MAX, ..base.clone() }),
-        ("max_instances", Config { max_instances: Some(usize::MAX), ..base.clone() }),
+        (
+            "ransac_iterations",
+            Config {
+                ransac_iterations: 1_000_000_000_000,
+                ..base.clone()
+            },
+        ),
+        (
+            "kmeans_restarts",
+            Config {
+                kmeans_restarts: bounds::KMEANS_RESTARTS + 1,
+                ..base.clone()
+            },
+        ),
+        (
+            "max_kept",
+            Config {
+                max_kept: bounds::MAX_KEPT + 1,
+                ..base.clone()
+            },
+        ),
+        (
+            "tau_n",
+            Config {
+                tau_n: usize::MAX,
+                ..base.clone()
+            },
+        ),
+        (
+            "min_count",
+            Config {
+                min_count: usize::MAX,
+                ..base.clone()
+            },
+        ),
+        (
+            "max_instances",
+            Config {
+                max_instances: Some(usize::MAX),
+                ..base.clone()
+            },
+        ),
     ];
     for (field, c) in cases {
         let msg = c.validate().unwrap_err().to_string();
@@ -314,7 +367,10 @@ proptest! {
 #[test]
 fn ordinary_magnitudes_are_not_rescaled() {
     let scene = random_scene(100, 1, 0.5, 3);
-    assert_eq!(magnitude::scale_exponent(&scene.corr, &Config::default()), Ok(0));
+    assert_eq!(
+        magnitude::scale_exponent(&scene.corr, &Config::default()),
+        Ok(0)
+    );
     let shifted: Vec<[f64; 6]> = (0..100)
         .map(|i| {
             let (s, t) = (scene.corr.source(i), scene.corr.target(i));
@@ -344,7 +400,9 @@ fn a_cancelled_token_stops_every_entry_point() {
     let scene = random_scene(200, 2, 0.4, 5);
     let token = CancelToken::new();
     let config = Config::default();
-    assert!(token.run(|| register(&scene.corr, None, &config, 0)).is_ok());
+    assert!(token
+        .run(|| register(&scene.corr, None, &config, 0))
+        .is_ok());
     token.cancel();
     assert_eq!(
         token.run(|| register(&scene.corr, None, &config, 0)),
