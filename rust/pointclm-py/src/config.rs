@@ -11,7 +11,9 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
         return Ok(c);
     };
     for (k, v) in d.iter() {
-        let key: String = k.extract()?;
+        let key: String = k
+            .extract()
+            .map_err(|_| PyValueError::new_err(format!("config keys must be str, got {k}")))?;
         let bad = |e: PyErr| PyValueError::new_err(format!("config field {key}: {e}"));
         match key.as_str() {
             "sigma_d" => c.sigma_d = v.extract().map_err(bad)?,

@@ -5,11 +5,17 @@ use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use pointclm::{Correspondences, Features};
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyValueError};
 use pyo3::prelude::*;
 
+/// Core errors as Python exceptions: a refused allocation is MemoryError, a cancelled call
+/// KeyboardInterrupt (it was cancelled by Ctrl-C), everything else ValueError.
 pub fn to_py_err(e: pointclm::Error) -> PyErr {
-    PyValueError::new_err(e.to_string())
+    match e {
+        pointclm::Error::Allocation { .. } => PyMemoryError::new_err(e.to_string()),
+        pointclm::Error::Cancelled => PyKeyboardInterrupt::new_err(e.to_string()),
+        _ => PyValueError::new_err(e.to_string()),
+    }
 }
 
 /// (N, 6) rows (source xyz | target xyz), or (N, 12) rows that add the unit normals at both

@@ -1,85 +1,49 @@
 //! `pointclm._core`: the thin PyO3 layer over the `pointclm` crate. Conversions, GIL release,
 //! error mapping and result classes live here; all the method lives in the core crate.
 
+mod args;
 mod config;
 mod convert;
 mod network;
 mod pointcloud;
+mod pools;
 mod result;
-
-use std::collections::HashMap;
-use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::{Arc, Mutex, OnceLock};
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::{Correspondences, Scene};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyMemoryError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use convert::{correspondences, features, mat_to_py, matrix4, points, square, to_py_err};
 use network::PyNetwork;
+use pools::{guarded, guarded_dense, on_pool, pool};
 use result::{PyInstance, PyRegistration};
 
-/// Runs core code with the GIL released and any panic turned into a Python exception, so a
-/// bug can never abort the interpreter or escape `except Exception`.
-fn guarded<T: Send>(py: Python<'_>, f: impl FnOnce() -> pointclm::Result<T> + Send) -> PyResult<T> {
-    py.detach(|| catch_unwind(AssertUnwindSafe(f)))
-        .map_err(|_| PyRuntimeError::new_err("internal error in pointclm (please report)"))?
-        .map_err(to_py_err)
-}
-
-/// More threads than this is a mistake, not a configuration (each costs a stack and a
-/// spawn, and a pool is kept per count).
-const MAX_THREADS: usize = 256;
-
-fn check_threads(num_threads: usize) -> PyResult<()> {
-    if !(1..=MAX_THREADS).contains(&num_threads) {
-        return Err(PyValueError::new_err(format!(
-            "num_threads must lie in 1..={MAX_THREADS} (or None for all cores), got {num_threads}"
-        )));
+/// `network=`: None or a loaded `Network`.
+fn network_arg<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyNetwork>>> {
+    if obj.is_none() {
+        return Ok(None);
     }
-    Ok(())
-}
-
-/// Private pools, one per requested thread count, built once and reused.
-fn pool(num_threads: usize) -> PyResult<Arc<rayon::ThreadPool>> {
-    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();
-    check_threads(num_threads)?;
-    let mut pools = POOLS
-        .get_or_init(Default::default)
-        .lock()
-        .map_err(|_| PyRuntimeError::new_err("thread pool cache poisoned"))?;
-    if let Some(p) = pools.get(&num_threads) {
-        return Ok(p.clone());
-    }
-    let p = Arc::new(pointclm::pipeline::thread_pool(num_threads).map_err(to_py_err)?);
-    pools.insert(num_threads, p.clone());
-    Ok(p)
-}
-
-/// Runs `f` on the pool for `num_threads`, or on the current (global) pool when `None`.
-fn on_pool<T: Send>(pool: Option<Arc<rayon::ThreadPool>>, f: impl FnOnce() -> T + Send) -> T {
-    match pool {
-        None => f(),
-        Some(p) => p.install(f),
-    }
+    obj.cast::<PyNetwork>()
+        .map(|n| Some(n.clone()))
+        .map_err(|_| PyValueError::new_err("network must be a pointclm.Network or None"))
 }
 
 #[pyfunction]
 #[pyo3(signature = (correspondences, features=None, config=None, seed=0, num_threads=None, network=None))]
 fn register(
     py: Python<'_>,
-    correspondences: PyReadonlyArray2<'_, f64>,
-    features: Option<PyReadonlyArray2<'_, f64>>,
-    config: Option<&Bound<'_, PyDict>>,
-    seed: u64,
-    num_threads: Option<usize>,
-    network: Option<&Bound<'_, PyNetwork>>,
+    #[pyo3(from_py_with = args::correspondences)] correspondences: PyReadonlyArray2<'_, f64>,
+    #[pyo3(from_py_with = args::features)] features: Option<PyReadonlyArray2<'_, f64>>,
+    #[pyo3(from_py_with = args::config)] config: Option<Bound<'_, PyDict>>,
+    #[pyo3(from_py_with = args::seed)] seed: u64,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    #[pyo3(from_py_with = network_arg)] network: Option<Bound<'_, PyNetwork>>,
 ) -> PyResult<PyRegistration> {
     let c = convert::correspondences(&correspondences)?;
     let f = convert::features(features.as_ref())?;
-    let cfg = config::from_dict(config)?;
+    let cfg = config::from_dict(config.as_ref())?;
     let p = num_threads.map(pool).transpose()?;
     let net = network.map(|n| n.get().inner.clone());
     if net.is_some() && f.is_some() {
@@ -96,40 +60,44 @@ fn register(
     PyRegistration::new(py, r)
 }
 
+/// One item of `register_batch`'s list: `(correspondences, features or None)`.
+fn scene_item(k: usize, item: &Bound<'_, PyAny>, with_network: bool) -> PyResult<Scene> {
+    let at = |e: PyErr| PyValueError::new_err(format!("scene {k}: {e}"));
+    let (corr, feats): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item.extract().map_err(|_| {
+        PyValueError::new_err(format!(
+            "scene {k}: expected a (correspondences, features or None) pair"
+        ))
+    })?;
+    let corr = args::correspondences(&corr).map_err(at)?;
+    let feats = args::features(&feats).map_err(at)?;
+    let features = features(feats.as_ref()).map_err(at)?;
+    if with_network && features.is_some() {
+        return Err(PyValueError::new_err(format!(
+            "scene {k}: pass either features or network, not both"
+        )));
+    }
+    Ok(Scene {
+        correspondences: correspondences(&corr).map_err(at)?,
+        features,
+    })
+}
+
 #[pyfunction]
 #[pyo3(signature = (scenes, config=None, seed=0, num_threads=None, network=None))]
 fn register_batch(
     py: Python<'_>,
-    scenes: &Bound<'_, PyList>,
-    config: Option<&Bound<'_, PyDict>>,
-    seed: u64,
-    num_threads: Option<usize>,
-    network: Option<&Bound<'_, PyNetwork>>,
+    #[pyo3(from_py_with = args::scenes)] scenes: Bound<'_, PyList>,
+    #[pyo3(from_py_with = args::config)] config: Option<Bound<'_, PyDict>>,
+    #[pyo3(from_py_with = args::seed)] seed: u64,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    #[pyo3(from_py_with = network_arg)] network: Option<Bound<'_, PyNetwork>>,
 ) -> PyResult<Vec<PyRegistration>> {
-    let cfg = config::from_dict(config)?;
-    let mut batch = Vec::with_capacity(scenes.len());
-    for (k, item) in scenes.iter().enumerate() {
-        let (corr, feats): (PyReadonlyArray2<'_, f64>, Option<PyReadonlyArray2<'_, f64>>) =
-            item.extract().map_err(|e| {
-                PyValueError::new_err(format!(
-                    "scene {k}: expected (correspondences, features): {e}"
-                ))
-            })?;
-        let at = |e: PyErr| PyValueError::new_err(format!("scene {k}: {e}"));
-        let features = features(feats.as_ref()).map_err(at)?;
-        if network.is_some() && features.is_some() {
-            return Err(PyValueError::new_err(format!(
-                "scene {k}: pass either features or network, not both"
-            )));
-        }
-        batch.push(Scene {
-            correspondences: correspondences(&corr).map_err(at)?,
-            features,
-        });
-    }
-    if let Some(n) = num_threads {
-        check_threads(n)?;
-    }
+    let cfg = config::from_dict(config.as_ref())?;
+    let batch = scenes
+        .iter()
+        .enumerate()
+        .map(|(k, item)| scene_item(k, &item, network.is_some()))
+        .collect::<PyResult<Vec<_>>>()?;
     let threads = num_threads.unwrap_or(0);
     let net = network.map(|n| n.get().inner.clone());
     let results = guarded(py, move || match net {
@@ -143,7 +111,15 @@ fn register_batch(
         .into_iter()
         .enumerate()
         .map(|(k, r)| {
-            let r = r.map_err(|e| PyValueError::new_err(format!("scene {k}: {e}")))?;
+            let r = r.map_err(|e| {
+                let e = to_py_err(e);
+                let msg = format!("scene {k}: {}", e.value(py));
+                if e.is_instance_of::<PyMemoryError>(py) {
+                    PyMemoryError::new_err(msg)
+                } else {
+                    PyValueError::new_err(msg)
+                }
+            })?;
             PyRegistration::new(py, r)
         })
         .collect()
@@ -153,12 +129,12 @@ fn register_batch(
 #[pyfunction]
 fn spatial_consistency<'py>(
     py: Python<'py>,
-    correspondences: PyReadonlyArray2<'py, f64>,
-    sigma_d: f64,
+    #[pyo3(from_py_with = args::correspondences)] correspondences: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::sigma_d)] sigma_d: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let c = convert::correspondences(&correspondences)?;
     let n = c.len();
-    let m = guarded(py, move || {
+    let m = guarded_dense(py, "spatial_consistency", n, 1, move || {
         pointclm::consistency::spatial_consistency(&c, sigma_d)
     })?;
     let a = numpy::ndarray::Array2::from_shape_vec((n, n), m)
@@ -171,14 +147,14 @@ fn spatial_consistency<'py>(
 #[pyo3(signature = (correspondences, features=None, config=None, num_threads=None))]
 fn density_counts<'py>(
     py: Python<'py>,
-    correspondences: PyReadonlyArray2<'py, f64>,
-    features: Option<PyReadonlyArray2<'py, f64>>,
-    config: Option<&Bound<'py, PyDict>>,
-    num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::correspondences)] correspondences: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::features)] features: Option<PyReadonlyArray2<'py, f64>>,
+    #[pyo3(from_py_with = args::config)] config: Option<Bound<'py, PyDict>>,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyArray1<i64>>> {
     let c = convert::correspondences(&correspondences)?;
     let f = convert::features(features.as_ref())?;
-    let cfg = config::from_dict(config)?;
+    let cfg = config::from_dict(config.as_ref())?;
     let p = num_threads.map(pool).transpose()?;
     let counts = guarded(py, move || {
         on_pool(p, || {
@@ -196,10 +172,11 @@ fn density_counts<'py>(
 #[pyfunction]
 fn normalized_laplacian<'py>(
     py: Python<'py>,
-    affinity: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::affinity)] affinity: PyReadonlyArray2<'py, f64>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let a = square(&affinity)?;
-    let l = guarded(py, move || {
+    let n = a.nrows();
+    let l = guarded_dense(py, "normalized_laplacian", n, 2, move || {
         pointclm::spectral::normalized_laplacian(a.as_ref())
     })?;
     Ok(mat_to_py(py, l.as_ref()))
@@ -209,9 +186,13 @@ type Eigenpairs<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>);
 
 /// Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, via faer.
 #[pyfunction]
-fn eigh<'py>(py: Python<'py>, matrix: PyReadonlyArray2<'py, f64>) -> PyResult<Eigenpairs<'py>> {
+fn eigh<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::matrix_arg)] matrix: PyReadonlyArray2<'py, f64>,
+) -> PyResult<Eigenpairs<'py>> {
     let m = square(&matrix)?;
-    let (vals, vecs) = guarded(py, move || {
+    let n = m.nrows();
+    let (vals, vecs) = guarded_dense(py, "eigh", n, 4, move || {
         pointclm::spectral::symmetric_eigen(m.as_ref(), true)
     })?;
     let vecs = vecs.ok_or_else(|| PyRuntimeError::new_err("eigenvectors missing"))?;
@@ -220,25 +201,24 @@ fn eigh<'py>(py: Python<'py>, matrix: PyReadonlyArray2<'py, f64>) -> PyResult<Ei
 
 /// Spectral clustering of a precomputed affinity; returns (labels, n_clusters, eigenvalues).
 #[pyfunction]
-#[pyo3(signature = (affinity, n_clusters=None, max_clusters=None, assignment="kmeans", restarts=10, seed=0))]
+#[pyo3(
+    signature = (affinity, n_clusters=None, max_clusters=None, assignment="kmeans".to_string(), restarts=10, seed=0),
+    text_signature = "(affinity, n_clusters=None, max_clusters=None, assignment='kmeans', restarts=10, seed=0)"
+)]
 #[allow(clippy::type_complexity)]
 fn spectral_clustering<'py>(
     py: Python<'py>,
-    affinity: PyReadonlyArray2<'py, f64>,
-    n_clusters: Option<usize>,
-    max_clusters: Option<usize>,
-    assignment: &str,
-    restarts: usize,
-    seed: u64,
+    #[pyo3(from_py_with = args::affinity)] affinity: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::n_clusters)] n_clusters: Option<usize>,
+    #[pyo3(from_py_with = args::max_clusters)] max_clusters: Option<usize>,
+    #[pyo3(from_py_with = args::assignment)] assignment: String,
+    #[pyo3(from_py_with = args::restarts)] restarts: usize,
+    #[pyo3(from_py_with = args::seed)] seed: u64,
 ) -> PyResult<(Bound<'py, PyArray1<i64>>, usize, Bound<'py, PyArray1<f64>>)> {
     let a = square(&affinity)?;
-    let assign = config::assignment(assignment)?;
-    if n_clusters == Some(0) || max_clusters == Some(0) || restarts == 0 {
-        return Err(PyValueError::new_err(
-            "n_clusters, max_clusters and restarts must be >= 1",
-        ));
-    }
-    let r = guarded(py, move || {
+    let n = a.nrows();
+    let assign = config::assignment(&assignment)?;
+    let r = guarded_dense(py, "spectral_clustering", n, 4, move || {
         pointclm::clustering::spectral_clustering(
             a.as_ref(),
             n_clusters,
@@ -260,8 +240,8 @@ fn spectral_clustering<'py>(
 #[pyfunction]
 fn kabsch<'py>(
     py: Python<'py>,
-    source: PyReadonlyArray2<'py, f64>,
-    target: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'py, f64>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let (s, t) = (points(&source, "source")?, points(&target, "target")?);
     let c = Correspondences::new(&s, &t).map_err(to_py_err)?;
@@ -274,8 +254,11 @@ fn kabsch<'py>(
 
 /// Raises ValueError naming the first invalid field of a config dict.
 #[pyfunction]
-fn validate_config(config: &Bound<'_, PyDict>) -> PyResult<()> {
-    config::from_dict(Some(config)).map(|_| ())
+fn validate_config(
+    #[pyo3(from_py_with = args::config)] config: Option<Bound<'_, PyDict>>,
+) -> PyResult<()> {
+    let config = config.ok_or_else(|| PyValueError::new_err("config must be a dict"))?;
+    config::from_dict(Some(&config)).map(|_| ())
 }
 
 /// The Rust defaults, so that the Python dataclass can be checked against them.

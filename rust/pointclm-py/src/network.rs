@@ -8,7 +8,8 @@ use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::{config, convert, guarded, on_pool, pool};
+use crate::pools::{guarded, on_pool, pool};
+use crate::{args, config, convert};
 
 /// A trained SCNonlocal embedding network, read from a `.safetensors` file and the `.json`
 /// of its architecture beside it. Loading fails with ValueError when either file is missing
@@ -22,7 +23,7 @@ pub struct PyNetwork {
 #[pymethods]
 impl PyNetwork {
     #[new]
-    fn new(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+    fn new(py: Python<'_>, #[pyo3(from_py_with = args::path)] path: PathBuf) -> PyResult<Self> {
         let p = path.clone();
         let inner = guarded(py, move || pointclm::Network::from_file(&p))?;
         Ok(Self {
@@ -60,13 +61,14 @@ impl PyNetwork {
         config::to_dict(py, &self.inner.recommended_config())
     }
 
-    /// (N, 6) correspondences -> (N, width) unit-norm float64 embeddings.
+    /// (N, 6) correspondences (any real dtype; converted to float64) -> (N, width) unit-norm
+    /// float64 embeddings.
     #[pyo3(signature = (correspondences, num_threads=None))]
     fn embed<'py>(
         &self,
         py: Python<'py>,
-        correspondences: PyReadonlyArray2<'py, f64>,
-        num_threads: Option<usize>,
+        #[pyo3(from_py_with = args::correspondences)] correspondences: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let c = convert::correspondences(&correspondences)?;
         let p = num_threads.map(pool).transpose()?;

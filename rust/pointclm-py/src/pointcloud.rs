@@ -11,8 +11,9 @@ use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
+use crate::args;
 use crate::convert::{indices, points as rows3};
-use crate::{guarded, on_pool, pool};
+use crate::pools::{guarded, on_pool, pool};
 
 fn rows_to_py<'py, const K: usize>(
     py: Python<'py>,
@@ -30,12 +31,18 @@ fn descriptors(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Features> 
         .map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
 }
 
+/// `max_nn` capped by the number of points (a point cannot have more neighbours), so that a
+/// huge count cannot size buffers; counts too small are left for the core to refuse.
+fn neighbours_at_most(max_nn: usize, points: usize) -> usize {
+    max_nn.min(points.max(2))
+}
+
 /// Centroid of each occupied voxel, ordered by voxel index.
 #[pyfunction]
 pub fn voxel_downsample<'py>(
     py: Python<'py>,
-    points: PyReadonlyArray2<'py, f64>,
-    voxel_size: f64,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let p = rows3(&points, "points")?;
     let out = guarded(py, move || pointcloud::voxel_downsample(&p, voxel_size))?;
@@ -48,12 +55,12 @@ pub fn voxel_downsample<'py>(
 #[pyo3(signature = (points, radius, max_nn=30, towards=None, away_from=None, num_threads=None))]
 pub fn estimate_normals<'py>(
     py: Python<'py>,
-    points: PyReadonlyArray2<'py, f64>,
-    radius: f64,
-    max_nn: usize,
-    towards: Option<[f64; 3]>,
-    away_from: Option<[f64; 3]>,
-    num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::radius)] radius: f64,
+    #[pyo3(from_py_with = args::max_nn)] max_nn: usize,
+    #[pyo3(from_py_with = args::towards)] towards: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::away_from)] away_from: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let orientation = match (towards, away_from) {
         (Some(v), None) => Orientation::Towards(v),
@@ -65,6 +72,7 @@ pub fn estimate_normals<'py>(
         }
     };
     let p = rows3(&points, "points")?;
+    let max_nn = neighbours_at_most(max_nn, p.len());
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, move || {
         on_pool(threads, || {
@@ -77,17 +85,20 @@ pub fn estimate_normals<'py>(
 
 /// FPFH descriptors (N, 33) over hybrid neighbourhoods (at most `max_nn` within `radius`).
 #[pyfunction]
-#[pyo3(signature = (points, normals, radius, max_nn=100, variant="open3d", num_threads=None))]
+#[pyo3(
+    signature = (points, normals, radius, max_nn=100, variant="open3d".to_string(), num_threads=None),
+    text_signature = "(points, normals, radius, max_nn=100, variant='open3d', num_threads=None)"
+)]
 pub fn compute_fpfh<'py>(
     py: Python<'py>,
-    points: PyReadonlyArray2<'py, f64>,
-    normals: PyReadonlyArray2<'py, f64>,
-    radius: f64,
-    max_nn: usize,
-    variant: &str,
-    num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::normals)] normals: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::radius)] radius: f64,
+    #[pyo3(from_py_with = args::max_nn)] max_nn: usize,
+    #[pyo3(from_py_with = args::variant)] variant: String,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let variant = match variant {
+    let variant = match variant.as_str() {
         "open3d" => FpfhVariant::Open3d,
         "pcl" => FpfhVariant::Pcl,
         other => {
@@ -98,6 +109,7 @@ pub fn compute_fpfh<'py>(
     };
     let p = rows3(&points, "points")?;
     let n = rows3(&normals, "normals")?;
+    let max_nn = neighbours_at_most(max_nn, p.len());
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, move || {
         on_pool(threads, || {
@@ -122,14 +134,14 @@ type MatchArrays<'py> = (
 #[allow(clippy::too_many_arguments)]
 pub fn match_features<'py>(
     py: Python<'py>,
-    source: PyReadonlyArray2<'py, f64>,
-    target: PyReadonlyArray2<'py, f64>,
-    top_k: usize,
-    mutual: bool,
-    n_samples: Option<usize>,
-    seed: u64,
-    num_threads: Option<usize>,
-    k: usize,
+    #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::top_k)] top_k: usize,
+    #[pyo3(from_py_with = args::mutual)] mutual: bool,
+    #[pyo3(from_py_with = args::n_samples)] n_samples: Option<usize>,
+    #[pyo3(from_py_with = args::seed)] seed: u64,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::k)] k: usize,
 ) -> PyResult<MatchArrays<'py>> {
     let s = descriptors(&source, "source descriptors")?;
     let t = descriptors(&target, "target descriptors")?;
@@ -157,9 +169,9 @@ type NearestArrays<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<f64>>)
 #[pyo3(signature = (reference, queries, num_threads=None))]
 pub fn nearest_neighbours<'py>(
     py: Python<'py>,
-    reference: PyReadonlyArray2<'py, f64>,
-    queries: PyReadonlyArray2<'py, f64>,
-    num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::reference)] reference: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::queries)] queries: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<NearestArrays<'py>> {
     let r = rows3(&reference, "reference points")?;
     let q = rows3(&queries, "query points")?;
@@ -243,19 +255,19 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
-    source: PyReadonlyArray2<'py, f64>,
-    target: PyReadonlyArray2<'py, f64>,
-    transformations: PyReadonlyArray3<'py, f64>,
-    voxel_size: f64,
-    icp: bool,
-    viewpoint: Option<[f64; 3]>,
-    min_visible_fitness: f64,
-    max_contradiction: f64,
-    min_seen: f64,
-    min_fitness: f64,
-    min_relative_fitness: f64,
-    max_shared: f64,
-    num_threads: Option<usize>,
+    #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+    #[pyo3(from_py_with = args::icp)] icp: bool,
+    #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::min_visible_fitness)] min_visible_fitness: f64,
+    #[pyo3(from_py_with = args::max_contradiction)] max_contradiction: f64,
+    #[pyo3(from_py_with = args::min_seen)] min_seen: f64,
+    #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
+    #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
+    #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<RefinedArrays<'py>> {
     let s = rows3(&source, "source")?;
     let t = rows3(&target, "target")?;

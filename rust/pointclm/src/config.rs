@@ -110,7 +110,64 @@ fn positive_length(field: &'static str, v: f64) -> Result<()> {
     }
 }
 
+/// Upper bounds of the count fields, enforced by [`Config::validate`]. Each lies far above
+/// any useful setting; its purpose is that no config can ask for unbounded work or memory (a
+/// service that passes user configs through must be able to rely on a finite worst case).
+/// A new count field of [`Config`] gets its bound here and a line in `Config::counts`.
+pub mod bounds {
+    /// Rows the dense eigensolver may receive: memory grows as `8 n^2` bytes per matrix
+    /// (3.2 GB at this bound) and time as `n^3`. The default is 2000.
+    pub const MAX_KEPT: usize = 20_000;
+    /// RANSAC hypotheses per cluster. The default is 50; a 3-point sample from a cluster
+    /// with 10% inliers succeeds with probability 1 - 1e-9 within 2 * 10^4 draws.
+    pub const RANSAC_ITERATIONS: usize = 1_000_000;
+    /// Restarts of the label assignment (each costs one k-means or discretisation). The
+    /// default is 10.
+    pub const KMEANS_RESTARTS: usize = 10_000;
+    /// Smallest cluster kept: no cluster can exceed the rows handed to clustering.
+    pub const MIN_CLUSTER_SIZE: usize = MAX_KEPT;
+    /// Clusters the eigengap may choose: at most one per clustered row.
+    pub const MAX_INSTANCES: usize = MAX_KEPT;
+    /// The density thresholds `tau_n` and `min_count`: row counts are 32-bit, so a larger
+    /// threshold could never be met.
+    pub const DENSITY_COUNT: usize = u32::MAX as usize;
+}
+
 impl Config {
+    /// `(field, value, min, max)` of every count field, checked by [`Config::validate`].
+    fn counts(&self) -> [(&'static str, usize, usize, usize); 7] {
+        [
+            ("tau_n", self.tau_n, 0, bounds::DENSITY_COUNT),
+            ("min_count", self.min_count, 0, bounds::DENSITY_COUNT),
+            // a rigid pose needs 3 points
+            (
+                "min_cluster_size",
+                self.min_cluster_size,
+                3,
+                bounds::MIN_CLUSTER_SIZE,
+            ),
+            ("max_kept", self.max_kept, 3, bounds::MAX_KEPT),
+            (
+                "max_instances",
+                self.max_instances.unwrap_or(1),
+                1,
+                bounds::MAX_INSTANCES,
+            ),
+            (
+                "kmeans_restarts",
+                self.kmeans_restarts,
+                1,
+                bounds::KMEANS_RESTARTS,
+            ),
+            (
+                "ransac_iterations",
+                self.ransac_iterations,
+                1,
+                bounds::RANSAC_ITERATIONS,
+            ),
+        ]
+    }
+
     /// The same settings with every length multiplied by `factor` (for data whose noise and
     /// object size are `factor` times the synthetic benchmark's).
     pub fn scaled(&self, factor: f64) -> Self {
@@ -144,12 +201,15 @@ impl Config {
                 "must lie in [-1, 1)",
             ));
         }
-        if self.min_cluster_size < 3 {
-            return Err(invalid(
-                "min_cluster_size",
-                self.min_cluster_size,
-                "must be >= 3 (a rigid pose needs 3 points)",
-            ));
+        for (field, value, min, max) in self.counts() {
+            if !(min..=max).contains(&value) {
+                return Err(Error::ConfigOutOfRange {
+                    field,
+                    value: value as u128,
+                    min,
+                    max,
+                });
+            }
         }
         if self.max_kept < self.min_cluster_size {
             return Err(invalid(
@@ -157,15 +217,6 @@ impl Config {
                 self.max_kept,
                 "must be >= min_cluster_size",
             ));
-        }
-        if self.max_instances == Some(0) {
-            return Err(invalid("max_instances", 0, "must be >= 1 or None"));
-        }
-        if self.kmeans_restarts == 0 {
-            return Err(invalid("kmeans_restarts", 0, "must be >= 1"));
-        }
-        if self.ransac_iterations == 0 {
-            return Err(invalid("ransac_iterations", 0, "must be >= 1"));
         }
         Ok(())
     }

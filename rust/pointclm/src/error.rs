@@ -28,6 +28,16 @@ pub enum Error {
         reason: &'static str,
     },
 
+    /// A count of the configuration outside its documented range (see
+    /// [`config::bounds`](crate::config::bounds)).
+    #[error("invalid config: {field} = {value} (must lie in {min}..={max})")]
+    ConfigOutOfRange {
+        field: &'static str,
+        value: u128,
+        min: usize,
+        max: usize,
+    },
+
     /// A matrix argument of the staged API that is not square, symmetric or finite.
     #[error("invalid matrix: {0}")]
     InvalidMatrix(String),
@@ -81,7 +91,51 @@ pub enum Error {
         expected: Vec<usize>,
         got: Vec<usize>,
     },
+
+    /// An allocation sized by the input that the system refused (or that could not even be
+    /// sized without overflow): the input is too large for this machine's memory.
+    #[error("{what}: cannot allocate {bytes} bytes (input too large for the available memory)")]
+    Allocation { what: &'static str, bytes: u128 },
+
+    /// The call was cancelled through a [`CancelToken`](crate::cancel::CancelToken) (e.g.
+    /// Ctrl-C in Python) before it finished.
+    #[error("cancelled")]
+    Cancelled,
+
+    /// Coordinates and lengths whose magnitudes no common scale brings within what `f64`
+    /// arithmetic (squared distances, their ratios and sums) can hold.
+    #[error("{what}: magnitudes from {smallest:e} to {largest:e} span more than f64 squared distances can hold; shift or rescale the input and config")]
+    MagnitudeRange {
+        what: &'static str,
+        smallest: f64,
+        largest: f64,
+    },
 }
 
 /// Shorthand for `Result<T, pointclm::Error>`.
 pub type Result<T> = std::result::Result<T, Error>;
+
+/// `vec![value; n]`, or [`Error::Allocation`] naming `what` when the system refuses the
+/// memory: sizes that come from the input must never abort the process.
+pub fn try_filled<T: Clone>(what: &'static str, n: usize, value: T) -> Result<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| Error::Allocation {
+        what,
+        bytes: n as u128 * std::mem::size_of::<T>() as u128,
+    })?;
+    v.resize(n, value);
+    Ok(v)
+}
+
+/// The product of `dims` (a number of elements), or [`Error::Allocation`] when it overflows.
+pub fn checked_elements(what: &'static str, dims: &[usize], elem_bytes: usize) -> Result<usize> {
+    dims.iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
+        .filter(|n| n.checked_mul(elem_bytes).is_some())
+        .ok_or_else(|| Error::Allocation {
+            what,
+            bytes: dims
+                .iter()
+                .fold(elem_bytes as u128, |acc, &d| acc.saturating_mul(d as u128)),
+        })
+}

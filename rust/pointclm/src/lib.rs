@@ -33,6 +33,7 @@
 //! No Python, and no I/O beyond reading weight files in [`network`]: other crates can depend
 //! on this one directly.
 
+pub mod cancel;
 pub mod clustering;
 pub mod config;
 pub mod consistency;
@@ -42,6 +43,7 @@ pub mod error;
 pub mod instances;
 pub mod kabsch;
 pub mod kmeans;
+mod magnitude;
 pub mod matching;
 #[cfg(feature = "network")]
 pub mod network;

@@ -5,11 +5,13 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use crate::cancel;
 use crate::clustering::cluster_kept;
 use crate::config::Config;
 use crate::correspondences::{Correspondences, Features};
 use crate::error::{Error, Result};
 use crate::instances::{finalize, Instance};
+use crate::magnitude;
 #[cfg(feature = "network")]
 use crate::network::Network;
 use crate::pruning::{density_counts, select_kept};
@@ -56,6 +58,13 @@ pub struct Scene {
 /// `features` (one row per correspondence, e.g. the learned embedding) switch pruning and
 /// clustering from `S = beta` to `S = S^F * beta`. Parallel parts run on the current rayon
 /// pool; the result depends only on the inputs and `seed`, never on the thread count.
+///
+/// Points and config lengths of extreme magnitude (beyond about `2^±240`, e.g. 1e300 or
+/// 1e-300, where squared distances overflow or underflow) are scaled internally by an exact
+/// power of two and the poses scaled back; when no common scale can hold both the largest
+/// magnitude and the smallest length, the result is [`Error::MagnitudeRange`]. A cancelled
+/// [`CancelToken`](crate::cancel::CancelToken) stops the call between stages with
+/// [`Error::Cancelled`].
 pub fn register(
     c: &Correspondences,
     features: Option<&Features>,
@@ -63,14 +72,42 @@ pub fn register(
     seed: u64,
 ) -> Result<Registration> {
     config.validate()?;
+    cancel::check()?;
     if let Some(f) = features {
         f.check_rows(c.len())?;
     }
+    let e = magnitude::scale_exponent(c, config)?;
+    if e == 0 {
+        return register_in_window(c, features, config, seed);
+    }
+    let scaled = magnitude::scaled_correspondences(c, e)?;
+    let mut r = register_in_window(
+        &scaled,
+        features,
+        &magnitude::scaled_config(config, e),
+        seed,
+    )?;
+    for inst in &mut r.instances {
+        inst.pose.translation = inst.pose.translation.map(|t| magnitude::times_pow2(t, e));
+        inst.inlier_rmse = magnitude::times_pow2(inst.inlier_rmse, e);
+    }
+    Ok(r)
+}
+
+/// [`register`] on input whose magnitudes f64 squared distances can hold.
+fn register_in_window(
+    c: &Correspondences,
+    features: Option<&Features>,
+    config: &Config,
+    seed: u64,
+) -> Result<Registration> {
     let t0 = Instant::now();
     let counts = density_counts(c, features, config)?;
     let kept = select_kept(&counts, config);
+    cancel::check()?;
     let t1 = Instant::now();
     let (groups, n_clusters) = cluster_kept(c, features, &kept, config, seed)?;
+    cancel::check()?;
     let t2 = Instant::now();
     let fits: Vec<_> = groups
         .par_iter()
@@ -126,7 +163,16 @@ fn on_pool<T: Sync>(
     f: impl Fn(&T) -> Result<Registration> + Sync + Send,
 ) -> Result<Vec<Result<Registration>>> {
     let pool = thread_pool(num_threads)?;
-    Ok(pool.install(|| items.par_iter().map(f).collect()))
+    // the caller's cancel token follows each scene onto the pool's threads
+    let token = cancel::current();
+    let results = pool.install(|| {
+        items
+            .par_iter()
+            .map(|item| cancel::within(token.clone(), || f(item)))
+            .collect()
+    });
+    cancel::check()?;
+    Ok(results)
 }
 
 /// [`register`] with the features computed by a trained embedding network (PointCLM proper):
@@ -156,6 +202,7 @@ fn register_embedded(
 ) -> Result<Registration> {
     let t0 = Instant::now();
     let features = embed()?;
+    cancel::check()?;
     let embedding = t0.elapsed().as_secs_f64();
     let mut r = register(c, Some(&features), config, seed)?;
     r.timings.embedding = embedding;
@@ -194,3 +241,7 @@ pub fn thread_pool(num_threads: usize) -> Result<rayon::ThreadPool> {
 #[cfg(test)]
 #[path = "tests/pipeline.rs"]
 mod tests;
+
+#[cfg(test)]
+#[path = "tests/hardening.rs"]
+mod hardening;

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::layers::{attention_rows, AttentionScratch, Geometry};
 use super::Network;
 use crate::correspondences::{Correspondences, Features};
-use crate::error::{Error, Result};
+use crate::error::{checked_elements, try_filled, Error, Result};
 
 /// Rows per block: the attention holds `BLOCK_ROWS x N` logits per thread (0.5 MB at
 /// N = 1000), small enough for the L2 cache, large enough for efficient matrix products.
@@ -44,8 +44,16 @@ pub(crate) fn embed(
 
     // `feat` is the running feature (N x w). `act` holds, per row, the pointcn output then
     // q, k and v (N x 4w), so that sweep (A) writes one chunk per block.
-    let mut feat = vec![0.0f32; n * w];
-    let mut act = vec![0.0f32; n * 4 * w];
+    let mut feat = try_filled(
+        "network features",
+        checked_elements("network features", &[n, w], 4)?,
+        0.0f32,
+    )?;
+    let mut act = try_filled(
+        "network activations",
+        checked_elements("network activations", &[n, 4, w], 4)?,
+        0.0f32,
+    )?;
     let aw = 4 * w;
     // One scratch per thread of the pool, reused by every block that thread runs: a fresh
     // one per rayon task would allocate (and the kernel zero) the logits again in every
@@ -66,6 +74,7 @@ pub(crate) fn embed(
         net.lift.apply(x.len() / 6, (x, 6), (out, w), false);
     });
     for layer in &net.blocks {
+        crate::cancel::check()?;
         for_blocks(&mut act, block_rows * aw, &|k, out, s| {
             let x = block(&feat, w, k, block_rows);
             let count = x.len() / w;

@@ -12,19 +12,63 @@ use super::{Architecture, Block, Network};
 use crate::config::{Assignment, Config, Pruning};
 use crate::error::{Error, Result};
 
+/// The largest weight file read: far above any SCNonlocal (the paper's is 4 MB), far below
+/// what a mistaken path (a disk image, a device) would make us allocate.
+pub const MAX_WEIGHTS_BYTES: u64 = 4 << 30;
+/// The largest metadata JSON read (the shipped ones are under 2 kB).
+pub const MAX_METADATA_BYTES: u64 = 16 << 20;
+
+/// Tensors of one [pointcn, non-local] block: conv + BatchNorm (6), q, k, v (6), and the
+/// message MLP's three convs and two BatchNorms (14).
+const TENSORS_PER_BLOCK: usize = 26;
+
 pub(crate) fn read_file(path: &Path) -> Result<Network> {
     let meta_path = path.with_extension("json");
-    let read_err = |p: &Path, e: std::io::Error| Error::WeightsNotFound {
-        path: p.display().to_string(),
-        reason: e.to_string(),
-    };
-    let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
-    let meta = std::fs::read(&meta_path).map_err(|e| read_err(&meta_path, e))?;
+    let bytes = read_regular(path, MAX_WEIGHTS_BYTES)?;
+    let meta = read_regular(&meta_path, MAX_METADATA_BYTES)?;
     let meta = String::from_utf8(meta).map_err(|_| Error::WeightsMalformed {
         path: meta_path.display().to_string(),
         reason: "the metadata is not UTF-8 text".into(),
     })?;
     from_bytes(&bytes, &meta, &path.display().to_string())
+}
+
+/// The bytes of `path`, which must be a regular file of at most `max` bytes: a FIFO would
+/// block forever and a device such as `/dev/zero` never ends.
+fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let not_found = |reason: String| Error::WeightsNotFound {
+        path: path.display().to_string(),
+        reason,
+    };
+    // `metadata` follows symlinks and does not open the file, so a FIFO is refused before
+    // an `open` could block on it.
+    let meta = std::fs::metadata(path).map_err(|e| not_found(e.to_string()))?;
+    if !meta.is_file() {
+        return Err(not_found("not a regular file".into()));
+    }
+    if meta.len() > max {
+        return Err(Error::WeightsMalformed {
+            path: path.display().to_string(),
+            reason: format!(
+                "{} bytes, more than the {max} a network file may have",
+                meta.len()
+            ),
+        });
+    }
+    let file = std::fs::File::open(path).map_err(|e| not_found(e.to_string()))?;
+    let mut bytes = Vec::new();
+    bytes
+        .try_reserve_exact(meta.len() as usize)
+        .map_err(|_| Error::Allocation {
+            what: "weights file",
+            bytes: u128::from(meta.len()),
+        })?;
+    // `take` guards against a file that grows while it is read
+    file.take(max)
+        .read_to_end(&mut bytes)
+        .map_err(|e| not_found(e.to_string()))?;
+    Ok(bytes)
 }
 
 pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network> {
@@ -44,6 +88,7 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
     };
     let st = SafeTensors::deserialize(bytes)
         .map_err(|e| malformed(format!("not a safetensors file: {e}")))?;
+    check_capacity(&architecture, &st, bytes.len()).map_err(malformed)?;
     let mut r = Reader {
         st: &st,
         name,
@@ -97,6 +142,40 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
         lift,
         blocks,
     })
+}
+
+/// Refuses an architecture that the file cannot hold before anything is allocated for it: a
+/// JSON that says `"depth": 1000000000` must not make the reader reserve a billion blocks.
+/// Every block has [`TENSORS_PER_BLOCK`] tensors and at least `4 width^2` f32 values (pointcn
+/// and q, k, v), the lift `6 width`.
+fn check_capacity(
+    a: &Architecture,
+    st: &SafeTensors<'_>,
+    file_bytes: usize,
+) -> std::result::Result<(), String> {
+    let tensors = st.len();
+    let blocks_held = tensors.saturating_sub(2) / TENSORS_PER_BLOCK;
+    if a.depth > blocks_held {
+        return Err(format!(
+            "architecture depth {} needs {} tensors; the file holds {tensors}",
+            a.depth,
+            a.depth.saturating_mul(TENSORS_PER_BLOCK).saturating_add(2)
+        ));
+    }
+    let w = a.width as u128;
+    let needed = (a.depth as u128)
+        .saturating_mul(16)
+        .saturating_mul(w)
+        .saturating_mul(w)
+        .saturating_add(24 * w);
+    if needed > file_bytes as u128 {
+        return Err(format!(
+            "architecture depth {}, width {} needs at least {needed} bytes of f32 tensors; \
+             the file has {file_bytes}",
+            a.depth, a.width
+        ));
+    }
+    Ok(())
 }
 
 /// Looks tensors up by name and checks their shape, dtype and values.

@@ -1,0 +1,186 @@
+//! Where core calls run: on cached private rayon pools (never rayon's global pool, which a
+//! library must not configure and which cannot be rebuilt after `fork`), on a worker thread
+//! that the calling Python thread watches, so that Ctrl-C interrupts any call at once.
+//!
+//! - Ctrl-C: the calling thread waits for the worker in short slices with the GIL released
+//!   and runs Python's signal handlers in between; on KeyboardInterrupt it cancels the call's
+//!   token (the core stops at its next check, between stages, scenes or network layers) and
+//!   raises at once, without waiting for the worker.
+//! - fork: a child inherits the parent's pool objects but none of their threads, so the first
+//!   job would wait forever. The cache is tagged with the pid; in a child the parent's pools
+//!   are forgotten (not dropped: dropping would signal threads that do not exist, through
+//!   locks that may have been held at the fork) and new ones are built.
+//! - Bounded: at most [`CACHED_POOLS`] pools and [`cached_threads`] threads are kept (least
+//!   recently used goes first; a pool larger than the whole budget serves its call and is
+//!   not kept); an evicted pool's threads exit when the last call using it returns.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::mpsc::{sync_channel, RecvTimeoutError};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use pointclm::cancel::CancelToken;
+use pyo3::exceptions::{PyMemoryError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use rayon::ThreadPool;
+
+use crate::args::MAX_THREADS;
+use crate::convert::to_py_err;
+
+/// Pools kept for reuse: the default one plus a few explicit `num_threads` values covers
+/// every realistic caller; a loop over many values churns pools instead of leaking threads.
+pub const CACHED_POOLS: usize = 4;
+
+/// Threads the cache may keep alive in all: a few pools of the machine's size.
+fn cached_threads() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    (2 * cores).max(64)
+}
+
+/// How often a waiting call looks for Ctrl-C (the issue asks for under about a second).
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+struct Cache {
+    pid: u32,
+    /// `(num_threads, pool)`, most recently used last; 0 is rayon's default count.
+    pools: Vec<(usize, Arc<ThreadPool>)>,
+}
+
+static CACHE: Mutex<Cache> = Mutex::new(Cache {
+    pid: 0,
+    pools: Vec::new(),
+});
+
+fn lock() -> MutexGuard<'static, Cache> {
+    // A poisoned lock only means a panic while it was held; the cache itself stays valid.
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    let pid = std::process::id();
+    if cache.pid != pid {
+        std::mem::forget(std::mem::take(&mut cache.pools));
+        cache.pid = pid;
+    }
+    cache
+}
+
+fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
+    {
+        let mut cache = lock();
+        if let Some(k) = cache.pools.iter().position(|(n, _)| *n == num_threads) {
+            let entry = cache.pools.remove(k);
+            let pool = entry.1.clone();
+            cache.pools.push(entry);
+            return Ok(pool);
+        }
+    }
+    // built outside the lock: spawning threads takes a while
+    let pool = Arc::new(pointclm::pipeline::thread_pool(num_threads).map_err(to_py_err)?);
+    let budget = cached_threads();
+    let size = pool.current_num_threads();
+    if size > budget {
+        return Ok(pool);
+    }
+    let mut cache = lock();
+    if let Some((_, p)) = cache.pools.iter().find(|(n, _)| *n == num_threads) {
+        // another thread built one meanwhile: share it, drop ours
+        return Ok(p.clone());
+    }
+    let held = |c: &Cache| {
+        c.pools
+            .iter()
+            .map(|(_, p)| p.current_num_threads())
+            .sum::<usize>()
+    };
+    while !cache.pools.is_empty()
+        && (cache.pools.len() >= CACHED_POOLS || held(&cache) + size > budget)
+    {
+        cache.pools.remove(0);
+    }
+    cache.pools.push((num_threads, pool.clone()));
+    Ok(pool)
+}
+
+/// The pool for an explicit thread count (`1..=MAX_THREADS`).
+pub fn pool(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
+    if !(1..=MAX_THREADS).contains(&num_threads) {
+        return Err(PyValueError::new_err(format!(
+            "num_threads must lie in 1..={MAX_THREADS} (or None for all cores), got {num_threads}"
+        )));
+    }
+    cached(num_threads)
+}
+
+/// Runs `f` on `pool`, or where it is (the default pool, inside [`guarded`]) when `None`,
+/// with the call's cancel token handed on.
+pub fn on_pool<T: Send>(pool: Option<Arc<ThreadPool>>, f: impl FnOnce() -> T + Send) -> T {
+    match (pool, pointclm::cancel::current()) {
+        (None, _) => f(),
+        (Some(p), None) => p.install(f),
+        (Some(p), Some(token)) => p.install(move || token.run(f)),
+    }
+}
+
+/// Runs a core call on the default pool with the GIL released, turning a panic into
+/// RuntimeError (a bug must never abort the interpreter), a refused allocation into
+/// MemoryError, and Ctrl-C into KeyboardInterrupt within [`SIGNAL_POLL`].
+pub fn guarded<T: Send + 'static>(
+    py: Python<'_>,
+    f: impl FnOnce() -> pointclm::Result<T> + Send + 'static,
+) -> PyResult<T> {
+    let pool = cached(0)?;
+    let token = CancelToken::new();
+    let worker_token = token.clone();
+    let (tx, mut rx) = sync_channel(1);
+    pool.spawn(move || {
+        let r = catch_unwind(AssertUnwindSafe(|| worker_token.run(f)));
+        // the receiver is gone when the caller was interrupted: nobody wants the result
+        let _ = tx.send(r);
+    });
+    loop {
+        // the receiver is moved in and out: it is Send but not Sync
+        let (received, back) = py.detach(move || (rx.recv_timeout(SIGNAL_POLL), rx));
+        rx = back;
+        match received {
+            Ok(Ok(r)) => return r.map_err(to_py_err),
+            Ok(Err(_)) => {
+                return Err(PyRuntimeError::new_err(
+                    "internal error in pointclm (please report)",
+                ))
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                if let Err(interrupt) = py.check_signals() {
+                    token.cancel();
+                    return Err(interrupt);
+                }
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                return Err(PyRuntimeError::new_err(
+                    "internal error in pointclm: the worker stopped without a result",
+                ))
+            }
+        }
+    }
+}
+
+/// [`guarded`] for a staged function that holds `copies` dense `n x n` f64 matrices: the
+/// memory is asked of the system first, so that a size it cannot give is a MemoryError
+/// before any work rather than an abort in the middle.
+pub fn guarded_dense<T: Send + 'static>(
+    py: Python<'_>,
+    what: &str,
+    n: usize,
+    copies: usize,
+    f: impl FnOnce() -> pointclm::Result<T> + Send + 'static,
+) -> PyResult<T> {
+    let elements = n.checked_mul(n).and_then(|e| e.checked_mul(copies));
+    let fits = elements.is_some_and(|e| {
+        let mut probe: Vec<f64> = Vec::new();
+        probe.try_reserve_exact(e).is_ok()
+    });
+    if !fits {
+        return Err(PyMemoryError::new_err(format!(
+            "{what}: {copies} dense {n} x {n} matrices ({} bytes) do not fit in memory",
+            (n as u128) * (n as u128) * (copies as u128) * 8
+        )));
+    }
+    guarded(py, f)
+}
