@@ -37,6 +37,10 @@ class Config:
         Length scale of the clustering affinity.
     max_instances : int or None
         Optional cap on the number of clusters the eigengap may choose.
+    max_rounds : int
+        Clustering rounds: after each, the correspondences explained by validated instances
+        leave the kept set and the rest is clustered again (finds copies the eigengap merged
+        or missed). Needs `max_nfa`; 1 is the paper's single round.
     assignment : {"kmeans", "discretize"}
         k-means++ on the row-normalised embedding, or Yu-Shi discretisation.
     kmeans_restarts : int
@@ -44,7 +48,14 @@ class Config:
     min_cluster_size : int
         Clusters and final instances with fewer members are dropped.
     ransac_iterations : int
-        3-point hypotheses per cluster.
+        At most this many 3-point hypotheses per cluster.
+    ransac_confidence : float
+        RANSAC stops once an all-inlier sample would have been drawn with this probability at
+        the best inlier share so far (1.0 runs all `ransac_iterations`).
+    max_nfa : float or None
+        A-contrario validation: an instance is kept only if its expected number of false
+        alarms (equally supported poses arising from unrelated matches, among all candidates)
+        is at most this. None keeps every instance.
     inlier_threshold : float
         A correspondence is an inlier of a pose if ``||R x + t - y||`` is below this.
     refine : bool
@@ -63,10 +74,13 @@ class Config:
     max_kept: int = 2000
     affinity_sigma: float = 0.1
     max_instances: int | None = None
+    max_rounds: int = 1
     assignment: Literal["kmeans", "discretize"] = "kmeans"
     kmeans_restarts: int = 10
     min_cluster_size: int = 10
-    ransac_iterations: int = 50
+    ransac_iterations: int = 1000
+    ransac_confidence: float = 1.0
+    max_nfa: float | None = 1e-3
     inlier_threshold: float = 0.1
     refine: bool = True
     merge_duplicates: bool = True
@@ -79,6 +93,7 @@ class Config:
             "feature_threshold",
             "affinity_sigma",
             "inlier_threshold",
+            "ransac_confidence",
         ):
             value = getattr(self, name)
             if isinstance(value, bool):
@@ -98,6 +113,7 @@ class Config:
             "kmeans_restarts",
             "min_cluster_size",
             "ransac_iterations",
+            "max_rounds",
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
@@ -105,6 +121,11 @@ class Config:
             if value < 0:
                 raise ValueError(f"config field {name}: must be >= 0, got {value}")
             object.__setattr__(self, name, int(value))  # numpy ints -> int for the core
+        nfa = self.max_nfa
+        if nfa is not None:
+            if isinstance(nfa, bool) or not isinstance(nfa, int | float | np.integer | np.floating):
+                raise ValueError(f"config field max_nfa: expected None or a number, got {nfa!r}")
+            object.__setattr__(self, "max_nfa", float(nfa))
         mi = self.max_instances
         if mi is not None:
             if isinstance(mi, bool) or not isinstance(mi, int | np.integer) or mi < 1:

@@ -38,10 +38,13 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
             "max_kept" => c.max_kept = v.extract().map_err(bad)?,
             "affinity_sigma" => c.affinity_sigma = v.extract().map_err(bad)?,
             "max_instances" => c.max_instances = v.extract().map_err(bad)?,
+            "max_rounds" => c.max_rounds = v.extract().map_err(bad)?,
             "assignment" => c.assignment = assignment(&v.extract::<String>().map_err(bad)?)?,
             "kmeans_restarts" => c.kmeans_restarts = v.extract().map_err(bad)?,
             "min_cluster_size" => c.min_cluster_size = v.extract().map_err(bad)?,
             "ransac_iterations" => c.ransac_iterations = v.extract().map_err(bad)?,
+            "ransac_confidence" => c.ransac_confidence = v.extract().map_err(bad)?,
+            "max_nfa" => c.max_nfa = v.extract().map_err(bad)?,
             "inlier_threshold" => c.inlier_threshold = v.extract().map_err(bad)?,
             "refine" => c.refine = v.extract().map_err(bad)?,
             "merge_duplicates" => c.merge_duplicates = v.extract().map_err(bad)?,
@@ -89,6 +92,7 @@ pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>>
     d.set_item("max_kept", c.max_kept)?;
     d.set_item("affinity_sigma", c.affinity_sigma)?;
     d.set_item("max_instances", c.max_instances)?;
+    d.set_item("max_rounds", c.max_rounds)?;
     let assignment = match c.assignment {
         Assignment::KMeans => "kmeans",
         Assignment::Discretize => "discretize",
@@ -97,6 +101,8 @@ pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>>
     d.set_item("kmeans_restarts", c.kmeans_restarts)?;
     d.set_item("min_cluster_size", c.min_cluster_size)?;
     d.set_item("ransac_iterations", c.ransac_iterations)?;
+    d.set_item("ransac_confidence", c.ransac_confidence)?;
+    d.set_item("max_nfa", c.max_nfa)?;
     d.set_item("inlier_threshold", c.inlier_threshold)?;
     d.set_item("refine", c.refine)?;
     d.set_item("merge_duplicates", c.merge_duplicates)?;

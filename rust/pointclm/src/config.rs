@@ -53,14 +53,26 @@ pub struct Config {
     pub affinity_sigma: f64,
     /// Optional cap on the number of clusters the eigengap may choose.
     pub max_instances: Option<usize>,
+    /// Clustering rounds: after each, the correspondences explained by validated instances
+    /// leave the kept set and the rest is clustered again, which finds copies the eigengap
+    /// merged or missed (bins of dozens of parts). Needs `max_nfa` (without validation one
+    /// round runs, as in the paper).
+    pub max_rounds: usize,
     /// Label assignment on the spectral embedding.
     pub assignment: Assignment,
     /// Restarts of k-means (best inertia wins) or of the discretisation.
     pub kmeans_restarts: usize,
     /// Clusters, and final instances, with fewer members are dropped.
     pub min_cluster_size: usize,
-    /// RANSAC hypotheses (3-point Kabsch) per cluster.
+    /// At most this many RANSAC hypotheses (3-point Kabsch) per cluster.
     pub ransac_iterations: usize,
+    /// RANSAC stops once an all-inlier sample would have been drawn with this probability
+    /// at the best inlier share found so far (1 runs all `ransac_iterations`).
+    pub ransac_confidence: f64,
+    /// A-contrario validation: an instance is kept only if its number of false alarms (how
+    /// many poses as well supported would arise from unrelated matches) is at most this
+    /// ([`crate::validation`]). `None` keeps every instance.
+    pub max_nfa: Option<f64>,
     /// A correspondence is an inlier of a pose if `||R x + t - y||` is below this.
     pub inlier_threshold: f64,
     /// Refit each pose by least squares on its inliers (the authors' code does not).
@@ -83,10 +95,13 @@ impl Default for Config {
             max_kept: 2000,
             affinity_sigma: 0.1,
             max_instances: None,
+            max_rounds: 1,
             assignment: Assignment::KMeans,
             kmeans_restarts: 10,
             min_cluster_size: 10,
-            ransac_iterations: 50,
+            ransac_iterations: 1000,
+            ransac_confidence: 1.0,
+            max_nfa: Some(1e-3),
             inlier_threshold: 0.1,
             refine: true,
             merge_duplicates: true,
@@ -131,11 +146,13 @@ pub mod bounds {
     /// The density thresholds `tau_n` and `min_count`: row counts are 32-bit, so a larger
     /// threshold could never be met.
     pub const DENSITY_COUNT: usize = u32::MAX as usize;
+    /// Clustering rounds: each costs at most one clustering of the kept set.
+    pub const MAX_ROUNDS: usize = 100;
 }
 
 impl Config {
     /// `(field, value, min, max)` of every count field, checked by [`Config::validate`].
-    fn counts(&self) -> [(&'static str, usize, usize, usize); 7] {
+    fn counts(&self) -> [(&'static str, usize, usize, usize); 8] {
         [
             ("tau_n", self.tau_n, 0, bounds::DENSITY_COUNT),
             ("min_count", self.min_count, 0, bounds::DENSITY_COUNT),
@@ -165,6 +182,7 @@ impl Config {
                 1,
                 bounds::RANSAC_ITERATIONS,
             ),
+            ("max_rounds", self.max_rounds, 1, bounds::MAX_ROUNDS),
         ]
     }
 
@@ -217,6 +235,21 @@ impl Config {
                 self.max_kept,
                 "must be >= min_cluster_size",
             ));
+        }
+        if !(self.ransac_confidence.is_finite()
+            && self.ransac_confidence > 0.0
+            && self.ransac_confidence <= 1.0)
+        {
+            return Err(invalid(
+                "ransac_confidence",
+                self.ransac_confidence,
+                "must lie in (0, 1]",
+            ));
+        }
+        if let Some(v) = self.max_nfa {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid("max_nfa", v, "must be a finite number > 0 or None"));
+            }
         }
         Ok(())
     }

@@ -1,10 +1,11 @@
 //! From per-cluster RANSAC fits to the final instances: inliers over all correspondences,
-//! merging of duplicates, one label per correspondence.
+//! merging of duplicates, a-contrario validation, one label per correspondence.
 
 use crate::config::Config;
 use crate::correspondences::Correspondences;
 use crate::kabsch::{kabsch, RigidTransform};
 use crate::ransac::{inliers_of, RansacFit};
+use crate::validation::NullModel;
 
 /// One registered copy of the source in the target.
 #[derive(Debug, Clone, PartialEq)]
@@ -59,6 +60,12 @@ pub fn finalize(
         if !duplicate {
             poses.push(cand);
         }
+    }
+    if let Some(max_nfa) = config.max_nfa {
+        // Before labelling, so that an unsupported pose cannot take inliers from a real one.
+        let null = NullModel::new(c, config.inlier_threshold);
+        let bound = max_nfa.log10();
+        poses.retain(|(pose, _)| null.log10_nfa(c, pose, fits.len()) <= bound);
     }
 
     // Each correspondence goes to its best-fitting pose; poses left with too few are dropped

@@ -6,7 +6,8 @@
 //!
 //! The data flows one way: correspondences -> spatial consistency ([`consistency`]) ->
 //! density pruning ([`pruning`]) -> spectral clustering ([`clustering`], [`spectral`]) ->
-//! per-cluster RANSAC ([`ransac`]) -> instances ([`instances`]). [`register`] runs it all;
+//! per-cluster RANSAC ([`ransac`]) -> instances ([`instances`]), each kept only if its inlier
+//! count is statistically significant ([`validation`]). [`register`] runs it all;
 //! each stage is public for staged use. With the learned embedding ([`network`], cargo
 //! feature `network`, on by default), [`register_with_network`] puts the network's forward
 //! pass between consistency and pruning: its unit-norm features turn `S = beta` into
@@ -56,6 +57,7 @@ pub mod spectral;
 #[cfg(test)]
 #[path = "tests/support.rs"]
 mod testing;
+pub mod validation;
 
 pub use config::{Assignment, Config, Pruning};
 pub use correspondences::{Correspondences, Features, MIN_CORRESPONDENCES};

@@ -15,8 +15,9 @@ use crate::magnitude;
 #[cfg(feature = "network")]
 use crate::network::Network;
 use crate::pruning::{density_counts, select_kept};
-use crate::ransac::ransac;
+use crate::ransac::{ransac, RansacFit};
 use crate::seeds::{stream, STAGE_RANSAC};
+use crate::validation::NullModel;
 
 /// Wall-clock seconds spent in each stage (for reporting; not part of the result's identity).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -106,24 +107,11 @@ fn register_in_window(
     let kept = select_kept(&counts, config);
     cancel::check()?;
     let t1 = Instant::now();
-    let (groups, n_clusters) = cluster_kept(c, features, &kept, config, seed)?;
+    let proposals = propose(c, features, &kept, config, seed)?;
+    let t2 = t1 + proposals.clustering;
     cancel::check()?;
-    let t2 = Instant::now();
-    let fits: Vec<_> = groups
-        .par_iter()
-        .enumerate()
-        .filter_map(|(k, g)| {
-            let mut rng = stream(seed, STAGE_RANSAC, k as u64);
-            ransac(
-                c,
-                g,
-                config.ransac_iterations,
-                config.inlier_threshold,
-                config.refine,
-                &mut rng,
-            )
-        })
-        .collect();
+    let fits = proposals.fits;
+    let n_clusters = proposals.n_clusters;
     let (instances, labels) = finalize(c, &fits, config);
     let t3 = Instant::now();
     Ok(Registration {
@@ -137,6 +125,92 @@ fn register_in_window(
             clustering: (t2 - t1).as_secs_f64(),
             poses: (t3 - t2).as_secs_f64(),
         },
+    })
+}
+
+/// Candidate poses from the kept set, and the clustering's share of the time spent.
+struct Proposals {
+    fits: Vec<RansacFit>,
+    n_clusters: usize,
+    clustering: std::time::Duration,
+}
+
+/// Clusters the kept set and fits a pose per cluster, in rounds: after each round the
+/// correspondences explained by a validated pose leave the set and the rest is clustered
+/// again. Why: with many similar copies the eigengap settles on too few clusters, and a
+/// cluster that merged two copies yields one pose; a second look at what no validated pose
+/// explains finds the copies the first one merged or missed. Without validation
+/// (`max_nfa = None`) there is no way to tell found copies from junk, so one round runs (the
+/// paper's method).
+fn propose(
+    c: &Correspondences,
+    features: Option<&Features>,
+    kept: &[usize],
+    config: &Config,
+    seed: u64,
+) -> Result<Proposals> {
+    let null = config
+        .max_nfa
+        .map(|v| (NullModel::new(c, config.inlier_threshold), v.log10()));
+    let rounds = if null.is_some() { config.max_rounds } else { 1 };
+    let thr_sq = config.inlier_threshold * config.inlier_threshold;
+    let mut pool = kept.to_vec();
+    let mut fits: Vec<RansacFit> = Vec::new();
+    let mut first_count = 0;
+    let mut clustering = std::time::Duration::ZERO;
+    for round in 0..rounds {
+        cancel::check()?;
+        let t = Instant::now();
+        let (groups, n_clusters) = cluster_kept(c, features, &pool, config, seed ^ round as u64)?;
+        clustering += t.elapsed();
+        if round == 0 {
+            first_count = n_clusters;
+        }
+        let offset = fits.len() as u64;
+        let round_fits: Vec<RansacFit> = groups
+            .par_iter()
+            .enumerate()
+            .filter_map(|(k, g)| {
+                let mut rng = stream(seed, STAGE_RANSAC, offset + k as u64);
+                ransac(
+                    c,
+                    g,
+                    config.ransac_iterations,
+                    config.ransac_confidence,
+                    config.inlier_threshold,
+                    config.refine,
+                    &mut rng,
+                )
+            })
+            .collect();
+        let Some((null, bound)) = &null else {
+            fits.extend(round_fits);
+            break;
+        };
+        let n_tests = fits.len() + round_fits.len();
+        let valid: Vec<bool> = round_fits
+            .par_iter()
+            .map(|f| null.log10_nfa(c, &f.pose, n_tests) <= *bound)
+            .collect();
+        let mut explained = vec![false; c.len()];
+        for (f, _) in round_fits.iter().zip(&valid).filter(|(_, &v)| v) {
+            for &i in pool.iter() {
+                if f.pose.residual_sq(c.source(i), c.target(i)) < thr_sq {
+                    explained[i] = true;
+                }
+            }
+        }
+        fits.extend(round_fits);
+        let before = pool.len();
+        pool.retain(|&i| !explained[i]);
+        if pool.len() == before || pool.len() < config.min_cluster_size {
+            break;
+        }
+    }
+    Ok(Proposals {
+        fits,
+        n_clusters: first_count,
+        clustering,
     })
 }
 

@@ -1,5 +1,7 @@
-//! RANSAC over 3-point Kabsch hypotheses within one cluster. After pruning and clustering a
-//! cluster is mostly inliers, so a few dozen hypotheses suffice (paper Table 4).
+//! RANSAC over 3-point Kabsch hypotheses within one cluster. On synthetic scenes a cluster is
+//! mostly inliers and a few hypotheses suffice (paper Table 4); on real scans a cluster can be
+//! four parts outliers to one part inliers, so the loop runs until it is confident (the
+//! classic adaptive stopping rule) rather than a fixed count.
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -14,13 +16,17 @@ pub struct RansacFit {
     pub inliers: Vec<usize>,
 }
 
-/// Runs `iterations` hypotheses on `members` and returns the pose with the most inliers
-/// (residual below `threshold`), refit by least squares on its inliers when `refine`.
+/// Runs at most `iterations` hypotheses on `members` and returns the pose with the most
+/// inliers (residual below `threshold`), refit by least squares on its inliers when `refine`.
+/// The loop stops early once, at the best inlier share `w` seen so far, `k` draws would all
+/// have missed an all-inlier triplet with probability below `1 - confidence`
+/// (`(1 - w^3)^k < 1 - confidence`); `confidence >= 1` runs every iteration.
 /// `None` when no non-degenerate triplet was drawn.
 pub fn ransac(
     c: &Correspondences,
     members: &[usize],
     iterations: usize,
+    confidence: f64,
     threshold: f64,
     refine: bool,
     rng: &mut ChaCha8Rng,
@@ -30,7 +36,10 @@ pub fn ransac(
     }
     let thr_sq = threshold * threshold;
     let mut best: Option<(usize, f64, RigidTransform)> = None;
-    for _ in 0..iterations {
+    let mut needed = iterations;
+    let mut drawn = 0;
+    while drawn < needed.min(iterations) {
+        drawn += 1;
         let triplet = sample_three(members, rng);
         if !plausible_triplet(c, &triplet, threshold) {
             continue;
@@ -45,6 +54,7 @@ pub fn ransac(
         };
         if better {
             best = Some((count, cost, pose));
+            needed = needed_draws(count, members.len(), confidence);
         }
     }
     let (_, _, mut pose) = best?;
@@ -68,6 +78,25 @@ pub fn ransac(
         }
     }
     Some(RansacFit { pose, inliers })
+}
+
+/// Draws after which an all-inlier triplet would have been seen with probability
+/// `confidence`, when `inliers` of `members` are inliers.
+fn needed_draws(inliers: usize, members: usize, confidence: f64) -> usize {
+    if confidence >= 1.0 {
+        return usize::MAX;
+    }
+    let w = inliers as f64 / members as f64;
+    let all_inlier = w * w * w;
+    if all_inlier >= 1.0 {
+        return 1;
+    }
+    let k = (1.0 - confidence).ln() / (1.0 - all_inlier).ln();
+    if k.is_finite() {
+        k.ceil().max(1.0) as usize
+    } else {
+        usize::MAX
+    }
 }
 
 fn sample_three(members: &[usize], rng: &mut ChaCha8Rng) -> [usize; 3] {

@@ -11,7 +11,7 @@ fn finds_planted_pose_at_five_percent_inliers() {
     let scene = random_scene(400, 1, 0.05, 21);
     let members: Vec<usize> = (0..400).collect();
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let fit = ransac(&scene.corr, &members, 40_000, 0.05, true, &mut rng).unwrap();
+    let fit = ransac(&scene.corr, &members, 40_000, 1.0, 0.05, true, &mut rng).unwrap();
     let truth = &scene.poses[0];
     assert!((fit.pose.rotation - truth.rotation).abs().max() < 1e-6);
     assert!((fit.pose.translation - truth.translation).abs().max() < 1e-6);
