@@ -364,7 +364,7 @@ def test_staged_correspondence_checks() -> None:
 
 def test_too_many_threads_and_clusters() -> None:
     corr = make_scene(0, n_keep=50).correspondences
-    with raises_value_error("num_threads must lie in"):
+    with raises_value_error("num_threads must"):
         pointclm.register(corr, num_threads=10_000)
     affinity = np.eye(6) + 1e-3
     with raises_value_error("n_clusters"):

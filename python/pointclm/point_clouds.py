@@ -348,4 +348,10 @@ def _config(
         meta = load_metadata(model)
         key = "recommended_point_cloud_config" + ("" if refine else "_no_refine")
         base = Config(**as_config(meta.get(key, meta.get("recommended_config", {}))))
+    if refine:
+        # Verification on the clouds judges every proposal far better than a count of
+        # correspondences can, so the correspondence stage's a-contrario test would only
+        # drop copies before they are looked at (on the validation scenes it left one
+        # candidate where verification keeps several).
+        base = replace(base, max_nfa=None)
     return scaled_config(voxel, base)
