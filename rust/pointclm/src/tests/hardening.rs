@@ -202,6 +202,9 @@ prop_compose! {
             kmeans_restarts: counts.3,
             min_cluster_size: counts.4,
             ransac_iterations: counts.5,
+            ransac_confidence: if flags.1 { 1.0 } else { thresholds.1 },
+            max_nfa: max_instances.map(|m| m as f64 * 1e-3),
+            max_rounds: counts.0,
             max_instances,
             pruning: [Pruning::Paper, Pruning::AuthorsCode, Pruning::Disabled][flags.3 as usize],
             assignment: if flags.0 { Assignment::KMeans } else { Assignment::Discretize },
@@ -224,6 +227,8 @@ proptest! {
                 prop_assert!(c.ransac_iterations <= bounds::RANSAC_ITERATIONS);
                 prop_assert!(c.kmeans_restarts <= bounds::KMEANS_RESTARTS);
                 prop_assert!(c.max_kept <= bounds::MAX_KEPT);
+                prop_assert!((1..=bounds::MAX_ROUNDS).contains(&c.max_rounds));
+                prop_assert!(c.ransac_confidence > 0.0 && c.ransac_confidence <= 1.0);
                 prop_assert!((3..=c.max_kept).contains(&c.min_cluster_size));
                 prop_assert!(c.max_instances.is_none_or(|m| (1..=bounds::MAX_INSTANCES).contains(&m)));
             }

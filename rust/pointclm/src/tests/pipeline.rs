@@ -67,7 +67,7 @@ fn bad_config_is_an_error_not_a_panic() {
     };
     assert!(matches!(
         register(&scene.corr, None, &config, 0),
-        Err(Error::InvalidConfig { .. })
+        Err(Error::InvalidConfig { .. } | Error::ConfigOutOfRange { .. })
     ));
     let f = Features::new(vec![1.0; 10], 1).unwrap();
     assert!(matches!(
