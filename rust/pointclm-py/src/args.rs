@@ -211,7 +211,7 @@ pub fn matrix_arg<'py>(obj: &Bound<'py, PyAny>) -> PyResult<PyReadonlyArray2<'py
 
 pub fn config<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyDict>>> {
     optional(obj, |o| {
-        o.cast::<PyDict>().map(|d| d.clone()).map_err(|_| {
+        o.cast::<PyDict>().cloned().map_err(|_| {
             PyValueError::new_err(format!("config must be a dict or None, got {}", repr(o)))
         })
     })
@@ -219,6 +219,6 @@ pub fn config<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyDict
 
 pub fn scenes<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyList>> {
     obj.cast::<PyList>()
-        .map(|l| l.clone())
+        .cloned()
         .map_err(|_| PyValueError::new_err(format!("scenes must be a list, got {}", repr(obj))))
 }
