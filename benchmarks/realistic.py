@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from peers import sequential_ransac
 
 #: The training-free sweep's best on the 80 realistic scenes of the validation models
 #: (armadillo, bed) that picked each network's thresholds: the two compared on the same
@@ -70,40 +71,6 @@ def oracle_features(labels: np.ndarray, seed: int) -> np.ndarray:
     for k in range(int(labels.max(initial=-1)) + 1):
         f[labels == k] = rng.normal(size=16) + 0.05 * rng.normal(size=((labels == k).sum(), 16))
     return f / np.linalg.norm(f, axis=1, keepdims=True)
-
-
-def sequential_ransac(corr: np.ndarray, threshold: float, min_inliers: int, iters: int) -> list:
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    remaining = np.arange(len(corr))
-    poses = []
-    for _ in range(10):
-        if len(remaining) < max(3, min_inliers):
-            break
-        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(corr[remaining, :3]))
-        tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(corr[remaining, 3:]))
-        pairs = np.repeat(np.arange(len(remaining))[:, None], 2, axis=1).astype(np.int32)
-        res = reg.registration_ransac_based_on_correspondence(
-            src,
-            tgt,
-            o3d.utility.Vector2iVector(pairs),
-            threshold,
-            reg.TransformationEstimationPointToPoint(False),
-            3,
-            [],
-            reg.RANSACConvergenceCriteria(iters, 0.999),
-        )
-        T = np.asarray(res.transformation)
-        err = np.linalg.norm(
-            corr[remaining, :3] @ T[:3, :3].T + T[:3, 3] - corr[remaining, 3:], axis=1
-        )
-        inl = err < threshold
-        if inl.sum() < min_inliers:
-            break
-        poses.append(T)
-        remaining = remaining[~inl]
-    return poses
 
 
 def main() -> None:

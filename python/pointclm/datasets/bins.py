@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from .procedural import PROCEDURAL_SHAPES
-from .scenes import _MODELS, _dense, default_data_dir
+from .scenes import _MODELS, HELDOUT_MODELS, VALIDATION_MODELS, _dense, default_data_dir
 
 __all__ = [
     "BIN_MODELS_HELD_OUT",
@@ -67,25 +67,10 @@ __all__ = [
     "save_bin_scene",
 ]
 
-#: Models on which bin figures are reported (never used to pick a threshold).
-BIN_MODELS_HELD_OUT: tuple[str, ...] = (
-    "stanford/bunny",
-    "common3d/spot",
-    "common3d/cow",
-    "common3d/teapot",
-    "common3d/fandisk",
-    "common3d/rocker-arm",
-    "common3d/beetle",
-)
-#: Models on which thresholds and defaults may be chosen.
-BIN_MODELS_VALIDATION: tuple[str, ...] = (
-    "stanford/dragon",
-    "stanford/happy",
-    "stanford/armadillo",
-    "modelnet/bathtub",
-    "modelnet/bed",
-    *PROCEDURAL_SHAPES,
-)
+#: The project's model split (:mod:`pointclm.datasets.scenes`): figures are reported on the
+#: held-out models, thresholds and defaults chosen only on the validation ones.
+BIN_MODELS_HELD_OUT: tuple[str, ...] = HELDOUT_MODELS
+BIN_MODELS_VALIDATION: tuple[str, ...] = VALIDATION_MODELS
 
 #: Surface labels of scan points that lie on no copy.
 FLOOR, WALL = -2, -3

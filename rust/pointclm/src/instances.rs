@@ -22,11 +22,14 @@ pub struct Instance {
 }
 
 /// Turns cluster fits into instances and a label per correspondence (`-1` = outlier,
-/// `k` = `instances[k]`); instances are sorted by inlier count, largest first.
+/// `k` = `instances[k]`); instances are sorted by inlier count, largest first. With
+/// `config.max_nfa`, poses that `null` does not find significant are dropped first (`null`
+/// must then be the scene's [`NullModel`] at `config.inlier_threshold`).
 pub fn finalize(
     c: &Correspondences,
     fits: &[RansacFit],
     config: &Config,
+    null: Option<&NullModel>,
 ) -> (Vec<Instance>, Vec<i64>) {
     let n = c.len();
     let all: Vec<usize> = (0..n).collect();
@@ -61,9 +64,8 @@ pub fn finalize(
             poses.push(cand);
         }
     }
-    if let Some(max_nfa) = config.max_nfa {
+    if let (Some(max_nfa), Some(null)) = (config.max_nfa, null) {
         // Before labelling, so that an unsupported pose cannot take inliers from a real one.
-        let null = NullModel::new(c, config.inlier_threshold);
         let bound = max_nfa.log10();
         poses.retain(|(pose, _)| null.log10_nfa(c, pose, fits.len()) <= bound);
     }

@@ -107,12 +107,16 @@ fn register_in_window(
     let kept = select_kept(&counts, config);
     cancel::check()?;
     let t1 = Instant::now();
-    let proposals = propose(c, features, &kept, config, seed)?;
+    // One index of the target ends serves every validation, in each round and at the end.
+    let null = config
+        .max_nfa
+        .map(|_| NullModel::new(c, config.inlier_threshold));
+    let proposals = propose(c, features, &kept, config, null.as_ref(), seed)?;
     let t2 = t1 + proposals.clustering;
     cancel::check()?;
     let fits = proposals.fits;
     let n_clusters = proposals.n_clusters;
-    let (instances, labels) = finalize(c, &fits, config);
+    let (instances, labels) = finalize(c, &fits, config, null.as_ref());
     let t3 = Instant::now();
     Ok(Registration {
         instances,
@@ -147,11 +151,10 @@ fn propose(
     features: Option<&Features>,
     kept: &[usize],
     config: &Config,
+    null: Option<&NullModel>,
     seed: u64,
 ) -> Result<Proposals> {
-    let null = config
-        .max_nfa
-        .map(|v| (NullModel::new(c, config.inlier_threshold), v.log10()));
+    let null = null.zip(config.max_nfa).map(|(m, v)| (m, v.log10()));
     let rounds = if null.is_some() { config.max_rounds } else { 1 };
     let thr_sq = config.inlier_threshold * config.inlier_threshold;
     let mut pool = kept.to_vec();
@@ -183,14 +186,14 @@ fn propose(
                 )
             })
             .collect();
-        let Some((null, bound)) = &null else {
+        let Some((null, bound)) = null else {
             fits.extend(round_fits);
             break;
         };
         let n_tests = fits.len() + round_fits.len();
         let valid: Vec<bool> = round_fits
             .par_iter()
-            .map(|f| null.log10_nfa(c, &f.pose, n_tests) <= *bound)
+            .map(|f| null.log10_nfa(c, &f.pose, n_tests) <= bound)
             .collect();
         let mut explained = vec![false; c.len()];
         for (f, _) in round_fits.iter().zip(&valid).filter(|(_, &v)| v) {
