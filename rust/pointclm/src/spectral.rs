@@ -174,4 +174,4 @@ pub fn row_normalized_embedding(vectors: MatRef<'_, f64>, m: usize) -> Vec<f64> 
 
 #[cfg(test)]
 #[path = "tests/spectral.rs"]
-mod tests;
+pub(crate) mod tests;
