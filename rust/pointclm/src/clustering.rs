@@ -1,16 +1,16 @@
 //! From the kept correspondences to groups, one per candidate instance.
 
-use faer::{Mat, MatRef};
+use faer::MatRef;
 
 use crate::config::{Assignment, Config};
 use crate::correspondences::{Correspondences, Features};
 use crate::discretize::discretize;
 use crate::error::{Error, Result};
 use crate::kmeans::kmeans;
-use crate::lanczos::{smallest_eigenpairs, PARTIAL_MIN_ROWS};
 use crate::seeds::{stream, STAGE_CLUSTERING};
 use crate::spectral::{
     affinity, eigengap, normalized_laplacian, row_normalized_embedding, symmetric_eigen,
+    symmetric_eigen_f32, SINGLE_PRECISION_ROWS,
 };
 
 /// Spectral clustering of one affinity matrix.
@@ -20,8 +20,8 @@ pub struct SpectralLabels {
     pub labels: Vec<usize>,
     /// The number of clusters used (the eigengap's choice unless given).
     pub n_clusters: usize,
-    /// The smallest eigenvalues of the normalised Laplacian, ascending: all of them below
-    /// [`PARTIAL_MIN_ROWS`] rows, otherwise as many as the eigengap search needed.
+    /// Eigenvalues of the normalised Laplacian, ascending (computed in f32 from
+    /// [`SINGLE_PRECISION_ROWS`] rows).
     pub eigenvalues: Vec<f64>,
 }
 
@@ -44,7 +44,12 @@ pub fn spectral_clustering(
         });
     }
     let l = normalized_laplacian(a)?;
-    let (eigenvalues, vectors) = bottom_spectrum(l.as_ref(), n_clusters, max_clusters, seed)?;
+    let (eigenvalues, vectors) = if n >= SINGLE_PRECISION_ROWS {
+        let (values, vectors) = symmetric_eigen_f32(l.as_ref())?;
+        (values, Some(vectors))
+    } else {
+        symmetric_eigen(l.as_ref(), true)?
+    };
     let m = n_clusters
         .unwrap_or_else(|| eigengap(&eigenvalues, max_clusters))
         .clamp(n.min(1), n);
@@ -72,43 +77,6 @@ pub fn spectral_clustering(
         n_clusters: m,
         eigenvalues,
     })
-}
-
-/// First size of the partial spectrum searched for the eigengap.
-const FIRST_SPECTRUM: usize = 32;
-
-/// The smallest eigenvalues of `l` (ascending) and their eigenvectors, as many as the count
-/// needs: `n_clusters` when given; otherwise enough for the eigengap. Large matrices take the
-/// Krylov path ([`smallest_eigenpairs`]) with a spectrum that doubles (from
-/// [`FIRST_SPECTRUM`]) until the largest gap lies in its lower half, i.e. until the values
-/// past the chosen count have been seen to crowd together; small ones, and any case the
-/// Krylov method declines, are decomposed densely (all `n` values).
-fn bottom_spectrum(
-    l: MatRef<'_, f64>,
-    n_clusters: Option<usize>,
-    max_clusters: Option<usize>,
-    seed: u64,
-) -> Result<(Vec<f64>, Option<Mat<f64>>)> {
-    let n = l.nrows();
-    if n >= PARTIAL_MIN_ROWS {
-        if let Some(m) = n_clusters {
-            if let Some((vals, vecs)) = smallest_eigenpairs(l, m + 1, seed) {
-                return Ok((vals, Some(vecs)));
-            }
-        } else {
-            // the eigengap compares values 1..=cap + 1
-            let need = max_clusters.map_or(n, |c| c.clamp(1, n - 1) + 1);
-            let mut k = FIRST_SPECTRUM.min(need);
-            while let Some((vals, vecs)) = smallest_eigenpairs(l, k, seed) {
-                let best = eigengap(&vals, max_clusters.map(|c| c.min(k - 1)));
-                if k == need || 2 * best <= k {
-                    return Ok((vals, Some(vecs)));
-                }
-                k = (2 * k).min(need);
-            }
-        }
-    }
-    symmetric_eigen(l, true)
 }
 
 /// Groups of correspondence indices (into the full input), largest first; groups smaller

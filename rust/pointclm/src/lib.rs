@@ -44,7 +44,6 @@ pub mod error;
 pub mod instances;
 pub mod kabsch;
 pub mod kmeans;
-pub mod lanczos;
 mod magnitude;
 pub mod matching;
 #[cfg(feature = "network")]

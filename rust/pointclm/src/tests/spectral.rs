@@ -60,3 +60,19 @@ fn rejects_asymmetric_and_nonfinite() {
     let rect = Mat::<f64>::zeros(2, 3);
     assert!(symmetric_eigen(rect.as_ref(), false).is_err());
 }
+
+#[test]
+fn single_precision_agrees_with_double() {
+    let a = block_affinity(&[120, 90, 200, 150]);
+    let l = normalized_laplacian(a.as_ref()).unwrap();
+    let (exact, _) = symmetric_eigen(l.as_ref(), false).unwrap();
+    let (single, vecs) = symmetric_eigen_f32(l.as_ref()).unwrap();
+    assert_eq!(single.len(), exact.len());
+    for (s, e) in single.iter().zip(&exact) {
+        assert!((s - e).abs() < 1e-4, "{s} vs {e}");
+    }
+    assert_eq!(eigengap(&single, None), eigengap(&exact, None));
+    // unit eigenvectors
+    let norm: f64 = (0..l.nrows()).map(|i| vecs[(i, 0)] * vecs[(i, 0)]).sum();
+    assert!((norm - 1.0).abs() < 1e-4);
+}
