@@ -55,7 +55,9 @@ VALIDATION_PICK = {
 
 #: Thresholds for the oracle row, picked on the validation models (armadillo, bed): with
 #: perfect grouping, small instances need small counts.
-ORACLE_CONFIG = {"tau_n": 2, "min_cluster_size": 3}
+# No a-contrario test: it judges whether a cluster could be chance, which true labels settle;
+# with it the oracle would drop copies holding a handful of matches and stop being a bound.
+ORACLE_CONFIG = {"tau_n": 2, "min_cluster_size": 3, "max_nfa": None}
 
 
 #: Suffix of the rows whose poses went through `pointclm.refine_poses` (ICP on the clouds and

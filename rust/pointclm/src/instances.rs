@@ -3,7 +3,7 @@
 
 use crate::config::Config;
 use crate::correspondences::Correspondences;
-use crate::kabsch::{kabsch, RigidTransform};
+use crate::kabsch::{kabsch, kabsch_weighted, RigidTransform};
 use crate::ransac::{inliers_of, RansacFit};
 use crate::validation::NullModel;
 
@@ -96,7 +96,8 @@ pub fn finalize(
         .map(|(k, (pose, _))| {
             let mut inliers: Vec<usize> = (0..n).filter(|&i| labels[i] == k as i64).collect();
             let pose = if config.refine {
-                kabsch(c, &inliers).unwrap_or(*pose)
+                let fit = kabsch(c, &inliers).unwrap_or(*pose);
+                robust_refit(c, &fit, config.inlier_threshold).unwrap_or(fit)
             } else {
                 *pose
             };
@@ -140,6 +141,34 @@ pub fn finalize(
     let mut slots: Vec<Option<Instance>> = instances.drain(..).map(Some).collect();
     let instances = order.iter().filter_map(|&k| slots[k].take()).collect();
     (instances, labels)
+}
+
+/// One Geman-McClure-weighted least-squares step from `pose`, at scale `threshold`, over every
+/// correspondence within `3 x threshold` of it.
+///
+/// Why: a realistic copy holds a dozen matches, each off by about a voxel at both ends; the
+/// hard cut at the inlier threshold drops correct matches whose residual is just above it and
+/// weighs a barely-inside wrong match like a perfect one, which tilts the pose. Soft weights
+/// (1 at zero residual, 1/4 at the threshold, about 0 past 3x) keep the pose the inliers
+/// agree on (chosen on the validation models: 40 -> 43 correct of 66 poses, MF 20.8 -> 22.2;
+/// wider scales or several graduated steps did worse).
+fn robust_refit(
+    c: &Correspondences,
+    pose: &RigidTransform,
+    threshold: f64,
+) -> Option<RigidTransform> {
+    let s_sq = threshold * threshold;
+    let reach_sq = 9.0 * s_sq;
+    let (mut members, mut weights) = (Vec::new(), Vec::new());
+    for i in 0..c.len() {
+        let r_sq = pose.residual_sq(c.source(i), c.target(i));
+        if r_sq < reach_sq {
+            let w = s_sq / (s_sq + r_sq);
+            members.push(i);
+            weights.push(w * w);
+        }
+    }
+    kabsch_weighted(c, &members, &weights)
 }
 
 fn assign(c: &Correspondences, poses: &[(RigidTransform, Vec<usize>)], thr_sq: f64) -> Vec<i64> {

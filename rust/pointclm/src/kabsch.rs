@@ -69,6 +69,43 @@ pub fn kabsch(c: &Correspondences, indices: &[usize]) -> Option<RigidTransform> 
         let y = Vector3::from(c.target(i)) - cy;
         h += x * y.transpose();
     }
+    rotation_from_cross_covariance(h, cx, cy)
+}
+
+/// [`kabsch`] with a weight per correspondence (`weights[k]` for `indices[k]`), minimising
+/// `sum w_i ||R x_i + t - y_i||^2`; `None` also when the weights sum to zero.
+pub fn kabsch_weighted(
+    c: &Correspondences,
+    indices: &[usize],
+    weights: &[f64],
+) -> Option<RigidTransform> {
+    let total: f64 = weights.iter().sum();
+    if indices.len() < 3 || indices.len() != weights.len() || !(total > 0.0) {
+        return None;
+    }
+    let inv = 1.0 / total;
+    let (mut cx, mut cy) = (Vector3::zeros(), Vector3::zeros());
+    for (&i, &w) in indices.iter().zip(weights) {
+        cx += w * Vector3::from(c.source(i));
+        cy += w * Vector3::from(c.target(i));
+    }
+    cx *= inv;
+    cy *= inv;
+    let mut h = Matrix3::zeros();
+    for (&i, &w) in indices.iter().zip(weights) {
+        let x = Vector3::from(c.source(i)) - cx;
+        let y = Vector3::from(c.target(i)) - cy;
+        h += w * x * y.transpose();
+    }
+    rotation_from_cross_covariance(h, cx, cy)
+}
+
+/// The rigid motion from the cross-covariance `h` of centred points and the two centroids.
+fn rotation_from_cross_covariance(
+    h: Matrix3<f64>,
+    cx: Vector3<f64>,
+    cy: Vector3<f64>,
+) -> Option<RigidTransform> {
     // The rotation depends only on H's direction: normalising keeps the SVD clear of
     // overflow and underflow for points at extreme scales (1e80, 1e-100).
     let scale = h.amax();

@@ -63,3 +63,29 @@ fn works_at_extreme_scales() {
         );
     }
 }
+
+#[test]
+fn weighted_fit_ignores_zero_weights_and_matches_uniform() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let truth = RigidTransform {
+        rotation: random_rotation(&mut rng),
+        translation: Vector3::new(0.5, 0.1, -1.0),
+    };
+    let src: Vec<[f64; 3]> = (0..40)
+        .map(|_| [rng.random(), rng.random(), rng.random()])
+        .collect();
+    let mut dst: Vec<[f64; 3]> = src.iter().map(|&p| truth.apply(p)).collect();
+    for p in dst.iter_mut().skip(30) {
+        *p = [rng.random(), rng.random(), rng.random()]; // outliers
+    }
+    let c = Correspondences::new(&src, &dst).unwrap();
+    let idx: Vec<usize> = (0..40).collect();
+    let w: Vec<f64> = (0..40).map(|i| if i < 30 { 1.0 } else { 0.0 }).collect();
+    let est = kabsch_weighted(&c, &idx, &w).unwrap();
+    assert!((est.rotation - truth.rotation).abs().max() < 1e-9);
+    let uniform = kabsch_weighted(&c, &idx[..30], &[1.0; 30]).unwrap();
+    let plain = kabsch(&c, &idx[..30]).unwrap();
+    assert!((uniform.rotation - plain.rotation).abs().max() < 1e-12);
+    assert!(kabsch_weighted(&c, &idx, &[0.0; 40]).is_none());
+    assert!(kabsch_weighted(&c, &idx, &[1.0; 3]).is_none());
+}
