@@ -80,7 +80,7 @@ pub fn kabsch_weighted(
     weights: &[f64],
 ) -> Option<RigidTransform> {
     let total: f64 = weights.iter().sum();
-    if indices.len() < 3 || indices.len() != weights.len() || !(total > 0.0) {
+    if indices.len() < 3 || indices.len() != weights.len() || total.is_nan() || total <= 0.0 {
         return None;
     }
     let inv = 1.0 / total;
