@@ -191,3 +191,46 @@ def test_register_command_bad_file_is_a_clean_error(tmp_path: Path, capsys) -> N
     rc = main(["register", str(tmp_path / "missing.ply"), str(tmp_path / "x.ply"), "--quiet"])
     assert rc == 2
     assert "missing.ply" in capsys.readouterr().err
+
+
+@needs_data
+def test_peeling_keeps_the_first_pass_and_records_every_pass() -> None:
+    # Ten bunny copies side by side, 150 correspondences per pass: pass 0 misses a copy that
+    # a later pass finds; peeling only adds verified copies to pass 0's.
+    rng = np.random.default_rng(4)
+    model = read_point_cloud(BUNNY).points
+    parts, poses = [], []
+    for k in range(10):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rot, [0.25 * k, 0.0, 0.0]
+        parts.append(model @ rot.T + pose[:3, 3])
+        poses.append(pose)
+    scene = np.concatenate(parts)
+    one = pointclm.register_point_clouds(model, scene, peel=False, n_samples=150)
+    peeled = pointclm.register_point_clouds(model, scene, n_samples=150)
+    assert len(one.passes) == 1 and one.timings["peeling"] < 1e-3
+    assert peeled.passes[0].added == len(one.instances)
+    assert sum(p.added for p in peeled.passes) >= len(peeled.instances)
+    gt = np.array(poses)
+    s_one = score_scene(one.transformations, gt, 15.0, 0.025)
+    s_peel = score_scene(peeled.transformations, gt, 15.0, 0.025)
+    assert s_peel.n_matched > s_one.n_matched and s_peel.precision == 1.0
+    assert any(p.added for p in peeled.passes[1:])
+    for inst in peeled.instances:
+        p = peeled.passes[inst.pass_index]
+        assert len(inst.inliers) == 0 or inst.inliers.max() < len(p.correspondences)
+    # Later passes only see scan points no accepted copy explained before them.
+    for p in peeled.passes[1:]:
+        assert len(p.scan_points) < len(peeled.target_points)
+    again = pointclm.register_point_clouds(model, scene, n_samples=150, num_threads=1)
+    np.testing.assert_array_equal(again.transformations, peeled.transformations)

@@ -37,6 +37,10 @@ class Config:
         Length scale of the clustering affinity.
     max_instances : int or None
         Optional cap on the number of clusters the eigengap may choose.
+    cluster_level : float or None
+        When set, the cluster count is the larger of the eigengap's and the number of
+        normalised-Laplacian eigenvalues below this level (in (0, 2)): with dozens of similar
+        copies the largest gap comes early. None: the eigengap alone (the paper's rule).
     max_rounds : int
         Clustering rounds: after each, the correspondences explained by validated instances
         leave the kept set and the rest is clustered again (finds copies the eigengap merged
@@ -74,6 +78,7 @@ class Config:
     max_kept: int = 2000
     affinity_sigma: float = 0.1
     max_instances: int | None = None
+    cluster_level: float | None = None
     max_rounds: int = 1
     assignment: Literal["kmeans", "discretize"] = "kmeans"
     kmeans_restarts: int = 10
@@ -121,6 +126,15 @@ class Config:
             if value < 0:
                 raise ValueError(f"config field {name}: must be >= 0, got {value}")
             object.__setattr__(self, name, int(value))  # numpy ints -> int for the core
+        level = self.cluster_level
+        if level is not None:
+            if isinstance(level, bool) or not isinstance(
+                level, int | float | np.integer | np.floating
+            ):
+                raise ValueError(
+                    f"config field cluster_level: expected None or a number, got {level!r}"
+                )
+            object.__setattr__(self, "cluster_level", float(level))
         nfa = self.max_nfa
         if nfa is not None:
             if isinstance(nfa, bool) or not isinstance(nfa, int | float | np.integer | np.floating):

@@ -39,6 +39,7 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
             "affinity_sigma" => c.affinity_sigma = v.extract().map_err(bad)?,
             "max_instances" => c.max_instances = v.extract().map_err(bad)?,
             "max_rounds" => c.max_rounds = v.extract().map_err(bad)?,
+            "cluster_level" => c.cluster_level = v.extract().map_err(bad)?,
             "assignment" => c.assignment = assignment(&v.extract::<String>().map_err(bad)?)?,
             "kmeans_restarts" => c.kmeans_restarts = v.extract().map_err(bad)?,
             "min_cluster_size" => c.min_cluster_size = v.extract().map_err(bad)?,
@@ -93,6 +94,7 @@ pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>>
     d.set_item("affinity_sigma", c.affinity_sigma)?;
     d.set_item("max_instances", c.max_instances)?;
     d.set_item("max_rounds", c.max_rounds)?;
+    d.set_item("cluster_level", c.cluster_level)?;
     let assignment = match c.assignment {
         Assignment::KMeans => "kmeans",
         Assignment::Discretize => "discretize",

@@ -35,6 +35,41 @@ pub fn spectral_clustering(
     restarts: usize,
     seed: u64,
 ) -> Result<SpectralLabels> {
+    let count = n_clusters.map_or(
+        Count::Eigengap {
+            cap: max_clusters,
+            level: None,
+        },
+        Count::Fixed,
+    );
+    spectral_clustering_by(a, count, assignment, restarts, seed)
+}
+
+/// How [`spectral_clustering_by`] picks the number of clusters.
+#[derive(Clone, Copy, Debug)]
+pub enum Count {
+    /// Exactly this many.
+    Fixed(usize),
+    /// The eigengap's choice, raised to the number of eigenvalues below `level` when given
+    /// ([`Config::cluster_level`](crate::Config::cluster_level)), at most `cap`.
+    Eigengap {
+        cap: Option<usize>,
+        level: Option<f64>,
+    },
+}
+
+/// [`spectral_clustering`] with the count rule spelled out.
+pub fn spectral_clustering_by(
+    a: MatRef<'_, f64>,
+    count: Count,
+    assignment: Assignment,
+    restarts: usize,
+    seed: u64,
+) -> Result<SpectralLabels> {
+    let n_clusters = match count {
+        Count::Fixed(k) => Some(k),
+        Count::Eigengap { .. } => None,
+    };
     let n = a.nrows();
     if let Some(k) = n_clusters.filter(|&k| k == 0 || k > n.max(1)) {
         return Err(Error::InvalidConfig {
@@ -50,9 +85,16 @@ pub fn spectral_clustering(
     } else {
         symmetric_eigen(l.as_ref(), true)?
     };
-    let m = n_clusters
-        .unwrap_or_else(|| eigengap(&eigenvalues, max_clusters))
-        .clamp(n.min(1), n);
+    let m = match count {
+        Count::Fixed(k) => k,
+        Count::Eigengap { cap, level } => {
+            let gap = eigengap(&eigenvalues, cap);
+            let below = level.map_or(0, |l| eigenvalues.iter().filter(|&&v| v < l).count());
+            let most = cap.unwrap_or(n).max(1);
+            gap.max(below.min(most))
+        }
+    }
+    .clamp(n.min(1), n);
     let Some(vectors) = vectors else {
         return Ok(SpectralLabels {
             labels: vec![],
@@ -96,10 +138,13 @@ pub fn cluster_kept(
     // split isolated rows apart (and cost k-means time), e.g. when pruning is disabled.
     let most = (kept.len() / config.min_cluster_size).max(1);
     let cap = config.max_instances.map_or(most, |m| m.min(most));
-    let sl = spectral_clustering(
+    let count = Count::Eigengap {
+        cap: Some(cap),
+        level: config.cluster_level,
+    };
+    let sl = spectral_clustering_by(
         a.as_ref(),
-        None,
-        Some(cap),
+        count,
         config.assignment,
         config.kmeans_restarts,
         seed,

@@ -53,6 +53,13 @@ pub struct Config {
     pub affinity_sigma: f64,
     /// Optional cap on the number of clusters the eigengap may choose.
     pub max_instances: Option<usize>,
+    /// When set, the cluster count is the larger of the eigengap's and the number of
+    /// normalised-Laplacian eigenvalues below this level (in (0, 2)). Why: with dozens of
+    /// similar copies the spectrum rises smoothly and its largest gap comes early, while
+    /// every copy still contributes an eigenvalue well below 1 (a group with more affinity
+    /// inside than across has a small Rayleigh quotient). `None`: the eigengap alone (the
+    /// paper's rule).
+    pub cluster_level: Option<f64>,
     /// Clustering rounds: after each, the correspondences explained by validated instances
     /// leave the kept set and the rest is clustered again, which finds copies the eigengap
     /// merged or missed (bins of dozens of parts). Needs `max_nfa` (without validation one
@@ -95,6 +102,7 @@ impl Default for Config {
             max_kept: 2000,
             affinity_sigma: 0.1,
             max_instances: None,
+            cluster_level: None,
             max_rounds: 1,
             assignment: Assignment::KMeans,
             kmeans_restarts: 10,
@@ -245,6 +253,11 @@ impl Config {
                 self.ransac_confidence,
                 "must lie in (0, 1]",
             ));
+        }
+        if let Some(v) = self.cluster_level {
+            if !(v.is_finite() && v > 0.0 && v < 2.0) {
+                return Err(invalid("cluster_level", v, "must lie in (0, 2) or be None"));
+            }
         }
         if let Some(v) = self.max_nfa {
             if !(v.is_finite() && v > 0.0) {

@@ -32,3 +32,43 @@ fn both_assignments_agree_on_clean_blocks() {
     let truth: Vec<usize> = scene.labels[..90].iter().map(|&l| l as usize).collect();
     assert_eq!(k.labels, crate::kmeans::relabel_by_first_appearance(&truth));
 }
+
+#[test]
+fn level_count_never_lowers_the_eigengap_and_counts_low_eigenvalues() {
+    let scene = random_scene(300, 3, 0.1, 2);
+    let kept: Vec<usize> = (0..90).collect();
+    let a = affinity(&scene.corr, None, &kept, 0.1).unwrap();
+    let gap = spectral_clustering(a.as_ref(), None, None, Assignment::KMeans, 5, 0).unwrap();
+    for level in [1e-9, 0.5, 1.5] {
+        let count = Count::Eigengap {
+            cap: None,
+            level: Some(level),
+        };
+        let r = spectral_clustering_by(a.as_ref(), count, Assignment::KMeans, 5, 0).unwrap();
+        let below = r.eigenvalues.iter().filter(|&&v| v < level).count();
+        assert_eq!(r.n_clusters, gap.n_clusters.max(below), "level {level}");
+    }
+    // The cap bounds the level's count too.
+    let capped = Count::Eigengap {
+        cap: Some(4),
+        level: Some(1.5),
+    };
+    let r = spectral_clustering_by(a.as_ref(), capped, Assignment::KMeans, 5, 0).unwrap();
+    assert_eq!(r.n_clusters, 4);
+}
+
+#[test]
+fn cluster_level_is_validated() {
+    for bad in [0.0, 2.0, f64::NAN, -1.0] {
+        let c = Config {
+            cluster_level: Some(bad),
+            ..Config::default()
+        };
+        assert!(c.validate().is_err(), "{bad}");
+    }
+    let ok = Config {
+        cluster_level: Some(0.7),
+        ..Config::default()
+    };
+    assert!(ok.validate().is_ok());
+}

@@ -205,6 +205,7 @@ prop_compose! {
             ransac_confidence: if flags.1 { 1.0 } else { thresholds.1 },
             max_nfa: max_instances.map(|m| m as f64 * 1e-3),
             max_rounds: counts.0,
+            cluster_level: max_instances.map(|m| (0.1 * m as f64).min(1.9)),
             max_instances,
             pruning: [Pruning::Paper, Pruning::AuthorsCode, Pruning::Disabled][flags.3 as usize],
             assignment: if flags.0 { Assignment::KMeans } else { Assignment::Discretize },
