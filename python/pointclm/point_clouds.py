@@ -392,15 +392,11 @@ def unexplained_points(
     """Mask of the target points farther than `radius` from every posed source point."""
     from scipy.spatial import cKDTree
 
-    free = np.ones(len(target_points), dtype=bool)
     if len(transformations) == 0:
-        return free
-    tree = cKDTree(target_points)
-    for T in transformations:
-        posed = source_points @ T[:3, :3].T + T[:3, 3]
-        for hit in tree.query_ball_point(posed, radius, return_sorted=False):
-            free[hit] = False
-    return free
+        return np.ones(len(target_points), dtype=bool)
+    posed = np.concatenate([source_points @ T[:3, :3].T + T[:3, 3] for T in transformations])
+    d, _ = cKDTree(posed).query(target_points, k=1, distance_upper_bound=radius)
+    return ~np.isfinite(d)
 
 
 def _peel(
@@ -431,7 +427,10 @@ def _peel(
     mutual best matches and fill the sample. Each round's poses are verified on the whole scan,
     so a pose that slides onto an accepted copy is a duplicate and is dropped.
     """
+    from scipy.spatial import cKDTree
+
     radius = PEEL_RADIUS_VOXELS * voxel
+    scan_tree = cKDTree(tgt_d.points)
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
         free = np.flatnonzero(
             unexplained_points(tgt_d.points, src_d.points, refined.transformations, radius)
@@ -467,7 +466,17 @@ def _peel(
             num_threads=num_threads,
         )
         added = 0
-        if len(new.origin):
+        if len(new.origin) and new.by_visibility and refined.by_visibility:
+            # Judged by visibility, a pose's verdict does not depend on the other poses: only
+            # duplicates of accepted copies remain to be dropped, then the lists are merged.
+            taken = np.ones(len(tgt_d.points), dtype=bool)
+            taken[free] = False
+            keep = _not_duplicates(scan_tree, src_d.points, new.transformations, voxel, taken)
+            added = len(keep)
+            if added:
+                new_tags = [(round_, int(new.origin[i])) for i in keep]
+                refined, tags = _merge(refined, tags, _take(new, keep), new_tags)
+        elif len(new.origin):
             pool = np.concatenate([refined.transformations, new.transformations])
             pool_tags = tags + [(round_, int(o)) for o in new.origin]
             both = refine_poses(
@@ -485,6 +494,45 @@ def _peel(
         if added == 0:
             break
     return refined, tags
+
+
+def _not_duplicates(
+    scan_tree: Any, source: np.ndarray, poses: np.ndarray, voxel: float, taken: np.ndarray
+) -> list[int]:
+    """Indices of `poses` (surest first) whose explained scan points (within 1.5 voxels, as
+    verification counts them) are at most half `taken` by accepted copies or by a surer pose of
+    the list (`refine_poses`' ``max_shared`` rule); marks the kept poses' points taken."""
+    keep = []
+    for i, T in enumerate(poses):
+        d, j = scan_tree.query(source @ T[:3, :3].T + T[:3, 3], distance_upper_bound=1.5 * voxel)
+        hits = np.unique(j[np.isfinite(d)])
+        if len(hits) == 0 or taken[hits].mean() > 0.5:
+            continue
+        taken[hits] = True
+        keep.append(i)
+    return keep
+
+
+def _take(poses: RefinedPoses, rows: list[int] | np.ndarray) -> RefinedPoses:
+    idx = np.asarray(rows, dtype=np.int64)
+    return poses._replace(
+        **{f: getattr(poses, f)[idx] for f in RefinedPoses._fields if f != "by_visibility"}
+    )
+
+
+def _merge(
+    a: RefinedPoses, a_tags: list[tuple[int, int]], b: RefinedPoses, b_tags: list[tuple[int, int]]
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """Two lists of verified poses as one, surest first (`a` first among equals)."""
+    joined: dict[str, Any] = {
+        f: np.concatenate([getattr(a, f), getattr(b, f)])
+        for f in RefinedPoses._fields
+        if f != "by_visibility"
+    }
+    both = a._replace(**joined)
+    order = np.argsort(-both.confidence, kind="stable")
+    tags = a_tags + b_tags
+    return _take(both, order), [tags[i] for i in order]
 
 
 def network_units(corr: np.ndarray, sigma_d: float, network_sigma_d: float) -> np.ndarray:
