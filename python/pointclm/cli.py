@@ -234,14 +234,16 @@ def _pose_line(T: np.ndarray) -> str:
 
 def _report(reg: Any, out: Any = None) -> None:
     print(
-        f"{len(reg.instances)} instance(s); {len(reg.correspondences)} correspondences "
+        f"{len(reg.instances)} instance(s), surest first, from {len(reg.passes)} pass(es); "
+        f"{len(reg.correspondences)} correspondences in the first "
         f"between {len(reg.source_points)} model and {len(reg.target_points)} scene points "
         f"(voxel {reg.voxel_size:.4g})"
     )
     for i, inst in enumerate(reg.instances):
         print(
             f"  [{i}] {_pose_line(inst.transformation)}  matches {len(inst):4d}  "
-            f"fitness {inst.fitness:.3f}  rmse {inst.inlier_rmse:.4g}"
+            f"fitness {inst.fitness:.3f}  rmse {inst.inlier_rmse:.4g}  "
+            f"confidence {inst.confidence:.3f}  pass {inst.pass_index}"
         )
     print("time: " + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in reg.timings.items() if v > 0))
 
@@ -282,6 +284,7 @@ def cmd_register(args: argparse.Namespace) -> int:
             mutual=not args.no_mutual,
             n_samples=None if args.all_correspondences else args.correspondences,
             refine=not args.no_refine,
+            peel=not args.no_peel,
             num_threads=args.num_threads,
         )
         bar.update()
@@ -312,6 +315,8 @@ def cmd_register(args: argparse.Namespace) -> int:
                         "inliers": len(inst),
                         "fitness": inst.fitness,
                         "inlier_rmse": inst.inlier_rmse,
+                        "confidence": None if np.isnan(inst.confidence) else inst.confidence,
+                        "pass": inst.pass_index,
                     }
                     for inst in reg.instances
                 ],
@@ -473,6 +478,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-refine",
         action="store_true",
         help="keep the correspondence stage's poses (no ICP on the clouds, no verification)",
+    )
+    r.add_argument(
+        "--no-peel",
+        action="store_true",
+        help="one pass of the correspondence stage (no new passes over the unexplained scan)",
     )
     r.add_argument("--out", help="write instances and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
