@@ -86,7 +86,7 @@ pub(crate) fn beta_row(c: &Correspondences, i: usize, inv_sigma_sq: f64, out: &m
 }
 
 #[inline(always)]
-fn beta_value(ds: [f64; 3], dt: [f64; 3], inv_sigma_sq: f64) -> f64 {
+pub(crate) fn beta_value(ds: [f64; 3], dt: [f64; 3], inv_sigma_sq: f64) -> f64 {
     let ls = (ds[0] * ds[0] + ds[1] * ds[1] + ds[2] * ds[2]).sqrt();
     let lt = (dt[0] * dt[0] + dt[1] * dt[1] + dt[2] * dt[2]).sqrt();
     let d = ls - lt;

@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 
 use crate::config::{Config, Pruning};
-use crate::consistency::{beta_row, inv_sigma_sq};
+use crate::consistency::{beta_row, beta_value, inv_sigma_sq};
 use crate::correspondences::{Correspondences, Features};
 use crate::error::Result;
 
@@ -27,6 +27,9 @@ pub fn density_counts(
         return Ok(vec![0; n]);
     }
     let inv = inv_sigma_sq(config.sigma_d)?;
+    if config.pruning == Pruning::Paper && features.is_none() && c.pair_normals().is_none() {
+        return Ok(paper_counts_f32(c, config.tau_s, inv));
+    }
     let mut counts = vec![0u32; n];
     counts
         .par_chunks_mut(BLOCK_ROWS)
@@ -40,6 +43,100 @@ pub fn density_counts(
             }
         });
     Ok(counts)
+}
+
+/// The paper's rule without features or normals, `beta_ij > tau_s`, is `|l_s - l_t| < D`
+/// with `D = sqrt((1 - tau_s) / inv)`: decided in f32 on coordinates centred per side (lengths
+/// do not change), eight lanes at a time and without a row buffer, and re-decided in f64
+/// exactly as [`beta_value`](crate::consistency) does for the pairs whose f32 length
+/// difference lies within its error bound of `D`. The counts equal the f64 ones exactly.
+fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64) -> Vec<u32> {
+    let n = c.len();
+    if tau_s < 0.0 {
+        return vec![n as u32; n]; // beta >= 0 > tau_s for every pair
+    }
+    let centred = |cols: &[Vec<f64>; 3]| -> ([Vec<f32>; 3], f64) {
+        let mut extent = 0.0f64;
+        let out = std::array::from_fn(|k| {
+            let mean = cols[k].iter().sum::<f64>() / n.max(1) as f64;
+            cols[k]
+                .iter()
+                .map(|&v| {
+                    extent = extent.max((v - mean).abs());
+                    (v - mean) as f32
+                })
+                .collect()
+        });
+        (out, extent)
+    };
+    let (s, ms) = centred(c.source_columns());
+    let (t, mt) = centred(c.target_columns());
+    // Rounding of the inputs, the differences, the sums of squares and the square roots: each
+    // length is off by at most ~21 u M (u = 2^-24, M the largest centred coordinate), so the
+    // difference by ~42 u M; 64 u M leaves room, plus a relative term for the f64 rule itself.
+    let d = ((1.0 - tau_s) / inv).max(0.0).sqrt();
+    let err = 64.0 * f64::from(f32::EPSILON) * ms.max(mt) + 1e-9 * d;
+    let lo = (d - err).max(0.0);
+    let (lo2, hi2) = ((lo * lo) as f32, ((d + err) * (d + err)) as f32);
+    // f32 rounding of the bounds themselves: widen the band by one ulp each way.
+    let (lo2, hi2) = (f32_down(lo2), f32_up(hi2));
+    let (src, dst) = (c.source_columns(), c.target_columns());
+    let mut counts = vec![0u32; n];
+    counts
+        .par_chunks_mut(BLOCK_ROWS)
+        .enumerate()
+        .for_each(|(block, out)| {
+            let (s0, s1, s2) = (&s[0][..n], &s[1][..n], &s[2][..n]);
+            let (t0, t1, t2) = (&t[0][..n], &t[1][..n], &t[2][..n]);
+            for (k, slot) in out.iter_mut().enumerate() {
+                let i = block * BLOCK_ROWS + k;
+                let (sx, sy, sz, tx, ty, tz) = (s0[i], s1[i], s2[i], t0[i], t1[i], t2[i]);
+                let q = |j: usize| -> f32 {
+                    let (a0, a1, a2) = (s0[j] - sx, s1[j] - sy, s2[j] - sz);
+                    let (b0, b1, b2) = (t0[j] - tx, t1[j] - ty, t2[j] - tz);
+                    let dl =
+                        (a0 * a0 + a1 * a1 + a2 * a2).sqrt() - (b0 * b0 + b1 * b1 + b2 * b2).sqrt();
+                    dl * dl
+                };
+                // Branch-free over the row (vectorised): sure and undecided counts.
+                let (mut sure, mut near) = (0u32, 0u32);
+                for ((((a0, a1), a2), b0), (b1, b2)) in
+                    s0.iter().zip(s1).zip(s2).zip(t0).zip(t1.iter().zip(t2))
+                {
+                    let (a0, a1, a2) = (a0 - sx, a1 - sy, a2 - sz);
+                    let (b0, b1, b2) = (b0 - tx, b1 - ty, b2 - tz);
+                    let dl =
+                        (a0 * a0 + a1 * a1 + a2 * a2).sqrt() - (b0 * b0 + b1 * b1 + b2 * b2).sqrt();
+                    let q = dl * dl;
+                    sure += u32::from(q < lo2);
+                    near += u32::from((q >= lo2) & (q <= hi2));
+                }
+                if near > 0 {
+                    for j in 0..n {
+                        let qj = q(j);
+                        if qj >= lo2 && qj <= hi2 {
+                            let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
+                            let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
+                            sure += u32::from(beta_value(ds, dt, inv) > tau_s);
+                        }
+                    }
+                }
+                *slot = sure;
+            }
+        });
+    counts
+}
+
+fn f32_down(v: f32) -> f32 {
+    if v > 0.0 {
+        f32::from_bits(v.to_bits() - 1)
+    } else {
+        v
+    }
+}
+
+fn f32_up(v: f32) -> f32 {
+    f32::from_bits(v.to_bits() + 1)
 }
 
 /// Same counts from an explicit dense `beta` matrix (row-major `N x N`); the unblocked

@@ -69,3 +69,56 @@ fn cap_keeps_the_densest() {
     let kept = select_kept(&many, &config);
     assert_eq!(kept, (10..20).collect::<Vec<_>>());
 }
+
+#[test]
+fn f32_paper_counts_equal_f64_counts_near_the_threshold_and_far_from_the_origin() {
+    let scene = random_scene(400, 4, 0.1, 9);
+    let n = scene.corr.len();
+    for offset in [0.0, 1e4] {
+        let rows: Vec<[f64; 6]> = (0..n)
+            .map(|i| {
+                let (s, t) = (scene.corr.source(i), scene.corr.target(i));
+                [
+                    s[0] + offset,
+                    s[1],
+                    s[2] - offset,
+                    t[0] - 0.5 * offset,
+                    t[1] + offset,
+                    t[2],
+                ]
+            })
+            .collect();
+        let corr = Correspondences::from_rows(&rows).unwrap();
+        for tau_s in [0.0, 0.5, 0.85, 0.99, 1.0] {
+            let config = Config {
+                tau_s,
+                ..Config::default()
+            };
+            let beta = spatial_consistency(&corr, config.sigma_d).unwrap();
+            let dense = density_counts_dense(&beta, n, None, &config);
+            let fast = density_counts(&corr, None, &config).unwrap();
+            assert_eq!(fast, dense, "offset {offset} tau_s {tau_s}");
+        }
+    }
+    // Points on a line whose pairs k apart differ in length by exactly D = sigma sqrt(1 - tau).
+    let config = Config::default();
+    let d = config.sigma_d * (1.0 - config.tau_s).sqrt();
+    for k in [1.0, 3.0, 7.0] {
+        let h = 0.01;
+        let r = d / (k * h);
+        let rows: Vec<[f64; 6]> = (0..200)
+            .map(|j| {
+                let x = j as f64 * h;
+                [x, 0.0, 0.0, x * (1.0 + r), 0.0, 0.0]
+            })
+            .collect();
+        let corr = Correspondences::from_rows(&rows).unwrap();
+        let beta = spatial_consistency(&corr, config.sigma_d).unwrap();
+        let dense = density_counts_dense(&beta, rows.len(), None, &config);
+        assert_eq!(
+            density_counts(&corr, None, &config).unwrap(),
+            dense,
+            "k {k}"
+        );
+    }
+}
