@@ -3,7 +3,9 @@
 The one-call path for users who have clouds, not correspondences: load (arrays or files),
 downsample, normals, FPFH, descriptor matching (:mod:`pointclm.preprocessing`), the
 registration pipeline with lengths scaled to the voxel size, then ICP refinement and
-verification of its poses on the clouds (:mod:`pointclm.refinement`). Every stage is timed.
+verification of its poses on the clouds (:mod:`pointclm.refinement`), then peeling: further
+passes over the scan points no accepted copy explains, until one adds no copy. Every stage is
+timed.
 """
 
 from __future__ import annotations
