@@ -268,18 +268,9 @@ def register_point_clouds(
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
     tgt_d = pp.describe(tgt, voxel, towards=viewpoint, num_threads=num_threads)
     t1 = time.perf_counter()
-    matches = pp.match_features(
-        src_d.descriptors,
-        tgt_d.descriptors,
-        top_k=top_k,
-        mutual=mutual,
-        n_samples=n_samples,
-        seed=seed,
-        num_threads=num_threads,
-        k=k,
-    )
-    corr = matches.correspondences(src_d.points, tgt_d.points)
-    pair_normals = matches.normals(src_d.normals, tgt_d.normals) if normals else None
+    matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples, "k": k}
+    everything = np.arange(len(tgt_d.points))
+    corr, pair_normals = _match(src_d, tgt_d, everything, matching, normals, seed, num_threads)
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
@@ -317,14 +308,11 @@ def register_point_clouds(
     )
     # Each accepted pose's (pass, instance of that pass's result).
     tags = [(0, int(o)) for o in refined.origin]
-    passes = [Pass(corr, result, np.arange(len(tgt_d.points)), len(tags))]
+    passes = [Pass(corr, result, everything, len(tags))]
     if not refine:
         # Unverified poses keep the correspondence stage's order (most inliers first).
         keep = np.argsort(refined.origin)
-        refined = refined._replace(
-            **{f: getattr(refined, f)[keep] for f in RefinedPoses._fields if f != "by_visibility"}
-        )
-        tags = [tags[i] for i in keep]
+        refined, tags = _take(refined, keep), [tags[i] for i in keep]
     t5 = time.perf_counter()
     if refine and peel and len(tags):
         refined, tags = _peel(
@@ -337,10 +325,7 @@ def register_point_clouds(
             cfg,
             model,
             viewpoint,
-            top_k,
-            mutual,
-            n_samples,
-            k,
+            matching,
             normals,
             seed,
             num_threads,
@@ -388,6 +373,24 @@ def register_point_clouds(
     )
 
 
+def _match(
+    src_d: Any,
+    tgt_d: Any,
+    rows: np.ndarray,
+    matching: dict[str, Any],
+    normals: bool,
+    seed: int,
+    num_threads: int | None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Correspondences between the model and the scan points `rows` (and the normals at
+    their ends when `normals`), by :func:`pointclm.preprocessing.match_features`."""
+    m = pp.match_features(
+        src_d.descriptors, tgt_d.descriptors[rows], seed=seed, num_threads=num_threads, **matching
+    )
+    corr = m.correspondences(src_d.points, tgt_d.points[rows])
+    return corr, m.normals(src_d.normals, tgt_d.normals[rows]) if normals else None
+
+
 def unexplained_points(
     target_points: np.ndarray, source_points: np.ndarray, transformations: np.ndarray, radius: float
 ) -> np.ndarray:
@@ -411,10 +414,7 @@ def _peel(
     cfg: Config,
     model: Any,
     viewpoint: ArrayLike,
-    top_k: int,
-    mutual: bool,
-    n_samples: int | None,
-    k: int,
+    matching: dict[str, Any],
     normals: bool,
     seed: int,
     num_threads: int | None,
@@ -433,26 +433,16 @@ def _peel(
 
     radius = PEEL_RADIUS_VOXELS * voxel
     scan_tree = cKDTree(tgt_d.points)
+    unexplained = unexplained_points(tgt_d.points, src_d.points, refined.transformations, radius)
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
-        free = np.flatnonzero(
-            unexplained_points(tgt_d.points, src_d.points, refined.transformations, radius)
-        )
+        free = np.flatnonzero(unexplained)
         if len(free) < 3:
             break
-        m = pp.match_features(
-            src_d.descriptors,
-            tgt_d.descriptors[free],
-            top_k=top_k,
-            mutual=mutual,
-            n_samples=n_samples,
-            seed=seed + round_,
-            num_threads=num_threads,
-            k=k,
+        corr, pair_normals = _match(
+            src_d, tgt_d, free, matching, normals, seed + round_, num_threads
         )
-        corr = m.correspondences(src_d.points, tgt_d.points[free])
         if len(corr) < 3:
             break
-        pair_normals = m.normals(src_d.normals, tgt_d.normals[free]) if normals else None
         features = None if model is None else embed_scaled(corr, model, cfg, num_threads)
         result = register(
             corr, features, cfg, seed + round_, num_threads=num_threads, normals=pair_normals
@@ -471,13 +461,17 @@ def _peel(
         if len(new.origin) and new.by_visibility and refined.by_visibility:
             # Judged by visibility, a pose's verdict does not depend on the other poses: only
             # duplicates of accepted copies remain to be dropped, then the lists are merged.
-            taken = np.ones(len(tgt_d.points), dtype=bool)
-            taken[free] = False
+            taken = ~unexplained
             keep = _not_duplicates(scan_tree, src_d.points, new.transformations, voxel, taken)
             added = len(keep)
             if added:
                 new_tags = [(round_, int(new.origin[i])) for i in keep]
-                refined, tags = _merge(refined, tags, _take(new, keep), new_tags)
+                kept = _take(new, keep)
+                refined, tags = _merge(refined, tags, kept, new_tags)
+                # The accepted set only grew: the new copies' points join the explained ones.
+                unexplained &= unexplained_points(
+                    tgt_d.points, src_d.points, kept.transformations, radius
+                )
         elif len(new.origin):
             pool = np.concatenate([refined.transformations, new.transformations])
             pool_tags = tags + [(round_, int(o)) for o in new.origin]
@@ -492,6 +486,10 @@ def _peel(
             )
             added = int(np.sum(both.origin >= len(tags)))
             refined, tags = both, [pool_tags[int(o)] for o in both.origin]
+            # Re-verification may also drop accepted poses: recompute what is explained.
+            unexplained = unexplained_points(
+                tgt_d.points, src_d.points, refined.transformations, radius
+            )
         passes.append(Pass(corr, result, free, added))
         if added == 0:
             break

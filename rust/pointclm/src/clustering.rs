@@ -66,17 +66,15 @@ pub fn spectral_clustering_by(
     restarts: usize,
     seed: u64,
 ) -> Result<SpectralLabels> {
-    let n_clusters = match count {
-        Count::Fixed(k) => Some(k),
-        Count::Eigengap { .. } => None,
-    };
     let n = a.nrows();
-    if let Some(k) = n_clusters.filter(|&k| k == 0 || k > n.max(1)) {
-        return Err(Error::InvalidConfig {
-            field: "n_clusters",
-            value: k.to_string(),
-            reason: "must lie in 1..=number of rows",
-        });
+    if let Count::Fixed(k) = count {
+        if k == 0 || k > n.max(1) {
+            return Err(Error::InvalidConfig {
+                field: "n_clusters",
+                value: k.to_string(),
+                reason: "must lie in 1..=number of rows",
+            });
+        }
     }
     let l = normalized_laplacian(a)?;
     let (eigenvalues, vectors) = if n >= SINGLE_PRECISION_ROWS {

@@ -90,30 +90,27 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64) -> Vec<u32> {
             let (t0, t1, t2) = (&t[0][..n], &t[1][..n], &t[2][..n]);
             for (k, slot) in out.iter_mut().enumerate() {
                 let i = block * BLOCK_ROWS + k;
-                let (sx, sy, sz, tx, ty, tz) = (s0[i], s1[i], s2[i], t0[i], t1[i], t2[i]);
-                let q = |j: usize| -> f32 {
-                    let (a0, a1, a2) = (s0[j] - sx, s1[j] - sy, s2[j] - sz);
-                    let (b0, b1, b2) = (t0[j] - tx, t1[j] - ty, t2[j] - tz);
-                    let dl =
-                        (a0 * a0 + a1 * a1 + a2 * a2).sqrt() - (b0 * b0 + b1 * b1 + b2 * b2).sqrt();
-                    dl * dl
+                let (si, ti) = ([s0[i], s1[i], s2[i]], [t0[i], t1[i], t2[i]]);
+                // The row's squared f32 length differences, in an order the compiler
+                // vectorises (zipped slices, no bounds checks).
+                let row = || {
+                    s0.iter()
+                        .zip(s1)
+                        .zip(s2)
+                        .zip(t0)
+                        .zip(t1.iter().zip(t2))
+                        .map(move |((((&a0, &a1), &a2), &b0), (&b1, &b2))| {
+                            length_diff_sq([a0, a1, a2], [b0, b1, b2], si, ti)
+                        })
                 };
-                // Branch-free over the row (vectorised): sure and undecided counts.
+                // Branch-free over the row: sure and undecided counts.
                 let (mut sure, mut near) = (0u32, 0u32);
-                for ((((a0, a1), a2), b0), (b1, b2)) in
-                    s0.iter().zip(s1).zip(s2).zip(t0).zip(t1.iter().zip(t2))
-                {
-                    let (a0, a1, a2) = (a0 - sx, a1 - sy, a2 - sz);
-                    let (b0, b1, b2) = (b0 - tx, b1 - ty, b2 - tz);
-                    let dl =
-                        (a0 * a0 + a1 * a1 + a2 * a2).sqrt() - (b0 * b0 + b1 * b1 + b2 * b2).sqrt();
-                    let q = dl * dl;
+                for q in row() {
                     sure += u32::from(q < lo2);
                     near += u32::from((q >= lo2) & (q <= hi2));
                 }
                 if near > 0 {
-                    for j in 0..n {
-                        let qj = q(j);
+                    for (j, qj) in row().enumerate() {
                         if qj >= lo2 && qj <= hi2 {
                             let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
                             let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
@@ -125,6 +122,15 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64) -> Vec<u32> {
             }
         });
     counts
+}
+
+/// `(|a - ai| - |b - bi|)^2` in f32.
+#[inline(always)]
+fn length_diff_sq(a: [f32; 3], b: [f32; 3], ai: [f32; 3], bi: [f32; 3]) -> f32 {
+    let (a0, a1, a2) = (a[0] - ai[0], a[1] - ai[1], a[2] - ai[2]);
+    let (b0, b1, b2) = (b[0] - bi[0], b[1] - bi[1], b[2] - bi[2]);
+    let dl = (a0 * a0 + a1 * a1 + a2 * a2).sqrt() - (b0 * b0 + b1 * b1 + b2 * b2).sqrt();
+    dl * dl
 }
 
 fn f32_down(v: f32) -> f32 {

@@ -1,6 +1,6 @@
 //! Spectral clustering of the kept correspondences: affinity, normalised Laplacian, full
-//! symmetric eigendecomposition (faer; f32 for large kept sets), eigengap choice of the number of instances and the
-//! row-normalised spectral embedding.
+//! symmetric eigendecomposition (faer; f32 for large kept sets), eigengap choice of the number
+//! of instances and the row-normalised spectral embedding.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::evd::{
