@@ -7,6 +7,7 @@ use crate::correspondences::{Correspondences, Features};
 use crate::discretize::discretize;
 use crate::error::{Error, Result};
 use crate::kmeans::kmeans;
+use crate::lowest_eigen::lowest_eigenpairs;
 use crate::seeds::{stream, STAGE_CLUSTERING};
 use crate::spectral::{
     affinity, eigengap, normalized_laplacian, row_normalized_embedding, symmetric_eigen,
@@ -20,8 +21,9 @@ pub struct SpectralLabels {
     pub labels: Vec<usize>,
     /// The number of clusters used (the eigengap's choice unless given).
     pub n_clusters: usize,
-    /// Eigenvalues of the normalised Laplacian, ascending (computed in f32 from
-    /// [`SINGLE_PRECISION_ROWS`] rows).
+    /// Eigenvalues of the normalised Laplacian, ascending: all of them below
+    /// [`PARTIAL_ROWS`] rows, from there the lowest ones the count needed
+    /// ([`suffices`]; in f32 arithmetic from [`SINGLE_PRECISION_ROWS`] rows).
     pub eigenvalues: Vec<f64>,
 }
 
@@ -77,22 +79,22 @@ pub fn spectral_clustering_by(
         }
     }
     let l = normalized_laplacian(a)?;
-    let (eigenvalues, vectors) = if n >= SINGLE_PRECISION_ROWS {
-        let (values, vectors) = symmetric_eigen_f32(l.as_ref())?;
-        (values, Some(vectors))
-    } else {
-        symmetric_eigen(l.as_ref(), true)?
-    };
-    let m = match count {
-        Count::Fixed(k) => k,
-        Count::Eigengap { cap, level } => {
-            let gap = eigengap(&eigenvalues, cap);
-            let below = level.map_or(0, |l| eigenvalues.iter().filter(|&&v| v < l).count());
-            let most = cap.unwrap_or(n).max(1);
-            gap.max(below.min(most))
+    let lowest = (n >= PARTIAL_ROWS)
+        .then(|| {
+            lowest_eigenpairs(l.as_ref(), n / 3, seed, |v| {
+                suffices(v, n, count).then(|| cluster_count(v, n, count))
+            })
+        })
+        .flatten();
+    let (eigenvalues, vectors) = match lowest {
+        Some(low) => (low.values, Some(low.vectors)),
+        None if n >= SINGLE_PRECISION_ROWS => {
+            let (values, vectors) = symmetric_eigen_f32(l.as_ref())?;
+            (values, Some(vectors))
         }
-    }
-    .clamp(n.min(1), n);
+        None => symmetric_eigen(l.as_ref(), true)?,
+    };
+    let m = cluster_count(&eigenvalues, n, count);
     let Some(vectors) = vectors else {
         return Ok(SpectralLabels {
             labels: vec![],
@@ -117,6 +119,53 @@ pub fn spectral_clustering_by(
         n_clusters: m,
         eigenvalues,
     })
+}
+
+/// Rows from which clustering computes only the lowest eigenpairs
+/// ([`lowest_eigenpairs`]); below, the dense decomposition is as fast.
+pub const PARTIAL_ROWS: usize = 500;
+
+/// Whether the converged lowest eigenvalues `values` (ascending, a prefix of the `n`-row
+/// spectrum) settle the cluster count of `count`.
+///
+/// A fixed count needs that many. The eigengap rule needs every gap it may pick: all gaps up
+/// to its cap, or a prefix whose largest gap lies in its lower half, since past the groups'
+/// eigenvalues the spectrum of the rest is dense (gaps far below the one separating the
+/// groups). A level needs the prefix to reach it (or the cap).
+pub fn suffices(values: &[f64], n: usize, count: Count) -> bool {
+    let p = values.len();
+    if p >= n {
+        return true;
+    }
+    match count {
+        Count::Fixed(k) => p >= k,
+        Count::Eigengap { cap, level } => {
+            if p < 2 {
+                return false;
+            }
+            let cap = cap.map_or(n - 1, |c| c.clamp(1, n - 1));
+            if p > cap {
+                return true;
+            }
+            let reached = level.is_none_or(|l| values[p - 1] >= l);
+            reached && eigengap(values, None) <= (p - 1) / 2
+        }
+    }
+}
+
+/// The number of clusters `count` picks from the lowest eigenvalues `values` of an `n`-row
+/// Laplacian (all of them, or a prefix that [`suffices`]).
+pub fn cluster_count(values: &[f64], n: usize, count: Count) -> usize {
+    match count {
+        Count::Fixed(k) => k,
+        Count::Eigengap { cap, level } => {
+            let gap = eigengap(values, cap);
+            let below = level.map_or(0, |l| values.iter().filter(|&&v| v < l).count());
+            let most = cap.unwrap_or(n).max(1);
+            gap.max(below.min(most))
+        }
+    }
+    .clamp(n.min(1), n)
 }
 
 /// Groups of correspondence indices (into the full input), largest first; groups smaller

@@ -44,6 +44,7 @@ pub mod error;
 pub mod instances;
 pub mod kabsch;
 pub mod kmeans;
+pub mod lowest_eigen;
 mod magnitude;
 pub mod matching;
 #[cfg(feature = "network")]

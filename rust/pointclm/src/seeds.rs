@@ -8,6 +8,7 @@ use rand_chacha::ChaCha8Rng;
 pub(crate) const STAGE_CLUSTERING: u64 = 1;
 pub(crate) const STAGE_RANSAC: u64 = 2;
 pub(crate) const STAGE_MATCHING: u64 = 3;
+pub(crate) const STAGE_EIGEN: u64 = 4;
 
 /// A generator for `(seed, stage, index)`; splitmix64 decorrelates nearby seeds.
 pub(crate) fn stream(seed: u64, stage: u64, index: u64) -> ChaCha8Rng {

@@ -78,10 +78,10 @@ pub fn normalized_laplacian(a: MatRef<'_, f64>) -> Result<Mat<f64>> {
     check_symmetric(a)?;
     let n = a.nrows();
     let mut inv_sqrt_deg = vec![0.0; n];
-    for (i, d) in inv_sqrt_deg.iter_mut().enumerate() {
+    // Degrees as column sums: equal to the row sums of a symmetric matrix, and contiguous.
+    for (j, d) in inv_sqrt_deg.iter_mut().enumerate() {
         let mut deg = 0.0;
-        for j in 0..n {
-            let v = a[(i, j)];
+        for (i, &v) in a.col(j).iter().enumerate() {
             if v < 0.0 {
                 return Err(Error::InvalidMatrix(format!(
                     "affinity must be non-negative, got {v} at ({i}, {j})"
@@ -211,4 +211,4 @@ pub fn row_normalized_embedding(vectors: MatRef<'_, f64>, m: usize) -> Vec<f64> 
 
 #[cfg(test)]
 #[path = "tests/spectral.rs"]
-mod tests;
+pub(crate) mod tests;

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::pruning::{density_counts, select_kept};
+use crate::spectral::{eigengap, symmetric_eigen};
 use crate::testing::random_scene;
 
 #[test]
@@ -71,4 +72,80 @@ fn cluster_level_is_validated() {
         ..Config::default()
     };
     assert!(ok.validate().is_ok());
+}
+
+#[test]
+fn partial_spectrum_gives_the_dense_count_and_groups() {
+    use crate::spectral::tests::block_affinity;
+    let sizes = [150, 120, 100, 90, 80, 60];
+    let a = block_affinity(&sizes);
+    let n = a.nrows();
+    assert!(n >= PARTIAL_ROWS);
+    let l = normalized_laplacian(a.as_ref()).unwrap();
+    let (dense, _) = symmetric_eigen(l.as_ref(), false).unwrap();
+    let r = spectral_clustering(a.as_ref(), None, None, Assignment::KMeans, 5, 0).unwrap();
+    assert!(r.eigenvalues.len() < n, "the partial path ran");
+    assert_eq!(r.n_clusters, eigengap(&dense, None));
+    let mut truth = Vec::new();
+    for (b, &s) in sizes.iter().enumerate() {
+        truth.extend(std::iter::repeat_n(b, s));
+    }
+    assert_eq!(r.labels, crate::kmeans::relabel_by_first_appearance(&truth));
+    for level in [0.5, 1.2] {
+        let count = Count::Eigengap {
+            cap: None,
+            level: Some(level),
+        };
+        let r = spectral_clustering_by(a.as_ref(), count, Assignment::KMeans, 5, 0).unwrap();
+        let below = dense.iter().filter(|&&v| v < level).count();
+        assert_eq!(
+            r.n_clusters,
+            eigengap(&dense, None).max(below),
+            "level {level}"
+        );
+    }
+}
+
+#[test]
+fn partial_spectrum_on_planted_scenes_matches_the_dense_count() {
+    for seed in 0..3 {
+        let scene = random_scene(2500, 8, 0.04, seed);
+        let kept: Vec<usize> = (0..scene.corr.len())
+            .filter(|&i| scene.labels[i] >= 0 || i % 5 == 0)
+            .collect();
+        assert!(kept.len() >= PARTIAL_ROWS);
+        let a = affinity(&scene.corr, None, &kept, 0.1).unwrap();
+        let l = normalized_laplacian(a.as_ref()).unwrap();
+        let (dense, _) = symmetric_eigen(l.as_ref(), false).unwrap();
+        // Capped as `cluster_kept` caps it: at most one group per `min_cluster_size` rows.
+        let cap = Some(kept.len() / 10);
+        let r = spectral_clustering(a.as_ref(), None, cap, Assignment::KMeans, 5, 0).unwrap();
+        assert!(r.eigenvalues.len() < kept.len(), "the partial path ran");
+        assert_eq!(r.n_clusters, eigengap(&dense, cap), "seed {seed}");
+    }
+}
+
+#[test]
+fn suffices_needs_every_gap_it_may_pick() {
+    let count = Count::Eigengap {
+        cap: None,
+        level: None,
+    };
+    // The largest gap in the lower half of the prefix settles it; in the upper half, not yet.
+    assert!(suffices(&[0.0, 0.01, 0.5, 0.55, 0.6], 100, count));
+    assert!(!suffices(&[0.0, 0.01, 0.02, 0.03, 0.6], 100, count));
+    // A level needs the prefix to reach it, unless the cap is already within it.
+    let level = Count::Eigengap {
+        cap: None,
+        level: Some(0.7),
+    };
+    assert!(!suffices(&[0.0, 0.01, 0.5, 0.55, 0.6], 100, level));
+    let capped = Count::Eigengap {
+        cap: Some(3),
+        level: Some(0.7),
+    };
+    assert!(suffices(&[0.0, 0.01, 0.02, 0.03, 0.6], 100, capped));
+    assert!(suffices(&[0.1; 4], 4, count));
+    assert!(suffices(&[0.1; 3], 100, Count::Fixed(3)));
+    assert!(!suffices(&[0.1; 2], 100, Count::Fixed(3)));
 }
