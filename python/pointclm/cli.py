@@ -252,7 +252,7 @@ def cmd_register(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from .io import load_points
-    from .point_clouds import register_point_clouds
+    from .point_clouds import file_viewpoint, register_point_clouds
     from .visualize import save_ply, save_png
 
     # Everything that can be checked is checked before the (long) work: outputs, extras.
@@ -280,7 +280,9 @@ def cmd_register(args: argparse.Namespace) -> int:
             config=config,
             seed=args.seed,
             model=args.model,
-            viewpoint=args.viewpoint or (0.0, 0.0, 0.0),
+            viewpoint=args.viewpoint
+            if args.viewpoint is not None
+            else file_viewpoint(args.scene_file),
             mutual=not args.no_mutual,
             n_samples=None if args.all_correspondences else args.correspondences,
             refine=not args.no_refine,
@@ -467,7 +469,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene_file", metavar="SCENE", help="the scan holding its copies")
     r.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
     r.add_argument(
-        "--viewpoint", type=_xyz, help="sensor position x,y,z for scene normals (default 0,0,0)"
+        "--viewpoint",
+        type=_xyz,
+        help="sensor position x,y,z for scene normals and verification (default: a PCD "
+        "scene's VIEWPOINT, else none: normals oriented without it)",
     )
     r.add_argument(
         "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"

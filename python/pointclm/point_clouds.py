@@ -21,7 +21,14 @@ from numpy.typing import ArrayLike
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
-from .refinement import RefinedPoses, refine_poses
+from .refinement import (
+    MAX_CONTRADICTION,
+    MIN_FITNESS,
+    MIN_SEEN,
+    MIN_VISIBLE_FITNESS,
+    RefinedPoses,
+    refine_poses,
+)
 from .registration import _as_threads, as_config, register
 
 __all__ = [
@@ -33,6 +40,7 @@ __all__ = [
     "PEEL_RADIUS_VOXELS",
     "Pass",
     "default_voxel_size",
+    "file_viewpoint",
     "network_units",
     "register_point_clouds",
     "scaled_config",
@@ -133,6 +141,15 @@ class CloudInstance:
     def __len__(self) -> int:
         return len(self.matches)
 
+    def __repr__(self) -> str:
+        # One line a person reads: the scores and where the copy sits, not the 4 x 4 matrix.
+        t = ", ".join(f"{v:.4g}" for v in np.asarray(self.transformation)[:3, 3])
+        return (
+            f"CloudInstance(fitness={self.fitness:.3f}, confidence={self.confidence:.3f}, "
+            f"inlier_rmse={self.inlier_rmse:.3g}, pass_index={self.pass_index}, "
+            f"matches={len(self)}, translation=[{t}])"
+        )
+
 
 @dataclass(frozen=True)
 class Pass:
@@ -147,10 +164,16 @@ class Pass:
     #: Copies this pass added to the accepted ones.
     added: int
 
+    def __repr__(self) -> str:
+        return (
+            f"Pass(correspondences={len(self.correspondences)}, candidates={len(self.result)}, "
+            f"scan_points={len(self.scan_points)}, added={self.added})"
+        )
+
 
 @dataclass(frozen=True)
 class PointCloudRegistration:
-    """The result of :func:`register_point_clouds`.
+    """The result of :func:`register_point_clouds`; ``print`` shows a summary.
 
     ``instances`` are the refined and verified copies, surest first (``confidence``).
     ``result`` is the correspondence stage's :class:`pointclm.RegistrationResult` over
@@ -160,6 +183,10 @@ class PointCloudRegistration:
     one per peeling round over what the accepted copies leave unexplained.
     ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
     pruning, clustering, poses, refinement: pass 0's; peeling: every later pass; total).
+    ``viewpoint`` is the sensor position verification judged by (given, or a PCD file's
+    ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
+    ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
+    empty or doubtful result and what to try ("" when there is nothing to say).
     """
 
     result: RegistrationResult
@@ -171,6 +198,9 @@ class PointCloudRegistration:
     instances: list[CloudInstance] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
     passes: list[Pass] = field(default_factory=list)
+    viewpoint: np.ndarray | None = None
+    orientation: str = ""
+    diagnosis: str = ""
 
     @property
     def transformations(self) -> np.ndarray:
@@ -178,6 +208,28 @@ class PointCloudRegistration:
         if not self.instances:
             return np.zeros((0, 4, 4))
         return np.stack([inst.transformation for inst in self.instances])
+
+    def __repr__(self) -> str:
+        # A summary, not the arrays: what was found, how it was judged, where time went.
+        lines = [
+            f"PointCloudRegistration({len(self.instances)} instance(s) in "
+            f"{len(self.target_points)} scan points at voxel {self.voxel_size:.4g}, "
+            f"{len(self.passes)} pass(es), {self.timings.get('total', float('nan')):.2f} s)"
+        ]
+        lines += [f"  [{i}] {inst!r}" for i, inst in enumerate(self.instances)]
+        if self.diagnosis:
+            lines.append(f"  note: {self.diagnosis}")
+        if self.orientation:
+            lines.append(f"  scan normals: {self.orientation}")
+        judged = "none known" if self.viewpoint is None else _xyz(self.viewpoint)
+        lines.append(f"  verification viewpoint: {judged}")
+        stages = ", ".join(f"{k} {v:.3f}" for k, v in self.timings.items() if k != "total")
+        lines.append(f"  timings (s): {stages}")
+        return "\n".join(lines)
+
+
+def _xyz(p: ArrayLike) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in np.asarray(p, dtype=np.float64)) + ")"
 
 
 def _load(cloud: Any, name: str) -> np.ndarray:
@@ -188,6 +240,18 @@ def _load(cloud: Any, name: str) -> np.ndarray:
     return pp._points(cloud, name)
 
 
+def file_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
+    """The sensor position a scan file records, or None: a PCD file's ``VIEWPOINT``
+    translation (:func:`pointclm.io.pcd.read_pcd_viewpoint`; PCL's default, the origin with
+    no rotation, counts as none, since PCL writes it for every cloud whatever its sensor).
+    Other formats record none."""
+    if not str(path).lower().endswith(".pcd"):
+        return None
+    from .io.pcd import read_pcd_viewpoint
+
+    return read_pcd_viewpoint(path)
+
+
 def register_point_clouds(
     source: ArrayLike | str | os.PathLike[str],
     target: ArrayLike | str | os.PathLike[str],
@@ -196,7 +260,7 @@ def register_point_clouds(
     seed: int = 0,
     *,
     model: Any = None,
-    viewpoint: ArrayLike = (0.0, 0.0, 0.0),
+    viewpoint: ArrayLike | None = None,
     top_k: int = 10_000,
     mutual: bool = True,
     n_samples: int | None = 1000,
@@ -226,10 +290,15 @@ def register_point_clouds(
     model : str, path or torch module, optional
         The learned embedding ("default", "paper", a weight file): PointCLM proper. The
         correspondences are rescaled to the network's training units (sigma_d) first.
-    viewpoint : array_like
+    viewpoint : array_like, optional
         The scan's sensor position: scan normals point towards it, and verification judges
-        each pose by what the sensor there could see of it. The model's normals point away
-        from its centroid.
+        each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
+        `target` file records (:func:`file_viewpoint`); else none: the scan's normals are
+        oriented without it (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point
+        that orients them consistently, and of the two signs the one whose descriptors are
+        nearer the model's is kept) and poses are judged by the share of the model they
+        explain. Pass it for scenes where copies hide one another. The model's normals point
+        away from its centroid.
     top_k, mutual, n_samples, k
         Correspondence building (paper appendix): each scan point's `k` most similar model
         points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
@@ -241,8 +310,8 @@ def register_point_clouds(
     refine : bool
         Refine each pose by ICP on the clouds and keep those the scan supports, judged by
         what the sensor at `viewpoint` could see of each (:func:`pointclm.refinement.
-        refine_poses` with its defaults; when the scan does not look like one view from
-        `viewpoint`, by the share of the model explained). False: the
+        refine_poses` with its defaults; without a viewpoint, or when the scan does not look
+        like one view from it, by the share of the model explained). False: the
         correspondence stage's poses as they are (their fitness is still measured).
     peel : bool
         With `refine`: after the first pass, set aside the scan points the accepted copies
@@ -252,13 +321,20 @@ def register_point_clouds(
         crowd out of the sample. False: one pass (the paper's pipeline).
     num_threads : int, optional
         Threads (default: all cores).
+
+    The result's ``diagnosis`` says why nothing was found (or why a result is doubtful) and
+    what to try; ``print(result)`` shows a summary.
     """
     t0 = time.perf_counter()
     _as_threads(num_threads)  # argument errors before the files are read
     pp._flag(refine, "refine")
     pp._flag(mutual, "mutual")
+    view = None if viewpoint is None else pp._point(viewpoint, "viewpoint")
     src = _load(source, "source")
     tgt = _load(target, "target")
+    if view is None and isinstance(target, str | os.PathLike):
+        found = file_viewpoint(target)
+        view = None if found is None else pp._point(found, "viewpoint")
     t_load = time.perf_counter() - t0
     voxel = (
         default_voxel_size(src) if voxel_size is None else pp._positive(voxel_size, "voxel_size")
@@ -266,72 +342,185 @@ def register_point_clouds(
     if not voxel > 0:
         raise ValueError("the source model has zero extent: give voxel_size")
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
-    tgt_d = pp.describe(tgt, voxel, towards=viewpoint, num_threads=num_threads)
-    t1 = time.perf_counter()
+    tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
+    if view is not None and viewpoint is None:
+        orientation += " (the file's VIEWPOINT)"
     matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples, "k": k}
-    everything = np.arange(len(tgt_d.points))
-    corr, pair_normals = _match(src_d, tgt_d, everything, matching, normals, seed, num_threads)
+    run = _Run(src_d, tgt_d, voxel, view, matching, normals, seed, model, num_threads)
+    reg = _register(run, config, refine, peel)
+    reg.timings["load"] = t_load
+    reg.timings["total"] = time.perf_counter() - t0
+    return replace(reg, orientation=orientation)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What every pass of one `register_point_clouds` call shares."""
+
+    src_d: pp.DescribedCloud
+    tgt_d: pp.DescribedCloud
+    voxel: float
+    #: The sensor position verification judges by; None: none known.
+    viewpoint: tuple[float, float, float] | None
+    matching: dict[str, Any]
+    normals: bool
+    seed: int
+    model: Any
+    num_threads: int | None
+
+
+def _describe_scan(
+    tgt: np.ndarray,
+    voxel: float,
+    view: tuple[float, float, float] | None,
+    src_d: pp.DescribedCloud,
+    num_threads: int | None,
+) -> tuple[pp.DescribedCloud, str]:
+    """The scan downsampled, with normals and FPFH, and how its normals were oriented.
+
+    With a viewpoint the normals face it. Without one, a point that orients them
+    consistently is estimated (:func:`pointclm.preprocessing.estimate_viewpoint`), which
+    fixes them up to one global sign; the model's normals face outwards, and so do those of
+    surfaces a sensor saw, so the sign kept is the one whose descriptors lie nearer the
+    model's (median distance from each scan descriptor to its nearest model descriptor).
+    Flipping every normal only reindexes FPFH (:func:`pointclm.preprocessing.flip_fpfh`),
+    so both signs cost one FPFH pass.
+    """
+    if view is not None:
+        described = pp.describe(tgt, voxel, towards=view, num_threads=num_threads)
+        return described, f"towards the viewpoint {_xyz(view)}"
+    t0 = time.perf_counter()
+    pts = pp.voxel_downsample(tgt, voxel)
+    t1 = time.perf_counter()
+    raw = pp.estimate_normals(pts, 2.0 * voxel, num_threads=num_threads)
+    eye = pp.estimate_viewpoint(pts, raw)
+    nrm = pp.orient_towards(pts, raw, eye)
+    t2 = time.perf_counter()
+    desc = pp.compute_fpfh(pts, nrm, 5.0 * voxel, num_threads=num_threads)
+    flipped = pp.flip_fpfh(desc)
+    towards = _median_distance(src_d.descriptors, desc, num_threads)
+    away = _median_distance(src_d.descriptors, flipped, num_threads)
+    if away < towards:
+        nrm, desc = -nrm, flipped
+    t3 = time.perf_counter()
+    timings = {"downsample": t1 - t0, "normals": t2 - t1, "fpfh": t3 - t2}
+    side = "away from" if away < towards else "towards"
+    text = (
+        f"no viewpoint: {side} the estimated point {_xyz(eye)}, the sign whose descriptors "
+        f"match the model's (median distance {min(towards, away):.3g} vs "
+        f"{max(towards, away):.3g})"
+    )
+    return pp.DescribedCloud(pts, nrm, desc, timings), text
+
+
+def _median_distance(reference: np.ndarray, queries: np.ndarray, num_threads: int | None) -> float:
+    """Median distance from (a stride of at most `pp.VIEWPOINT_SAMPLE` of) `queries` to their
+    nearest `reference` descriptors."""
+    rows = queries[:: max(1, -(-len(queries) // pp.VIEWPOINT_SAMPLE))]
+    m = pp.match_features(reference, rows, top_k=len(rows), n_samples=None, num_threads=num_threads)
+    return float(np.median(m.distance))
+
+
+#: Scores only: `refine_poses` with these rejects nothing but duplicates (and keeps those
+#: with ``max_shared=1``).
+_KEEP_ALL: dict[str, Any] = {
+    "min_fitness": 0.0,
+    "min_relative_fitness": 0.0,
+    "min_visible_fitness": 0.0,
+    "max_contradiction": 1.0,
+    "min_seen": 0.0,
+}
+
+
+def _register(
+    run: _Run, config: Config | dict[str, Any] | None, refine: bool, peel: bool
+) -> PointCloudRegistration:
+    """The correspondence stage, refinement and verification, then peeling: every stage
+    after the clouds are described."""
+    t1 = time.perf_counter()
+    everything = np.arange(len(run.tgt_d.points))
+    corr, pair_normals = _match(
+        run.src_d, run.tgt_d, everything, run.matching, run.normals, run.seed, run.num_threads
+    )
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
             f"only {len(corr)} correspondences survived matching: the clouds share too few "
             "similar local shapes (try mutual=False, a smaller voxel_size, or check the units)"
         )
-    cfg = _config(config, voxel, model, refine)
+    cfg = _config(config, run.voxel, run.model, refine)
     if config is None and refine and peel and cfg.cluster_level is None:
         cfg = replace(cfg, cluster_level=PEEL_CLUSTER_LEVEL)
     features = None
-    if model is not None:
-        features = embed_scaled(corr, model, cfg, num_threads)
+    if run.model is not None:
+        features = embed_scaled(corr, run.model, cfg, run.num_threads)
     t3 = time.perf_counter()
-    result = register(corr, features, cfg, seed, num_threads=num_threads, normals=pair_normals)
-    t4 = time.perf_counter()
-    # Without refinement every pose is kept, scored only, in the correspondence stage's
-    # order (most inliers first).
-    keep_all = {
-        "min_fitness": 0.0,
-        "min_relative_fitness": 0.0,
-        "min_visible_fitness": 0.0,
-        "max_contradiction": 1.0,
-        "min_seen": 0.0,
-        "max_shared": 1.0,
-    }
-    refined = refine_poses(
-        src_d.points,
-        tgt_d.points,
-        np.asarray(result.transformations).reshape(-1, 4, 4),
-        voxel,
-        viewpoint=viewpoint,
-        icp=refine,
-        **({} if refine else keep_all),
-        num_threads=num_threads,
+    result = register(
+        corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
     )
-    # Each accepted pose's (pass, instance of that pass's result).
-    tags = [(0, int(o)) for o in refined.origin]
+    t4 = time.perf_counter()
+    refined, tags = _verify(run, result, refine)
     passes = [Pass(corr, result, everything, len(tags))]
+    t5 = time.perf_counter()
+    if refine and peel and len(tags):
+        refined, tags = _peel(run, refined, tags, passes, cfg)
+    t6 = time.perf_counter()
+    stage = dict(result.timings)
+    timings = {
+        "load": 0.0,
+        "downsample": run.src_d.timings["downsample"] + run.tgt_d.timings["downsample"],
+        "normals": run.src_d.timings["normals"] + run.tgt_d.timings["normals"],
+        "fpfh": run.src_d.timings["fpfh"] + run.tgt_d.timings["fpfh"],
+        "matching": t2 - t1,
+        "embedding": t3 - t2,
+        **{s: stage.get(s, 0.0) for s in ("pruning", "clustering", "poses")},
+        "registration": t4 - t3,
+        "refinement": t5 - t4,
+        "peeling": t6 - t5,
+        "total": 0.0,
+    }
+    return PointCloudRegistration(
+        result=result,
+        correspondences=corr,
+        source_points=run.src_d.points,
+        target_points=run.tgt_d.points,
+        voxel_size=run.voxel,
+        config=cfg,
+        instances=_instances(refined, tags, passes),
+        timings=timings,
+        passes=passes,
+        viewpoint=None if run.viewpoint is None else np.array(run.viewpoint),
+        diagnosis=_diagnose(run, refined, passes, refine),
+    )
+
+
+def _verify(
+    run: _Run, result: RegistrationResult, refine: bool
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """Pass 0's poses refined and verified (or, without `refine`, only scored, in the
+    correspondence stage's order), each with its (pass, instance of that pass's result)."""
+    refined = refine_poses(
+        run.src_d.points,
+        run.tgt_d.points,
+        np.asarray(result.transformations).reshape(-1, 4, 4),
+        run.voxel,
+        viewpoint=run.viewpoint,
+        icp=refine,
+        **({} if refine else {**_KEEP_ALL, "max_shared": 1.0}),
+        num_threads=run.num_threads,
+    )
+    tags = [(0, int(o)) for o in refined.origin]
     if not refine:
         # Unverified poses keep the correspondence stage's order (most inliers first).
         keep = np.argsort(refined.origin)
         refined, tags = _take(refined, keep), [tags[i] for i in keep]
-    t5 = time.perf_counter()
-    if refine and peel and len(tags):
-        refined, tags = _peel(
-            src_d,
-            tgt_d,
-            voxel,
-            refined,
-            tags,
-            passes,
-            cfg,
-            model,
-            viewpoint,
-            matching,
-            normals,
-            seed,
-            num_threads,
-        )
-    t6 = time.perf_counter()
-    instances = [
+    return refined, tags
+
+
+def _instances(
+    refined: RefinedPoses, tags: list[tuple[int, int]], passes: list[Pass]
+) -> list[CloudInstance]:
+    return [
         CloudInstance(
             refined.transformations[i],
             float(refined.fitness[i]),
@@ -344,32 +533,65 @@ def register_point_clouds(
         )
         for i in range(len(tags))
     ]
-    stage = dict(result.timings)
-    timings = {
-        "load": t_load,
-        "downsample": src_d.timings["downsample"] + tgt_d.timings["downsample"],
-        "normals": src_d.timings["normals"] + tgt_d.timings["normals"],
-        "fpfh": src_d.timings["fpfh"] + tgt_d.timings["fpfh"],
-        "matching": t2 - t1,
-        "embedding": t3 - t2,
-        "pruning": stage.get("pruning", 0.0),
-        "clustering": stage.get("clustering", 0.0),
-        "poses": stage.get("poses", 0.0),
-        "registration": t4 - t3,
-        "refinement": t5 - t4,
-        "peeling": t6 - t5,
-        "total": t6 - t0,
-    }
-    return PointCloudRegistration(
-        result=result,
-        correspondences=corr,
-        source_points=src_d.points,
-        target_points=tgt_d.points,
-        voxel_size=voxel,
-        config=cfg,
-        instances=instances,
-        timings=timings,
-        passes=passes,
+
+
+def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool) -> str:
+    """Why the result is empty or doubtful, and what to try; "" when there is nothing to say."""
+    first = passes[0]
+    no_view = (
+        " The scan's normals were oriented without a sensor position: if you know it, pass "
+        "viewpoint=."
+        if run.viewpoint is None
+        else ""
+    )
+    if len(refined.origin) and run.viewpoint is not None and refine and not refined.by_visibility:
+        return (
+            f"the scan does not look like one view from the viewpoint {_xyz(run.viewpoint)} "
+            "(too much of it lies behind other scan points seen from there), so poses were "
+            "judged by the share of the model they explain; if that is not where the sensor "
+            "stood, pass its position, or viewpoint=None to orient the normals without one."
+        )
+    if len(refined.origin):
+        return ""
+    if len(first.result) == 0:
+        return (
+            f"nothing found: no consistent group among the {len(first.correspondences)} "
+            "descriptor correspondences, so no candidate pose. The scan may not hold the "
+            f"model, or its local shapes differ at voxel {run.voxel:.3g}: try a smaller "
+            "voxel_size, mutual=False or n_samples=None." + no_view
+        )
+    return _rejected(run, first) + no_view
+
+
+def _rejected(run: _Run, first: Pass) -> str:
+    """Why verification rejected every candidate pose: the best one's scores against the
+    rules (one more ICP of the candidates, only when nothing was found)."""
+    scores = refine_poses(
+        run.src_d.points,
+        run.tgt_d.points,
+        np.asarray(first.result.transformations).reshape(-1, 4, 4),
+        run.voxel,
+        viewpoint=run.viewpoint,
+        **_KEEP_ALL,
+        max_shared=1.0,
+        num_threads=run.num_threads,
+    )
+    n = len(first.result)
+    head = f"nothing found: verification rejected all {n} candidate pose(s)"
+    if not scores.by_visibility:
+        best = float(scores.fitness.max()) if len(scores.fitness) else 0.0
+        return (
+            f"{head}: the best explains {best:.0%} of the model (needs {MIN_FITNESS:.0%}). "
+            "A partial or occluded view explains little of a model."
+        )
+    i = int(np.argmax(scores.confidence))
+    return (
+        f"{head} as seen from the viewpoint {_xyz(run.viewpoint or (0, 0, 0))}: the best "
+        f"explains {scores.visible_fitness[i]:.0%} of what the sensor could see of it (needs "
+        f"{MIN_VISIBLE_FITNESS:.0%}), {scores.contradiction[i]:.0%} of it lies where the "
+        f"sensor saw free space (at most {MAX_CONTRADICTION:.0%}), and the sensor could see "
+        f"{scores.seen[i]:.0%} of the model (needs {MIN_SEEN:.0%}). If that is not where the "
+        "sensor stood, pass its position, or viewpoint=None to orient the normals without one."
     )
 
 
@@ -405,19 +627,11 @@ def unexplained_points(
 
 
 def _peel(
-    src_d: Any,
-    tgt_d: Any,
-    voxel: float,
+    run: _Run,
     refined: RefinedPoses,
     tags: list[tuple[int, int]],
     passes: list[Pass],
     cfg: Config,
-    model: Any,
-    viewpoint: ArrayLike,
-    matching: dict[str, Any],
-    normals: bool,
-    seed: int,
-    num_threads: int | None,
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """Peeling rounds: match the scan points no accepted copy explains, register them, refine
     the new poses and verify them together with the accepted ones; stop when a round adds no
@@ -431,69 +645,96 @@ def _peel(
     """
     from scipy.spatial import cKDTree
 
-    radius = PEEL_RADIUS_VOXELS * voxel
-    scan_tree = cKDTree(tgt_d.points)
-    unexplained = unexplained_points(tgt_d.points, src_d.points, refined.transformations, radius)
+    src, scan = run.src_d.points, run.tgt_d.points
+    radius = PEEL_RADIUS_VOXELS * run.voxel
+    scan_tree = cKDTree(scan)
+    unexplained = unexplained_points(scan, src, refined.transformations, radius)
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
         free = np.flatnonzero(unexplained)
         if len(free) < 3:
             break
+        seed = run.seed + round_
         corr, pair_normals = _match(
-            src_d, tgt_d, free, matching, normals, seed + round_, num_threads
+            run.src_d, run.tgt_d, free, run.matching, run.normals, seed, run.num_threads
         )
         if len(corr) < 3:
             break
-        features = None if model is None else embed_scaled(corr, model, cfg, num_threads)
+        features = (
+            None if run.model is None else embed_scaled(corr, run.model, cfg, run.num_threads)
+        )
         result = register(
-            corr, features, cfg, seed + round_, num_threads=num_threads, normals=pair_normals
+            corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals
         )
         candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
         new = refine_poses(
-            src_d.points,
-            tgt_d.points,
+            src,
+            scan,
             candidates,
-            voxel,
-            viewpoint=viewpoint,
+            run.voxel,
+            viewpoint=run.viewpoint,
             max_shared=1.0,
-            num_threads=num_threads,
+            num_threads=run.num_threads,
         )
-        added = 0
         if len(new.origin) and new.by_visibility and refined.by_visibility:
-            # Judged by visibility, a pose's verdict does not depend on the other poses: only
-            # duplicates of accepted copies remain to be dropped, then the lists are merged.
-            taken = ~unexplained
-            keep = _not_duplicates(scan_tree, src_d.points, new.transformations, voxel, taken)
-            added = len(keep)
-            if added:
-                new_tags = [(round_, int(new.origin[i])) for i in keep]
-                kept = _take(new, keep)
-                refined, tags = _merge(refined, tags, kept, new_tags)
-                # The accepted set only grew: the new copies' points join the explained ones.
-                unexplained &= unexplained_points(
-                    tgt_d.points, src_d.points, kept.transformations, radius
-                )
+            refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
         elif len(new.origin):
-            pool = np.concatenate([refined.transformations, new.transformations])
-            pool_tags = tags + [(round_, int(o)) for o in new.origin]
-            both = refine_poses(
-                src_d.points,
-                tgt_d.points,
-                pool,
-                voxel,
-                viewpoint=viewpoint,
-                icp=False,
-                num_threads=num_threads,
-            )
-            added = int(np.sum(both.origin >= len(tags)))
-            refined, tags = both, [pool_tags[int(o)] for o in both.origin]
+            refined, tags = _reverify(run, refined, tags, new, round_)
             # Re-verification may also drop accepted poses: recompute what is explained.
-            unexplained = unexplained_points(
-                tgt_d.points, src_d.points, refined.transformations, radius
-            )
+            unexplained = unexplained_points(scan, src, refined.transformations, radius)
+        added = sum(t[0] == round_ for t in tags)  # the copies this round added
         passes.append(Pass(corr, result, free, added))
         if added == 0:
             break
     return refined, tags
+
+
+def _add_seen(
+    run: _Run,
+    scan_tree: Any,
+    refined: RefinedPoses,
+    tags: list[tuple[int, int]],
+    new: RefinedPoses,
+    round_: int,
+    unexplained: np.ndarray,
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """A round's poses judged by visibility joined to the accepted ones: such a verdict does
+    not depend on the other poses, so only duplicates of accepted copies are dropped, then
+    the lists are merged. The new copies' points leave `unexplained` (in place)."""
+    taken = ~unexplained
+    keep = _not_duplicates(scan_tree, run.src_d.points, new.transformations, run.voxel, taken)
+    if not keep:
+        return refined, tags
+    kept = _take(new, keep)
+    refined, tags = _merge(refined, tags, kept, [(round_, int(new.origin[i])) for i in keep])
+    # The accepted set only grew: the new copies' points join the explained ones.
+    radius = PEEL_RADIUS_VOXELS * run.voxel
+    unexplained &= unexplained_points(
+        run.tgt_d.points, run.src_d.points, kept.transformations, radius
+    )
+    return refined, tags
+
+
+def _reverify(
+    run: _Run,
+    refined: RefinedPoses,
+    tags: list[tuple[int, int]],
+    new: RefinedPoses,
+    round_: int,
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """Accepted and new poses verified together (without visibility a pose's verdict
+    depends on the best fitness among them)."""
+    pool = np.concatenate([refined.transformations, new.transformations])
+    pool_tags = tags + [(round_, int(o)) for o in new.origin]
+    both = refine_poses(
+        run.src_d.points,
+        run.tgt_d.points,
+        pool,
+        run.voxel,
+        viewpoint=run.viewpoint,
+        icp=False,
+        num_threads=run.num_threads,
+    )
+    return both, [pool_tags[int(o)] for o in both.origin]
 
 
 def _not_duplicates(

@@ -28,9 +28,13 @@ from .registration import _as_threads, as_matrix
 __all__ = [
     "DescribedCloud",
     "Matches",
+    "FLIPPED_FPFH_BINS",
     "compute_fpfh",
     "describe",
     "estimate_normals",
+    "estimate_viewpoint",
+    "flip_fpfh",
+    "orient_towards",
     "match_features",
     "voxel_downsample",
 ]
@@ -152,6 +156,85 @@ def compute_fpfh(
         variant=variant,
         num_threads=_as_threads(num_threads),
     )
+
+
+#: FPFH's 33 bins are three 11-bin histograms of the pair features (f1: the angle theta in
+#: [-pi, pi], f2: alpha, f3: phi, both in [-1, 1]). Flipping every normal negates the
+#: Darboux frame's u and v and keeps w, so f1 and f3 change sign and f2 does not (PCL's
+#: ``computePairFeatures``; its swap rule compares absolute angles, so it is unchanged):
+#: the first and last histograms run backwards. A cloud's descriptors under the opposite
+#: orientation are thus a reindexing, with no second FPFH pass.
+FLIPPED_FPFH_BINS = np.concatenate(
+    [np.arange(10, -1, -1), np.arange(11, 22), np.arange(32, 21, -1)]
+)
+
+
+def flip_fpfh(descriptors: ArrayLike) -> np.ndarray:
+    """The FPFH descriptors (N, 33) the same points would have with every normal flipped."""
+    d = as_matrix(descriptors, "descriptors", 33)
+    return np.ascontiguousarray(d[:, FLIPPED_FPFH_BINS])
+
+
+#: Points scored per candidate eye by `estimate_viewpoint` (a stride through the cloud):
+#: enough for a stable tenth percentile, and the cost stays bounded on large scans.
+VIEWPOINT_SAMPLE = 2000
+
+
+def _sphere(n: int) -> np.ndarray:
+    """`n` nearly uniform unit vectors (a Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z * z)
+    a = np.pi * (1.0 + 5.0**0.5) * i
+    return np.stack([r * np.cos(a), r * np.sin(a), z], axis=1)
+
+
+def estimate_viewpoint(
+    points: ArrayLike, normals: ArrayLike, n_directions: int = 256
+) -> np.ndarray:
+    """A point from which one sign rule orients every normal consistently (3,).
+
+    Unoriented normals get their sign from a line of sight; the sign of a normal seen
+    edge-on is a coin toss. The eye chosen sees the fewest normals edge-on: the highest
+    tenth percentile of ``|cos|`` between normal and line of sight. Candidates: the origin
+    (sensor frames put the sensor there), the cloud's centroid (inside a closed or convex
+    surface, which every normal faces), and points 2, 8 and 1000 cloud radii from the
+    centroid in `n_directions` directions (a sensor near, at a usual distance, and as good
+    as at infinity). A single range scan is seen head-on from its sensor, so the result is
+    that sensor or a point that orients like it, up to one global sign (its mirror image
+    behind the surface, or the inside of a convex object): which side is outside is left
+    to the caller (:func:`pointclm.register_point_clouds` asks which sign makes the scan's
+    descriptors look like the model's).
+    """
+    p = _points(points, "points")
+    n = as_matrix(normals, "normals", 3)
+    if len(n) != len(p):
+        raise ValueError(f"need one normal per point: {len(p)} points, {len(n)} normals")
+    step = max(1, math.ceil(len(p) / VIEWPOINT_SAMPLE))
+    p, n = p[::step], n[::step]
+    centre = p.mean(0)
+    radius = max(float(np.linalg.norm(p - centre, axis=1).max()), np.finfo(float).tiny)
+    dirs = _sphere(_count(n_directions, "n_directions", 1))
+    eyes = np.vstack(
+        [np.zeros((1, 3)), centre[None]] + [centre + r * radius * dirs for r in (2.0, 8.0, 1e3)]
+    )
+    scores = np.empty(len(eyes))
+    tenth = (len(p) - 1) // 10
+    for start in range(0, len(eyes), 64):  # 64 eyes at a time bound the memory
+        sight = eyes[start : start + 64, None, :] - p[None]
+        length = np.maximum(np.linalg.norm(sight, axis=2), np.finfo(float).tiny)
+        cos = np.abs(np.einsum("kij,ij->ki", sight, n)) / length
+        scores[start : start + 64] = np.partition(cos, tenth, axis=1)[:, tenth]
+    return np.asarray(eyes[int(np.argmax(scores))], dtype=np.float64)
+
+
+def orient_towards(points: ArrayLike, normals: ArrayLike, viewpoint: ArrayLike) -> np.ndarray:
+    """`normals` with each sign flipped to face `viewpoint` (as `estimate_normals`' towards)."""
+    p = _points(points, "points")
+    n = as_matrix(normals, "normals", 3)
+    eye = np.asarray(_point(viewpoint, "viewpoint"))
+    facing = np.einsum("ij,ij->i", eye - p, n) >= 0.0
+    return np.where(facing[:, None], n, -n)
 
 
 @dataclass(frozen=True)

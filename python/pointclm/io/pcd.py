@@ -18,6 +18,7 @@ points are dropped, and the normals and colours stay aligned with the kept point
 
 from __future__ import annotations
 
+import os
 import struct
 from dataclasses import dataclass
 
@@ -26,7 +27,7 @@ import numpy as np
 from .lzf import LZF_MAX_EXPANSION, lzf_decompress
 from .pointcloud import PointCloud, check_integers, finite_cloud
 
-__all__ = ["parse_pcd"]
+__all__ = ["parse_pcd", "pcd_viewpoint", "read_pcd_viewpoint"]
 
 _MAX_HEADER_LINES = 256
 _TYPE_CHARS = {("F", 4): "f4", ("F", 8): "f8"}
@@ -47,6 +48,8 @@ class _Header:
     n_points: int
     data: str
     data_start: int
+    #: The VIEWPOINT line's words (tx ty tz qw qx qy qz), () when the header has none.
+    viewpoint: tuple[str, ...] = ()
 
 
 def _parse_header(raw: bytes) -> _Header:
@@ -119,7 +122,7 @@ def _parse_header(raw: bytes) -> _Header:
     if n_points < 0 or width < 0 or height < 0:
         raise ValueError("malformed PCD header (negative WIDTH, HEIGHT or POINTS)")
     data = entries["DATA"][0].lower() if entries["DATA"] else ""
-    return _Header(tuple(fields), n_points, data, pos)
+    return _Header(tuple(fields), n_points, data, pos, tuple(entries.get("VIEWPOINT", ())))
 
 
 def _header_int(entries: dict[str, list[str]], key: str) -> int:
@@ -278,3 +281,46 @@ def parse_pcd(raw: bytes) -> PointCloud:
             colors = _packed_rgb(packed)
             break
     return finite_cloud(points, normals, colors)
+
+
+#: PCL's VIEWPOINT when nothing set it (sensor at the origin, no rotation): every PCL cloud
+#: carries it, so it says nothing about where a sensor stood.
+_DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+
+
+def pcd_viewpoint(raw: bytes) -> np.ndarray | None:
+    """The sensor position (3,) a PCD file's header records in its ``VIEWPOINT`` line (the
+    translation ``tx ty tz``; the orientation ``qw qx qy qz`` is not needed to know where the
+    sensor was), or None when there is no such line or it holds PCL's default (the origin,
+    no rotation), which PCL writes whatever the sensor.
+
+    Raises ValueError for a malformed header or a VIEWPOINT that is not 7 finite numbers.
+    """
+    words = _parse_header(raw).viewpoint
+    if not words:
+        return None
+    try:
+        values = tuple(float(w) for w in words)
+    except ValueError:
+        values = ()
+    if len(values) != 7 or not np.isfinite(values).all():
+        raise ValueError(
+            f"malformed PCD header: VIEWPOINT needs 7 numbers, got {' '.join(words)!r}"
+        )
+    if values == _DEFAULT_VIEWPOINT:
+        return None
+    return np.array(values[:3])
+
+
+#: The header is read from at most this many leading bytes (256 lines of a few words each).
+_HEADER_BYTES = 1 << 16
+
+
+def read_pcd_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
+    """:func:`pcd_viewpoint` of the PCD file at `path`, reading only its header."""
+    with open(path, "rb") as f:
+        head = f.read(_HEADER_BYTES)
+    try:
+        return pcd_viewpoint(head)
+    except ValueError as e:
+        raise ValueError(f"{os.fspath(path)}: {e}") from None
