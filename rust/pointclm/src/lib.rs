@@ -60,6 +60,12 @@ pub mod spectral;
 mod testing;
 pub mod validation;
 
+// The crate README's examples run with the doctests (issue 15) without becoming the crate's
+// rendered docs, whose relative links to examples/ and benches/ would not resolve there.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
+
 pub use config::{Assignment, Config, Pruning};
 pub use correspondences::{Correspondences, Features, MIN_CORRESPONDENCES};
 pub use error::{Error, Result};

@@ -1,0 +1,192 @@
+"""The README's code blocks run as written and print what they claim (issue 15).
+
+- ```python blocks: each runs in a fresh namespace, as a reader pastes one block into a new
+  interpreter; every block imports what it uses, so none depends on another. They run from
+  the repository root (where the README's relative paths point). A comment ``# -> text``
+  claims what the block prints: each ``...``-separated piece of ``text`` must appear in the
+  block's output, in order. A block naming ``../shared/data`` is skipped when that folder is
+  missing, one importing torch when torch is not installed.
+- ```bash blocks: installs are not run; every ``pointclm`` command must parse with the CLI's
+  own parser, every ``python benchmarks/...`` script must exist and list the flags used in
+  its ``--help``, and every cargo ``--example``/bench must exist in the crate.
+- ```rust blocks: the crate README's example is a doctest of the core crate (``cargo test -p
+  pointclm``); here we check that README.md shows exactly that code, and that the crate
+  still includes its README as a doctest.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import io
+import re
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pointclm.cli import build_parser
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+CRATE = ROOT / "rust" / "pointclm"
+DATA = ROOT.parent / "shared" / "data"
+
+#: Seconds one Python block may take on a loaded 2-core CI machine: examples, not benchmarks.
+BLOCK_BUDGET_S = 60.0
+
+_FENCE = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
+
+
+def code_blocks(path: Path, lang: str) -> list[str]:
+    return [body for tag, body in _FENCE.findall(path.read_text()) if tag == lang]
+
+
+def claims(block: str) -> list[str]:
+    """The ``# -> text`` comments of a block, in order."""
+    return [m.group(1).strip() for m in re.finditer(r"# -> (.*)$", block, re.M)]
+
+
+def assert_claims_printed(block: str, out: str) -> None:
+    pos = 0
+    for claim in claims(block):
+        for piece in (p.strip() for p in claim.split("...")):
+            if not piece:
+                continue
+            found = out.find(piece, pos)
+            assert found >= 0, f"the block claims {claim!r}, but {piece!r} is not in:\n{out}"
+            pos = found + len(piece)
+
+
+PY_BLOCKS = code_blocks(README, "python")
+
+
+def test_every_block_has_a_checked_language():
+    tags = {tag for tag, _ in _FENCE.findall(README.read_text())}
+    assert tags <= {"python", "bash", "rust", "text"}, tags
+    assert PY_BLOCKS, "README.md has no python block"
+
+
+def test_claims_are_checked_somewhere():
+    assert sum(len(claims(b)) for b in PY_BLOCKS) >= len(PY_BLOCKS), (
+        "every python block should state what it prints with '# -> ...'"
+    )
+
+
+def test_claim_matching_fails_on_a_wrong_claim():
+    assert_claims_printed("print(x)  # -> 5 of ... found", "5 of 5 found\n")
+    with pytest.raises(AssertionError):
+        assert_claims_printed("print(x)  # -> 5 of 5 found", "4 of 5 found\n")
+    with pytest.raises(AssertionError):  # pieces must come in order
+        assert_claims_printed("# -> b ... a", "a b")
+
+
+def _skip_reason(block: str) -> str | None:
+    if "../shared/data" in block and not DATA.is_dir():
+        return f"the block reads ../shared/data, which is missing ({DATA})"
+    if re.search(r"^\s*import torch", block, re.M) and importlib.util.find_spec("torch") is None:
+        return "the block needs torch (pip install '.[train]')"
+    return None
+
+
+@pytest.mark.parametrize("k", range(len(PY_BLOCKS)), ids=lambda k: f"python-{k}")
+def test_python_block_runs_and_prints_its_claims(k, monkeypatch):
+    block = PY_BLOCKS[k]
+    reason = _skip_reason(block)
+    if reason:
+        pytest.skip(reason)
+    monkeypatch.chdir(ROOT)
+    out = io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(out):
+        exec(compile(block, f"README.md python block {k}", "exec"), {"__name__": "__main__"})
+    elapsed = time.perf_counter() - t0
+    assert elapsed < BLOCK_BUDGET_S, f"block {k} took {elapsed:.1f} s"
+    assert_claims_printed(block, out.getvalue())
+
+
+# --- bash ---------------------------------------------------------------------------------
+
+#: Commands that install or build; they are not run here, only allowed.
+_INSTALLS = {"python3", ".", "source", "pip", "pytest", "cargo add"}
+
+
+def commands(block: str) -> list[list[str]]:
+    """Each simple command of a bash block as its words (comments and `&&` chains split)."""
+    out = []
+    for line in block.splitlines():
+        words = shlex.split(line, comments=True)
+        cmd: list[str] = []
+        for w in [*words, "&&"]:
+            if w in ("&&", "||", ";", "|"):
+                if cmd:
+                    out.append(cmd)
+                cmd = []
+            else:
+                cmd.append(w)
+    return out
+
+
+BASH_COMMANDS = [c for b in code_blocks(README, "bash") for c in commands(b)]
+
+
+def _flags(words: list[str]) -> list[str]:
+    return [w.split("=")[0] for w in words if w.startswith("--")]
+
+
+def _check_pointclm(args: list[str]) -> None:
+    try:
+        build_parser().parse_args(args)
+    except SystemExit as e:
+        pytest.fail(f"`pointclm {shlex.join(args)}` does not parse (exit {e.code})")
+
+
+def _check_script(script: str, args: list[str]) -> None:
+    path = ROOT / script
+    assert path.is_file(), f"{script} does not exist"
+    run = subprocess.run(
+        [sys.executable, str(path), "--help"], cwd=ROOT, capture_output=True, text=True
+    )
+    assert run.returncode == 0, run.stderr
+    for flag in _flags(args):
+        assert re.search(rf"{re.escape(flag)}\b", run.stdout), f"{script} has no {flag}"
+
+
+def _check_cargo(args: list[str]) -> None:
+    if args[0] == "add":
+        return
+    assert args[args.index("-p") + 1] == "pointclm", args
+    if "--example" in args:
+        name = args[args.index("--example") + 1]
+        assert (CRATE / "examples" / f"{name}.rs").is_file(), f"no example {name}"
+    if args[0] == "bench":
+        assert list((CRATE / "benches").glob("*.rs")), "no bench"
+
+
+@pytest.mark.parametrize("words", BASH_COMMANDS, ids=shlex.join)
+def test_bash_command_exists(words):
+    head, args = words[0], words[1:]
+    if head == "pointclm":
+        _check_pointclm(args)
+    elif head == "python" and args and args[0].startswith("benchmarks/"):
+        _check_script(args[0], args[1:])
+    elif head == "cargo":
+        _check_cargo(args)
+    else:
+        assert head in _INSTALLS, f"unknown command {head!r}: teach tests/test_readme.py"
+
+
+# --- rust ---------------------------------------------------------------------------------
+
+
+def test_rust_example_is_the_crate_doctest():
+    crate_readme = CRATE / "README.md"
+    crate_blocks = code_blocks(crate_readme, "rust")
+    assert crate_blocks, "the crate README has no rust example"
+    assert code_blocks(README, "rust") == crate_blocks, (
+        "README.md's Rust example must be the crate README's (which cargo test runs)"
+    )
+    lib = (CRATE / "src" / "lib.rs").read_text()
+    assert '#[doc = include_str!("../README.md")]' in lib
