@@ -8,11 +8,17 @@
 (4, 4)
 """
 
+from typing import TYPE_CHECKING, Any
+
+from . import errors
 from ._core import Instance, Network, RegistrationResult, __version__
 from .config import Config
 from .point_clouds import CloudInstance, register_point_clouds
 from .refinement import refine_poses
 from .registration import register, register_batch
+
+if TYPE_CHECKING:
+    from . import io
 
 __all__ = [
     "CloudInstance",
@@ -21,8 +27,24 @@ __all__ = [
     "Network",
     "RegistrationResult",
     "__version__",
+    "errors",
+    "io",
     "refine_poses",
     "register",
     "register_batch",
     "register_point_clouds",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # `pointclm.io` loads on first use (PEP 562): reachable after `import pointclm` alone,
+    # without its readers' 30 ms in every `import pointclm` (measured: 176 -> 207 ms eager).
+    if name == "io":
+        import importlib
+
+        return importlib.import_module(f"{__name__}.io")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), "io"})

@@ -1,4 +1,8 @@
-"""Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest)."""
+"""Type stubs for the compiled `pointclm._core` extension (checked with mypy.stubtest).
+
+Its errors are the classes of :mod:`pointclm.errors` (defined there in Python and raised by
+the extension), MemoryError and KeyboardInterrupt; it defines no exception class itself.
+"""
 
 import os
 from typing import Any, final

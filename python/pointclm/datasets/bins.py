@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import PathNotFoundError
 from .procedural import PROCEDURAL_SHAPES
 from .scenes import _MODELS, HELDOUT_MODELS, VALIDATION_MODELS, _dense, default_data_dir
 
@@ -187,7 +188,7 @@ def _model_points(name: str, data_dir: str | None) -> np.ndarray:
             )
         path = Path(data_dir) / f"{name}.ply"
         if not path.is_file():
-            raise ValueError(f"model {name!r}: no mesh at {path}")
+            raise PathNotFoundError(f"model {name!r}: no mesh at {path}")
         return _dense(str(path), data_dir)[0]
     raise ValueError(
         f"unknown model {name!r}: use one of {sorted(_MODELS)}, common3d/<mesh> or a "

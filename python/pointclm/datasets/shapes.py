@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import PathNotFoundError
 from .procedural import PROCEDURAL_SHAPES, procedural_mesh
 
 __all__ = [
@@ -176,15 +177,17 @@ def load_mesh(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
 
     Raises
     ------
+    PathNotFoundError
+        If the file is missing (a FileNotFoundError and a ValueError).
     ValueError
-        If the file is missing, of an unknown type, unreadable or empty; the message names it.
+        If the file is of an unknown type, unreadable or empty; the message names it.
     ImportError
         If trimesh is needed and not installed.
     """
     p = Path(path)
     suffix = p.suffix.lower()
     if not p.is_file():
-        raise ValueError(f"{p}: no such file")
+        raise PathNotFoundError(f"{p}: no such file")
     if suffix not in MESH_SUFFIXES:
         raise ValueError(f"{p}: unsupported file type {suffix!r} (use {', '.join(MESH_SUFFIXES)})")
     try:
@@ -246,7 +249,7 @@ def _data_files(data_dir: PathLike) -> dict[str, Path]:
     """Map clean names to the mesh files found under ``data_dir``."""
     root = Path(data_dir)
     if not root.is_dir():
-        raise ValueError(f"{root}: data folder does not exist")
+        raise PathNotFoundError(f"{root}: data folder does not exist")
     found: dict[str, Path] = {}
     for p in sorted(root.rglob("*")):
         rel = p.relative_to(root).as_posix()
@@ -312,8 +315,11 @@ def load_shape(
 
     Raises
     ------
+    PathNotFoundError
+        A file that does not exist (a name with a file suffix, a data folder that does not
+        exist); it is a FileNotFoundError and a ValueError.
     ValueError
-        Unknown name, missing or unreadable file (the message names it).
+        Unknown name or unreadable file (the message names it).
     ImportError
         A mesh file needs trimesh and it is not installed.
     """
@@ -334,7 +340,9 @@ def load_shape(
             path = files[key]
     if not path.is_file():
         hint = "" if data_dir is not None else " (pass data_dir= to resolve data-folder names)"
-        raise ValueError(
+        # a name with a file suffix was meant as a file: a missing file, not an unknown name
+        error = PathNotFoundError if path.suffix else ValueError
+        raise error(
             f"{key!r} is neither a known shape nor an existing file{hint}; known shapes: "
             f"{', '.join(available_shapes(data_dir))}"
         )
@@ -380,8 +388,11 @@ def modelnet40_shapes(
     ------
     ImportError
         If h5py is not installed.
+    PathNotFoundError
+        If the folder holds no file of the split, or one it lists is missing (a
+        FileNotFoundError and a ValueError).
     ValueError
-        If the folder holds no file of the split or a file is malformed.
+        If a file is malformed.
     """
     try:
         import h5py
@@ -418,8 +429,10 @@ def _modelnet_files(root: Path, split: str) -> list[Path]:
             key=lambda p: int("".join(ch for ch in p.stem if ch.isdigit()) or 0),
         )
     if not files:
-        raise ValueError(f"{root}: no ply_data_{split}*.h5 files (is it modelnet40_ply_hdf5_2048?)")
+        raise PathNotFoundError(
+            f"{root}: no ply_data_{split}*.h5 files (is it modelnet40_ply_hdf5_2048?)"
+        )
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
-        raise ValueError(f"{root}: files listed in {split}_files.txt are missing: {missing}")
+        raise PathNotFoundError(f"{root}: files listed in {split}_files.txt are missing: {missing}")
     return files

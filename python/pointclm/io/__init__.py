@@ -30,7 +30,8 @@ Design decisions
 - **Only finite points**: rows with NaN/inf coordinates are dropped (organised clouds use
   them for missing pixels), keeping normals and colours aligned; a file with no finite
   point is an error, never an empty cloud.
-- **Errors name the file**: a missing file raises :class:`FileNotFoundError`; an empty,
+- **Errors name the file**: a missing file raises
+  :class:`~pointclm.errors.PathNotFoundError` (a :class:`FileNotFoundError`); an empty,
   truncated or malformed file, an unsupported extension, or a cloud without finite points
   raises :class:`ValueError` whose message starts with the path.
 - **Hostile files are safe to read** (``tests/test_hostile_files.py``): only regular files

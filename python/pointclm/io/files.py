@@ -19,6 +19,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from ..errors import PathNotFoundError
+
 __all__ = ["as_path", "atomic_path", "check_output_path", "read_checked", "regular_file"]
 
 
@@ -39,8 +41,9 @@ def regular_file(path: str | os.PathLike[str], what: str = "file") -> Path:
 
     Raises
     ------
-    FileNotFoundError
-        If nothing exists at ``path`` (the message and ``filename`` carry the path).
+    PathNotFoundError
+        If nothing exists at ``path`` (a FileNotFoundError and a ValueError; the message and
+        ``filename`` carry the path).
     IsADirectoryError
         If ``path`` is a directory.
     ValueError
@@ -50,9 +53,9 @@ def regular_file(path: str | os.PathLike[str], what: str = "file") -> Path:
     try:
         mode = os.stat(file).st_mode
     except FileNotFoundError:
-        raise FileNotFoundError(errno.ENOENT, f"no such {what}", str(file)) from None
+        raise PathNotFoundError(errno.ENOENT, f"no such {what}", str(file)) from None
     except NotADirectoryError:  # a path through a regular file: "a.txt/b.ply"
-        raise FileNotFoundError(errno.ENOENT, f"no such {what}", str(file)) from None
+        raise PathNotFoundError(errno.ENOENT, f"no such {what}", str(file)) from None
     if stat.S_ISDIR(mode):
         raise IsADirectoryError(errno.EISDIR, "expected a file, got a directory", str(file))
     if not stat.S_ISREG(mode):
@@ -76,8 +79,9 @@ def read_checked(
 
     Raises
     ------
-    FileNotFoundError
-        If nothing exists at ``path`` (the message and ``filename`` carry the path).
+    PathNotFoundError
+        If nothing exists at ``path`` (a FileNotFoundError and a ValueError; the message and
+        ``filename`` carry the path).
     IsADirectoryError
         If ``path`` is a directory.
     ValueError

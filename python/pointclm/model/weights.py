@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import _core
+from ..errors import InputError, WeightsError, WeightsNotFoundError
 from ..io.files import read_checked
 
 if TYPE_CHECKING:
@@ -43,25 +44,31 @@ def weights_path(model: str | os.PathLike[str]) -> Path:
     if isinstance(model, str) and model in SHIPPED:
         return SHIPPED[model]
     if not isinstance(model, str | os.PathLike) or isinstance(os.fspath(model), bytes):
-        raise ValueError(
+        raise InputError(
             f"model must be a shipped name ({', '.join(SHIPPED)}) or a path to a "
             f".safetensors file, got {type(model).__name__}"
         )
     if os.fspath(model) == "" or "\x00" in os.fspath(model):
-        raise ValueError(f"model {os.fspath(model)!r} is not a valid path")
+        raise InputError(f"model {os.fspath(model)!r} is not a valid path")
     return Path(model)
 
 
 def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The JSON beside a weight file (architecture, training config, metrics)."""
+    """The JSON beside a weight file (architecture, training config, metrics).
+
+    Raises WeightsNotFoundError (a FileNotFoundError) when it is missing, WeightsError when
+    it cannot be read or is not a JSON object.
+    """
     cfg = weights_path(path).with_suffix(".json")
     try:
         _, raw = read_checked(cfg, "weight metadata file")
         meta = json.loads(raw)
+    except FileNotFoundError as e:
+        raise WeightsNotFoundError(f"unreadable weight metadata {cfg}: {e}") from None
     except (OSError, ValueError) as e:  # JSONDecodeError and UnicodeDecodeError included
-        raise ValueError(f"unreadable weight metadata {cfg}: {e}") from None
+        raise WeightsError(f"unreadable weight metadata {cfg}: {e}") from None
     if not isinstance(meta, dict):
-        raise ValueError(f"unreadable weight metadata {cfg}: expected a JSON object")
+        raise WeightsError(f"unreadable weight metadata {cfg}: expected a JSON object")
     return meta
 
 
@@ -84,7 +91,8 @@ def load_network(path: str | os.PathLike[str] | None = None) -> _core.Network:
     """The network stored at `path` or shipped under that name (default: "default") for the
     Rust forward pass (no torch needed), loaded once per file version and cached.
 
-    Raises ValueError when a file is missing or does not match its architecture.
+    Raises WeightsNotFoundError (a FileNotFoundError) when a file is missing, WeightsError
+    when it does not match its architecture (both are ValueErrors).
     """
     p = weights_path(path) if path is not None else DEFAULT_WEIGHTS
     p = Path(os.path.abspath(p))
@@ -120,7 +128,8 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
     """The network stored at `path` or shipped under that name (default: "default"), in eval
     mode.
 
-    Raises ValueError when the file is missing or does not match its architecture.
+    Raises WeightsNotFoundError (a FileNotFoundError) when a file is missing, WeightsError
+    when it does not match its architecture (both are ValueErrors).
     """
     _torch()
     from safetensors.torch import load_file
@@ -130,18 +139,18 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
     path = weights_path(path) if path is not None else DEFAULT_WEIGHTS
     cfg_path = _config_path(path)
     if not path.is_file() or not cfg_path.is_file():
-        raise ValueError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
+        raise WeightsNotFoundError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
     try:
         arch = json.loads(cfg_path.read_text())["architecture"]
         model = SCNonlocal(EmbeddingConfig(**arch))
         state = load_file(str(path), device=device)
     except (KeyError, TypeError, json.JSONDecodeError, OSError) as e:
-        raise ValueError(f"unreadable weights {path}: {e}") from None
+        raise WeightsError(f"unreadable weights {path}: {e}") from None
     except Exception as e:  # safetensors raises its own error type on corrupt files
-        raise ValueError(f"unreadable weights {path}: {e}") from None
+        raise WeightsError(f"unreadable weights {path}: {e}") from None
     try:
         model.load_state_dict(state, strict=True)
     except RuntimeError as e:
-        raise ValueError(f"weights {path} do not match architecture {arch}: {e}") from None
+        raise WeightsError(f"weights {path} do not match architecture {arch}: {e}") from None
     model.to(device).eval()
     return model

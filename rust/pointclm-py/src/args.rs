@@ -1,15 +1,17 @@
 //! Argument conversion with one error family: every bad argument of a `_core` function (a
 //! wrong type, a negative or huge int, a float32 or list where float64 is expected) is a
-//! ValueError naming the argument, never PyO3's TypeError or OverflowError.
+//! `pointclm.errors.InputError` (a ValueError) naming the argument, never PyO3's TypeError or
+//! OverflowError.
 //!
 //! Each argument gets a converter named after it (`#[pyo3(from_py_with = args::seed)]`):
 //! PyO3 prefixes only TypeErrors with the argument's name, so the name must be in our own
 //! message.
 
 use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyList};
+
+use crate::errors::{ConfigError, InputError};
 
 /// More threads than this is a mistake, not a configuration (each costs a stack and a spawn).
 pub const MAX_THREADS: usize = 256;
@@ -29,7 +31,7 @@ fn repr(obj: &Bound<'_, PyAny>) -> String {
 /// An int (anything with `__index__`, not a bool) in `min..=max`.
 pub fn count(obj: &Bound<'_, PyAny>, name: &str, min: u128, max: u128) -> PyResult<u128> {
     let bad = || {
-        PyValueError::new_err(format!(
+        InputError::new_err(format!(
             "{name} must be an int in [{min}, {max}], got {}",
             repr(obj)
         ))
@@ -61,7 +63,7 @@ fn usize_in(obj: &Bound<'_, PyAny>, name: &str, min: usize, max: usize) -> PyRes
 
 /// A finite or infinite real number (the core checks the range and says what it must be).
 pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
-    let bad = || PyValueError::new_err(format!("{name} must be a number, got {}", repr(obj)));
+    let bad = || InputError::new_err(format!("{name} must be a number, got {}", repr(obj)));
     if obj.is_instance_of::<PyBool>() {
         return Err(bad());
     }
@@ -70,13 +72,13 @@ pub fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
 
 fn flag(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<bool> {
     obj.extract::<bool>().map_err(|_| {
-        PyValueError::new_err(format!("{name} must be True or False, got {}", repr(obj)))
+        InputError::new_err(format!("{name} must be True or False, got {}", repr(obj)))
     })
 }
 
 fn text(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<String> {
     obj.extract::<String>()
-        .map_err(|_| PyValueError::new_err(format!("{name} must be a str, got {}", repr(obj))))
+        .map_err(|_| InputError::new_err(format!("{name} must be a str, got {}", repr(obj))))
 }
 
 /// numpy's view of `obj` as a float64 array of `ndim` dimensions: float64 arrays pass
@@ -91,17 +93,17 @@ fn float_array<'py>(
     let np = py.import("numpy")?;
     let a = np
         .call_method1("asarray", (obj,))
-        .map_err(|e| PyValueError::new_err(format!("{name} could not be read as an array: {e}")))?;
+        .map_err(|e| InputError::new_err(format!("{name} could not be read as an array: {e}")))?;
     let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
     if !["f", "i", "u"].contains(&kind.as_str()) {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "{name} must hold real numbers, got dtype {}",
             a.getattr("dtype")?
         )));
     }
     let dims: usize = a.getattr("ndim")?.extract()?;
     if dims != ndim {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "{name} must be a {ndim}-D array, got shape {}",
             a.getattr("shape")?
         )));
@@ -128,7 +130,7 @@ pub fn tensor3<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyA
 }
 
 fn point(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<[f64; 3]> {
-    let bad = || PyValueError::new_err(format!("{name} must be 3 numbers, got {}", repr(obj)));
+    let bad = || InputError::new_err(format!("{name} must be 3 numbers, got {}", repr(obj)));
     let v: Vec<f64> = obj.extract().map_err(|_| bad())?;
     <[f64; 3]>::try_from(v).map_err(|_| bad())
 }
@@ -173,7 +175,7 @@ converters! {
     towards -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "towards"));
     away_from -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "away_from"));
     path -> std::path::PathBuf = |o| o.extract().map_err(|_| {
-        PyValueError::new_err(format!("path must be a str or os.PathLike, got {}", repr(o)))
+        InputError::new_err(format!("path must be a str or os.PathLike, got {}", repr(o)))
     });
 }
 
@@ -212,7 +214,7 @@ pub fn matrix_arg<'py>(obj: &Bound<'py, PyAny>) -> PyResult<PyReadonlyArray2<'py
 pub fn config<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyDict>>> {
     optional(obj, |o| {
         o.cast::<PyDict>().cloned().map_err(|_| {
-            PyValueError::new_err(format!("config must be a dict or None, got {}", repr(o)))
+            ConfigError::new_err(format!("config must be a dict or None, got {}", repr(o)))
         })
     })
 }
@@ -220,5 +222,5 @@ pub fn config<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyDict
 pub fn scenes<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyList>> {
     obj.cast::<PyList>()
         .cloned()
-        .map_err(|_| PyValueError::new_err(format!("scenes must be a list, got {}", repr(obj))))
+        .map_err(|_| InputError::new_err(format!("scenes must be a list, got {}", repr(obj))))
 }

@@ -1,9 +1,10 @@
 //! Python `Config` (passed as a dict of its fields) -> core `Config`, refusing unknown keys.
 
 use pointclm::{Assignment, Config, Pruning};
-use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+
+use crate::errors::{to_py_err, ConfigError};
 
 pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
     let mut c = Config::default();
@@ -13,8 +14,8 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
     for (k, v) in d.iter() {
         let key: String = k
             .extract()
-            .map_err(|_| PyValueError::new_err(format!("config keys must be str, got {k}")))?;
-        let bad = |e: PyErr| PyValueError::new_err(format!("config field {key}: {e}"));
+            .map_err(|_| ConfigError::new_err(format!("config keys must be str, got {k}")))?;
+        let bad = |e: PyErr| ConfigError::new_err(format!("config field {key}: {e}"));
         match key.as_str() {
             "sigma_d" => c.sigma_d = v.extract().map_err(bad)?,
             "pruning" => {
@@ -24,7 +25,7 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
                     "authors" => Pruning::AuthorsCode,
                     "none" => Pruning::Disabled,
                     other => {
-                        return Err(PyValueError::new_err(format!(
+                        return Err(ConfigError::new_err(format!(
                             "config field pruning: expected 'paper', 'authors' or 'none', got {other:?}"
                         )))
                     }
@@ -40,7 +41,10 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
             "max_instances" => c.max_instances = v.extract().map_err(bad)?,
             "max_rounds" => c.max_rounds = v.extract().map_err(bad)?,
             "cluster_level" => c.cluster_level = v.extract().map_err(bad)?,
-            "assignment" => c.assignment = assignment(&v.extract::<String>().map_err(bad)?)?,
+            "assignment" => {
+                let s: String = v.extract().map_err(bad)?;
+                c.assignment = assignment(&s, ConfigError::new_err)?
+            }
             "kmeans_restarts" => c.kmeans_restarts = v.extract().map_err(bad)?,
             "min_cluster_size" => c.min_cluster_size = v.extract().map_err(bad)?,
             "ransac_iterations" => c.ransac_iterations = v.extract().map_err(bad)?,
@@ -50,21 +54,23 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
             "refine" => c.refine = v.extract().map_err(bad)?,
             "merge_duplicates" => c.merge_duplicates = v.extract().map_err(bad)?,
             other => {
-                return Err(PyValueError::new_err(format!(
+                return Err(ConfigError::new_err(format!(
                     "unknown config field {other:?}"
                 )))
             }
         }
     }
-    c.validate().map_err(crate::convert::to_py_err)?;
+    c.validate().map_err(to_py_err)?;
     Ok(c)
 }
 
-pub fn assignment(s: &str) -> PyResult<Assignment> {
+/// An assignment by name, or `error` (InputError for `spectral_clustering`'s argument,
+/// ConfigError for the config field).
+pub fn assignment(s: &str, error: fn(String) -> PyErr) -> PyResult<Assignment> {
     match s {
         "kmeans" => Ok(Assignment::KMeans),
         "discretize" => Ok(Assignment::Discretize),
-        other => Err(PyValueError::new_err(format!(
+        other => Err(error(format!(
             "assignment: expected 'kmeans' or 'discretize', got {other:?}"
         ))),
     }

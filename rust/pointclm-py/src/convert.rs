@@ -1,22 +1,13 @@
 //! numpy <-> core conversions. The Python layer has already coerced inputs to C-contiguous
-//! float64; these still check shapes so that a direct `_core` caller gets a ValueError too.
+//! float64; these still check shapes so that a direct `_core` caller gets an InputError too.
 
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use pointclm::{Correspondences, Features};
-use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyValueError};
 use pyo3::prelude::*;
 
-/// Core errors as Python exceptions: a refused allocation is MemoryError, a cancelled call
-/// KeyboardInterrupt (it was cancelled by Ctrl-C), everything else ValueError.
-pub fn to_py_err(e: pointclm::Error) -> PyErr {
-    match e {
-        pointclm::Error::Allocation { .. } => PyMemoryError::new_err(e.to_string()),
-        pointclm::Error::Cancelled => PyKeyboardInterrupt::new_err(e.to_string()),
-        _ => PyValueError::new_err(e.to_string()),
-    }
-}
+use crate::errors::{to_py_err, InputError};
 
 /// (N, 6) rows (source xyz | target xyz), or (N, 12) rows that add the unit normals at both
 /// ends (| source normal | target normal), which switch on the normal term of spatial
@@ -24,7 +15,7 @@ pub fn to_py_err(e: pointclm::Error) -> PyErr {
 pub fn correspondences(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Correspondences> {
     let v = a.as_array();
     if v.ncols() != 6 && v.ncols() != 12 {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "correspondences must have shape (N, 6) = (source xyz | target xyz), or (N, 12) with \
              the normals at both ends (| source normal | target normal), got {:?}",
             v.shape()
@@ -67,7 +58,7 @@ pub fn features(a: Option<&PyReadonlyArray2<'_, f64>>) -> PyResult<Option<Featur
 pub fn points(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
     let v = a.as_array();
     if v.ncols() != 3 {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "{what} must have shape (N, 3), got {:?}",
             v.shape()
         )));
@@ -79,7 +70,7 @@ pub fn square(a: &PyReadonlyArray2<'_, f64>) -> PyResult<faer::Mat<f64>> {
     let v = a.as_array();
     let (r, c) = v.dim();
     if r != c {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "expected a square matrix, got shape ({r}, {c})"
         )));
     }

@@ -4,6 +4,7 @@
 mod args;
 mod config;
 mod convert;
+mod errors;
 mod network;
 mod pointcloud;
 mod pools;
@@ -11,11 +12,12 @@ mod result;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::{Correspondences, Scene};
-use pyo3::exceptions::{PyMemoryError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use convert::{correspondences, features, mat_to_py, matrix4, points, square, to_py_err};
+use convert::{correspondences, features, mat_to_py, matrix4, points, square};
+use errors::{prefixed, to_py_err, ConfigError, InputError};
 use network::PyNetwork;
 use pools::{guarded, guarded_dense, on_pool, pool};
 use result::{PyInstance, PyRegistration};
@@ -27,7 +29,7 @@ fn network_arg<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<Bound<'py, PyNet
     }
     obj.cast::<PyNetwork>()
         .map(|n| Some(n.clone()))
-        .map_err(|_| PyValueError::new_err("network must be a pointclm.Network or None"))
+        .map_err(|_| InputError::new_err("network must be a pointclm.Network or None"))
 }
 
 #[pyfunction]
@@ -47,7 +49,7 @@ fn register(
     let p = num_threads.map(pool).transpose()?;
     let net = network.map(|n| n.get().inner.clone());
     if net.is_some() && f.is_some() {
-        return Err(PyValueError::new_err(
+        return Err(InputError::new_err(
             "pass either features or network, not both",
         ));
     }
@@ -62,9 +64,9 @@ fn register(
 
 /// One item of `register_batch`'s list: `(correspondences, features or None)`.
 fn scene_item(k: usize, item: &Bound<'_, PyAny>, with_network: bool) -> PyResult<Scene> {
-    let at = |e: PyErr| PyValueError::new_err(format!("scene {k}: {e}"));
+    let at = |e: PyErr| prefixed(item.py(), e, &format!("scene {k}: "));
     let (corr, feats): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item.extract().map_err(|_| {
-        PyValueError::new_err(format!(
+        InputError::new_err(format!(
             "scene {k}: expected a (correspondences, features or None) pair"
         ))
     })?;
@@ -72,7 +74,7 @@ fn scene_item(k: usize, item: &Bound<'_, PyAny>, with_network: bool) -> PyResult
     let feats = args::features(&feats).map_err(at)?;
     let features = features(feats.as_ref()).map_err(at)?;
     if with_network && features.is_some() {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "scene {k}: pass either features or network, not both"
         )));
     }
@@ -111,15 +113,7 @@ fn register_batch(
         .into_iter()
         .enumerate()
         .map(|(k, r)| {
-            let r = r.map_err(|e| {
-                let e = to_py_err(e);
-                let msg = format!("scene {k}: {}", e.value(py));
-                if e.is_instance_of::<PyMemoryError>(py) {
-                    PyMemoryError::new_err(msg)
-                } else {
-                    PyValueError::new_err(msg)
-                }
-            })?;
+            let r = r.map_err(|e| prefixed(py, to_py_err(e), &format!("scene {k}: ")))?;
             PyRegistration::new(py, r)
         })
         .collect()
@@ -217,7 +211,7 @@ fn spectral_clustering<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<i64>>, usize, Bound<'py, PyArray1<f64>>)> {
     let a = square(&affinity)?;
     let n = a.nrows();
-    let assign = config::assignment(&assignment)?;
+    let assign = config::assignment(&assignment, InputError::new_err)?;
     let r = guarded_dense(py, "spectral_clustering", n, 4, move || {
         pointclm::clustering::spectral_clustering(
             a.as_ref(),
@@ -247,17 +241,17 @@ fn kabsch<'py>(
     let c = Correspondences::new(&s, &t).map_err(to_py_err)?;
     let idx: Vec<usize> = (0..c.len()).collect();
     let pose = pointclm::kabsch::kabsch(&c, &idx).ok_or_else(|| {
-        PyValueError::new_err("points are collinear or coincident: no unique rotation")
+        InputError::new_err("points are collinear or coincident: no unique rotation")
     })?;
     Ok(matrix4(py, &pose.to_matrix()))
 }
 
-/// Raises ValueError naming the first invalid field of a config dict.
+/// Raises ConfigError (a ValueError) naming the first invalid field of a config dict.
 #[pyfunction]
 fn validate_config(
     #[pyo3(from_py_with = args::config)] config: Option<Bound<'_, PyDict>>,
 ) -> PyResult<()> {
-    let config = config.ok_or_else(|| PyValueError::new_err("config must be a dict"))?;
+    let config = config.ok_or_else(|| ConfigError::new_err("config must be a dict"))?;
     config::from_dict(Some(&config)).map(|_| ())
 }
 

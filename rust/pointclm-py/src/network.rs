@@ -12,8 +12,9 @@ use crate::pools::{guarded, on_pool, pool};
 use crate::{args, config, convert};
 
 /// A trained SCNonlocal embedding network, read from a `.safetensors` file and the `.json`
-/// of its architecture beside it. Loading fails with ValueError when either file is missing
-/// or does not describe a valid network.
+/// of its architecture beside it. Loading fails with `pointclm.errors.WeightsNotFoundError`
+/// (a FileNotFoundError) when either file is missing or unreadable, and with `WeightsError`
+/// when it does not describe a valid network (both are ValueErrors).
 #[pyclass(frozen, module = "pointclm._core", name = "Network")]
 pub struct PyNetwork {
     pub(crate) inner: Arc<pointclm::Network>,

@@ -7,12 +7,13 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReado
 use pointclm::kabsch::RigidTransform;
 use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex, RefineParams};
 use pointclm::{Features, MatchingConfig};
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
 use crate::args;
 use crate::convert::{indices, points as rows3};
+use crate::errors::{to_py_err_at, InputError};
 use crate::pools::{guarded, on_pool, pool};
 
 fn rows_to_py<'py, const K: usize>(
@@ -27,8 +28,7 @@ fn rows_to_py<'py, const K: usize>(
 
 fn descriptors(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Features> {
     let v = a.as_array();
-    Features::new(v.iter().copied().collect(), v.ncols())
-        .map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
+    Features::new(v.iter().copied().collect(), v.ncols()).map_err(|e| to_py_err_at(what, e))
 }
 
 /// `max_nn` capped by the number of points (a point cannot have more neighbours), so that a
@@ -66,7 +66,7 @@ pub fn estimate_normals<'py>(
         (Some(v), None) => Orientation::Towards(v),
         (None, Some(v)) => Orientation::AwayFrom(v),
         _ => {
-            return Err(PyValueError::new_err(
+            return Err(InputError::new_err(
                 "give exactly one of towards= (a viewpoint) or away_from= (an inner point)",
             ))
         }
@@ -102,7 +102,7 @@ pub fn compute_fpfh<'py>(
         "open3d" => FpfhVariant::Open3d,
         "pcl" => FpfhVariant::Pcl,
         other => {
-            return Err(PyValueError::new_err(format!(
+            return Err(InputError::new_err(format!(
                 "variant must be 'open3d' or 'pcl', got {other:?}"
             )))
         }
@@ -208,7 +208,7 @@ type RefinedArrays<'py> = (
 fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
     let v = a.as_array();
     if v.shape()[1..] != [4, 4] {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "transformations must have shape (M, 4, 4), got {:?}",
             v.shape()
         )));
@@ -217,19 +217,19 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
         .map(|k| {
             let m = v.index_axis(numpy::ndarray::Axis(0), k);
             if !m.iter().all(|x| x.is_finite()) {
-                return Err(PyValueError::new_err(format!(
+                return Err(InputError::new_err(format!(
                     "transformations[{k}] has a non-finite value (NaN or inf)"
                 )));
             }
             let bottom = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)] - 1.0];
             if bottom.iter().any(|x| x.abs() > 1e-6) {
-                return Err(PyValueError::new_err(format!(
+                return Err(InputError::new_err(format!(
                     "transformations[{k}] is not a rigid motion: its last row must be (0, 0, 0, 1)"
                 )));
             }
             let rotation = pointcloud::nearest_rotation(&Matrix3::from_fn(|i, j| m[(i, j)]))
                 .map_err(|deviation| {
-                    PyValueError::new_err(format!(
+                    InputError::new_err(format!(
                         "transformations[{k}] is not a rigid motion: its 3x3 block must be a \
                          rotation (||R^T R - I|| = {deviation:.2e}, at most {:.0e} is taken for \
                          rounding; determinant must be positive)",

@@ -20,12 +20,12 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use pointclm::cancel::CancelToken;
-use pyo3::exceptions::{PyMemoryError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyMemoryError, PyRuntimeError};
 use pyo3::prelude::*;
 use rayon::ThreadPool;
 
 use crate::args::MAX_THREADS;
-use crate::convert::to_py_err;
+use crate::errors::{to_py_err, InputError};
 
 /// Pools kept for reuse: the default one plus a few explicit `num_threads` values covers
 /// every realistic caller; a loop over many values churns pools instead of leaking threads.
@@ -102,7 +102,7 @@ fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
 /// The pool for an explicit thread count (`1..=MAX_THREADS`).
 pub fn pool(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
     if !(1..=MAX_THREADS).contains(&num_threads) {
-        return Err(PyValueError::new_err(format!(
+        return Err(InputError::new_err(format!(
             "num_threads must lie in 1..={MAX_THREADS} (or None for all cores), got {num_threads}"
         )));
     }
