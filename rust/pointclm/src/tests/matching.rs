@@ -220,3 +220,30 @@ fn k_one_is_nearest_matching_and_k_adds_candidates() {
         Err(Error::InvalidParameter { .. })
     ));
 }
+
+#[test]
+fn near_ties_below_f32_resolution_are_ranked_exactly() {
+    // Base rows that differ from the query by less than f32 can tell at this magnitude: the
+    // f32 screen keeps them all and the f64 distances order them.
+    let dim = 33;
+    let query: Vec<f64> = (0..dim).map(|j| 50.0 + j as f64).collect();
+    let base: Vec<Vec<f64>> = [3e-6, 1e-6, 2e-6, 0.0, 1e-6]
+        .iter()
+        .map(|&off| query.iter().map(|v| v + off).collect())
+        .collect();
+    let (idx, d2) = nearest_rows(&features(&[query]), &features(&base), 5);
+    assert_eq!(idx, vec![3, 1, 4, 2, 0]);
+    assert!(d2.windows(2).all(|w| w[0] <= w[1]));
+}
+
+#[test]
+fn identical_rows_rank_by_index_and_huge_descriptors_still_match() {
+    let flat = vec![vec![10.0; 4]; 50];
+    let (idx, _) = nearest_rows(&features(&[vec![10.0; 4]]), &features(&flat), 3);
+    assert_eq!(idx, vec![0, 1, 2]);
+    // Entries beyond f32's range take the f64 path.
+    let huge = vec![vec![1e30, 0.0], vec![2e30, 0.0], vec![-1e30, 0.0]];
+    let (idx, d2) = nearest_rows(&features(&[vec![1.9e30, 0.0]]), &features(&huge), 3);
+    assert_eq!(idx, vec![1, 0, 2]);
+    assert!(d2[0] < d2[1] && d2[1] < d2[2]);
+}
