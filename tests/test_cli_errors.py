@@ -181,3 +181,45 @@ def test_eval_and_train_check_outputs_first(
     bad.write_text('{"depth": [1]}')
     assert main(["train", "--config", str(bad), "--out", str(tmp_path / "r")]) == 2
     one_line_error(capsys, "depth")
+
+
+def _write_truth(path: Path, content: object) -> None:
+    if isinstance(content, str) and content == "bomb":  # a header claiming 128 GB
+        header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000, 4, 4), }"
+        header += b" " * (117 - len(header)) + b"\n"  # 10 + 118 bytes: aligned to 64
+        path.write_bytes(b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header)
+    elif path.suffix == ".npy":
+        np.save(path, np.asarray(content))
+    else:
+        path.write_text(str(content))
+
+
+@pytest.mark.parametrize(
+    "name, content, words",
+    [
+        ("missing.npy", None, ["no such ground-truth file", "missing.npy"]),
+        ("t.npy", np.zeros((2, 3, 3)), ["--ground-truth", "(G, 4, 4)", "(2, 3, 3)"]),
+        ("t.npy", np.full((1, 4, 4), np.nan), ["--ground-truth", "non-finite"]),
+        ("t.npy", 2 * np.eye(4)[None], ["--ground-truth", "pose 0 is not a rigid transform"]),
+        ("t.json", "[[1, 2], [3]]", ["--ground-truth", "could not be read as poses"]),
+        ("t.json", "{not json", ["--ground-truth", "could not be read"]),
+        ("t.txt", "1 0 0 0", ["--ground-truth", "expected a .npy or .json file"]),
+        ("t.npy", np.array([{"a": 1}], dtype=object), ["--ground-truth", "never unpickles"]),
+        ("bomb.npy", "bomb", ["--ground-truth", "the header declares shape (1000000000, 4, 4)"]),
+    ],
+)
+def test_a_bad_ground_truth_fails_before_the_work(
+    name: str,
+    content: object,
+    words: list[str],
+    clouds: tuple[str, str],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    no_work: None,
+) -> None:
+    path = tmp_path / name
+    if content is not None:
+        _write_truth(path, content)
+    model, scene = clouds
+    assert main(["register", model, scene, "--ground-truth", str(path), "--quiet"]) == 2
+    one_line_error(capsys, *words)

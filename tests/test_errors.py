@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pointclm
 import pytest
-from pointclm import _core
+from pointclm import _core, preprocessing, staged
 from pointclm.datasets import BinParams, load_mesh, load_shape, make_bin_scene, modelnet40_shapes
 from pointclm.errors import (
     ConfigError,
@@ -250,6 +250,98 @@ def test_a_batch_names_the_scene_and_keeps_the_class() -> None:
         ConfigError,
         r"invalid config",
         lambda: _core.register_batch([(CORR, None)], config={"sigma_d": 0.0}),
+    )
+
+
+# --- the Python layer's own checks -----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("cls", "match", "call"),
+    [
+        (
+            InputError,
+            r"^need at least 3 correspondences, got 2$",
+            lambda: pointclm.register(CORR[:2]),
+        ),
+        (InputError, r"got \(N, 3\) points but no target", lambda: pointclm.register(PTS)),
+        (InputError, r"features must have one row", lambda: pointclm.register(CORR, CORR[:5])),
+        (InputError, r"seed must be a non-negative int", lambda: pointclm.register(CORR, seed=-1)),
+        (
+            InputError,
+            r"need at least 3 point pairs",
+            lambda: staged.kabsch(PTS[:2], PTS[:2]),
+        ),
+        (
+            InputError,
+            r"voxel_size must be a positive finite number",
+            lambda: preprocessing.voxel_downsample(PTS, -1.0),
+        ),
+        (
+            ConfigError,
+            r"^config field sigma_d: expected a number",
+            lambda: pointclm.Config(sigma_d=True),
+        ),
+        (ConfigError, r"^config field tau_n: must be >= 0", lambda: pointclm.Config(tau_n=-1)),
+        (
+            ConfigError,
+            r"unknown config key\(s\) \['nope'\]",
+            lambda: pointclm.register(CORR, config={"nope": 1}),
+        ),
+    ],
+    ids=[
+        "too-few",
+        "no-target",
+        "features",
+        "seed",
+        "kabsch",
+        "voxel",
+        "bool-field",
+        "negative",
+        "key",
+    ],
+)
+def test_python_checks_raise_the_typed_classes(
+    cls: type[PointclmError], match: str, call: Callable[[], Any]
+) -> None:
+    e = _raises(cls, match, call)
+    assert isinstance(e, ValueError)
+
+
+class _LazyScene:
+    """A scene that reads its file when its correspondences are first asked for."""
+
+    def __init__(self, error: ValueError) -> None:
+        self.error = error
+
+    @property
+    def correspondences(self) -> np.ndarray:
+        raise self.error
+
+
+class _TwoPartError(ValueError):
+    def __init__(self, what: str, why: str) -> None:
+        super().__init__(f"{what}: {why}")
+
+
+def test_a_python_batch_error_names_the_scene_and_keeps_the_class() -> None:
+    _raises(
+        InputError,
+        r"^scene 1: need at least 3 correspondences, got 2$",
+        lambda: pointclm.register_batch([CORR, CORR[:2]]),
+    )
+    missing = PathNotFoundError(errno.ENOENT, "no such point cloud file", "/x/a.ply")
+    e = _raises(
+        PathNotFoundError,
+        r"^scene 0: \[Errno 2\] no such point cloud file: '/x/a.ply'$",
+        lambda: pointclm.register_batch([_LazyScene(missing)]),
+    )
+    assert isinstance(e, FileNotFoundError)
+    # A class that cannot be rebuilt from one message still reaches `except ValueError`.
+    _raises(
+        ValueError,
+        r"^scene 0: a: b$",
+        lambda: pointclm.register_batch([_LazyScene(_TwoPartError("a", "b"))]),
     )
 
 

@@ -26,6 +26,22 @@ from .registration import register
 #: Set to 1 to get the Python traceback of an unexpected error instead of one line.
 DEBUG_ENV = "POINTCLM_DEBUG"
 
+#: ``--viewpoint none``: no sensor position, not even the one a PCD file records.
+NO_VIEWPOINT = "none"
+
+#: The benchmarks' rule for a found copy: RE < 15 deg and TE < 10 % of the model's diagonal.
+MATCH_DEG = 15.0
+MATCH_DIAGONALS = 0.1
+
+#: A diagnosis names `register_point_clouds`' arguments; the command's user types flags.
+_FLAGS_FOR_ARGUMENTS = (
+    ("viewpoint=None", "--viewpoint none"),
+    ("viewpoint=", "--viewpoint x,y,z"),
+    ("voxel_size", "--voxel-size"),
+    ("mutual=False", "--no-mutual"),
+    ("n_samples=None", "--all-correspondences"),
+)
+
 
 class _Parser(argparse.ArgumentParser):
     """Usage errors on one line, like every other error of the command."""
@@ -57,14 +73,20 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def _xyz(text: str) -> tuple[float, float, float]:
+def _viewpoint(text: str) -> tuple[float, float, float] | str:
+    """A sensor position x,y,z, or "none": orient the scan's normals without one even where
+    the file records one (what a diagnosis suggests when that position looks wrong)."""
+    if text.strip().lower() == NO_VIEWPOINT:
+        return NO_VIEWPOINT
     parts = text.split(",")
     try:
         values = [float(v) for v in parts]
     except ValueError:
         values = []
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected three finite numbers x,y,z or 'none', got {text!r}"
+        )
     return (values[0], values[1], values[2])
 
 
@@ -127,8 +149,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         f"PointCLM with the {args.model!r} embedding" if args.model else ("training-free PointCLM")
     )
     print(f"pointclm {__version__}: {method} on the paper's synthetic protocol")
-    print("source: 256 points of the Stanford bunny (bundled); target: 5-10 noisy copies among")
-    print("98% outlier correspondences (1000 rows per scene)\n")
+    print("source: 256 points of the Stanford bunny (bundled); target: 5-10 noisy copies, each")
+    print("holding about 2% of the 1000 correspondences per scene (80-90% of them wrong)\n")
     scores = []
     for k, scene in enumerate(make_scenes(args.scenes, seed=args.seed)):
         result = register(
@@ -232,7 +254,16 @@ def _pose_line(T: np.ndarray) -> str:
     )
 
 
-def _report(reg: Any, out: Any = None) -> None:
+def _diagnosis(reg: Any) -> str:
+    """The result's diagnosis with `register_point_clouds`' argument names as this command's
+    flags, so its advice can be followed as written."""
+    text = str(getattr(reg, "diagnosis", "") or "")
+    for argument, flag in _FLAGS_FOR_ARGUMENTS:
+        text = text.replace(argument, flag)
+    return text
+
+
+def _report(reg: Any, truth: dict[str, Any] | None = None) -> None:
     print(
         f"{len(reg.instances)} instance(s), surest first, from {len(reg.passes)} pass(es); "
         f"{len(reg.correspondences)} correspondences in the first "
@@ -240,31 +271,119 @@ def _report(reg: Any, out: Any = None) -> None:
         f"(voxel {reg.voxel_size:.4g})"
     )
     for i, inst in enumerate(reg.instances):
-        print(
+        line = (
             f"  [{i}] {_pose_line(inst.transformation)}  matches {len(inst):4d}  "
             f"fitness {inst.fitness:.3f}  rmse {inst.inlier_rmse:.4g}  "
             f"confidence {inst.confidence:.3f}  pass {inst.pass_index}"
         )
+        if truth is not None:
+            j = truth["instance_truth"][i]
+            line += "  (no true pose)" if j is None else f"  = true pose {j}"
+        print(line)
+    if _diagnosis(reg):
+        print(f"note: {_diagnosis(reg)}")
+    if truth is not None:
+        print(_truth_line(truth))
     print("time: " + ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in reg.timings.items() if v > 0))
+
+
+def _truth_line(truth: dict[str, Any]) -> str:
+    found, missed, n = truth["found"], truth["missed"], truth["poses"]
+    false = sum(j is None for j in truth["instance_truth"])
+    return (
+        f"ground truth: {len(found)} of {n} true pose(s) found "
+        f"(RE < {MATCH_DEG:g} deg, TE < {truth['max_translation']:.4g} = "
+        f"{MATCH_DIAGONALS:.0%} of the model's diagonal)"
+        + (f"; missed {missed}" if missed else "")
+        + (f"; {false} instance(s) match no true pose" if false else "")
+    )
+
+
+def _load_ground_truth(path: str) -> np.ndarray:
+    """(G, 4, 4) T_target_source poses from a .npy file or a JSON list of 4 x 4 matrices (or
+    the "instances" of `pointclm register --out`), checked to be rigid transforms."""
+    from .errors import InputError
+    from .io.arrays import read_npy
+    from .io.files import read_checked
+
+    file, raw = read_checked(path, "ground-truth file")
+    what = f"--ground-truth {file}"
+    suffix = file.suffix.lower()
+    if suffix not in (".npy", ".json"):
+        raise InputError(f"{what}: expected a .npy or .json file of (G, 4, 4) poses")
+    try:
+        # Not np.load: read_npy checks the header's shape against the file's length before
+        # allocating anything, and never unpickles. Its messages start with `what`.
+        data: Any = read_npy(raw, what) if suffix == ".npy" else _json_poses(raw)
+        poses = np.asarray(data, dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        text = str(e)
+        if not text.startswith(what):
+            text = (
+                f"{what} could not be read as poses (a .npy of (G, 4, 4), or a JSON list of "
+                f"4x4 matrices): {text}"
+            )
+        raise InputError(text) from None
+    if poses.shape == (4, 4) or poses.size == 0:  # one pose, or a scene that holds no copy
+        poses = poses.reshape(-1, 4, 4)
+    return _checked_poses(poses, what)
+
+
+def _json_poses(raw: bytes) -> Any:
+    data = json.loads(raw)
+    if isinstance(data, dict) and isinstance(data.get("instances"), list):
+        # An earlier `pointclm register --out` result: its instances' poses.
+        return [inst.get("T_target_source") for inst in data["instances"] if isinstance(inst, dict)]
+    return data
+
+
+def _checked_poses(poses: np.ndarray, what: str) -> np.ndarray:
+    from .errors import InputError
+
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise InputError(f"{what}: expected (G, 4, 4) T_target_source poses, got {poses.shape}")
+    if not np.isfinite(poses).all():
+        raise InputError(f"{what}: a pose has a non-finite value (NaN or inf)")
+    R = poses[:, :3, :3]
+    # Loose tolerances: poses written with a few decimals are still rigid transforms.
+    rigid = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2)) < 1e-3
+    rigid &= np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) < 1e-9
+    rigid &= np.linalg.det(R) > 0
+    if not rigid.all():
+        k = int(np.flatnonzero(~rigid)[0])
+        raise InputError(
+            f"{what}: pose {k} is not a rigid transform (rotation block not orthonormal "
+            "with determinant 1, or last row not 0 0 0 1)"
+        )
+    return poses
+
+
+def _score_truth(reg: Any, ground_truth: np.ndarray, model: np.ndarray) -> dict[str, Any]:
+    """Which true poses the instances found, one instance per true pose at most (as the
+    benchmarks count correct copies)."""
+    from .metrics import max_bipartite_matching, pose_match_matrix
+
+    diagonal = float(np.linalg.norm(np.ptp(model, axis=0))) if len(model) else 0.0
+    limit = MATCH_DIAGONALS * diagonal
+    match = pose_match_matrix(reg.transformations, ground_truth, MATCH_DEG, limit)
+    pairs = max_bipartite_matching(match)
+    found = sorted(int(j) for j in pairs if j >= 0)
+    return {
+        "poses": len(ground_truth),
+        "found": found,
+        "missed": [j for j in range(len(ground_truth)) if j not in found],
+        "instance_truth": [int(j) if j >= 0 else None for j in pairs],
+        "max_rotation_deg": MATCH_DEG,
+        "max_translation": limit,
+    }
 
 
 def cmd_register(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from .io import load_points
-    from .point_clouds import file_viewpoint, register_point_clouds
-    from .visualize import save_ply, save_png
 
-    # Everything that can be checked is checked before the (long) work: outputs, extras.
-    for flag in ("out", "png", "ply"):
-        if getattr(args, flag):
-            check_output_path(getattr(args, flag), f"--{flag}")
-    if args.png:
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            raise ImportError("--png needs matplotlib: pip install 'pointclm[viz]'") from None
-    config = _config(args) if _has_config_flags(args) else None
+    ground_truth = _check_register_args(args)
     stages = ["load", "register", *(["png"] if args.png else []), *(["ply"] if args.ply else [])]
     bar = tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet, leave=False)
     with bar:
@@ -273,59 +392,104 @@ def cmd_register(args: argparse.Namespace) -> int:
         scene = load_points(args.scene_file)
         bar.update()
         bar.set_postfix_str("FPFH, matching, registration")
-        reg = register_point_clouds(
-            model,
-            scene,
-            voxel_size=args.voxel_size,
-            config=config,
-            seed=args.seed,
-            model=args.model,
-            viewpoint=args.viewpoint
-            if args.viewpoint is not None
-            else file_viewpoint(args.scene_file),
-            mutual=not args.no_mutual,
-            n_samples=None if args.all_correspondences else args.correspondences,
-            refine=not args.no_refine,
-            peel=not args.no_peel,
-            num_threads=args.num_threads,
-        )
+        reg = _register_files(args, model, scene)
         bar.update()
-        poses = reg.transformations
-        radius = 1.5 * reg.voxel_size
-        if args.png:
-            bar.set_postfix_str("png")
-            with atomic_path(args.png) as tmp:
-                save_png(tmp, reg.target_points, reg.source_points, poses, radius)
-            bar.update()
-        if args.ply:
-            bar.set_postfix_str("ply")
-            with atomic_path(args.ply) as tmp:
-                save_ply(tmp, reg.target_points, reg.source_points, poses, radius)
-            bar.update()
-    _report(reg)
+        _write_pictures(args, reg, ground_truth, bar)
+    truth = None if ground_truth is None else _score_truth(reg, ground_truth, model)
+    _report(reg, truth)
     if args.out:
-        _write_json(
-            args.out,
-            {
-                "model": args.model_file,
-                "scene": args.scene_file,
-                "voxel_size": reg.voxel_size,
-                "config": reg.config.to_dict(),
-                "instances": [
-                    {
-                        "T_target_source": inst.transformation.tolist(),
-                        "inliers": len(inst),
-                        "fitness": inst.fitness,
-                        "inlier_rmse": inst.inlier_rmse,
-                        "confidence": None if np.isnan(inst.confidence) else inst.confidence,
-                        "pass": inst.pass_index,
-                    }
-                    for inst in reg.instances
-                ],
-                "timings_s": reg.timings,
-            },
-        )
+        _write_json(args.out, _register_json(args, reg, truth))
     return 0
+
+
+def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
+    """Everything that can be checked before the (long) work: outputs, extras, the ground
+    truth (read now, so a bad file costs nothing)."""
+    for flag in ("out", "png", "ply"):
+        if getattr(args, flag):
+            check_output_path(getattr(args, flag), f"--{flag}")
+    if args.png:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise ImportError("--png needs matplotlib: pip install 'pointclm[viz]'") from None
+    return None if args.ground_truth is None else _load_ground_truth(args.ground_truth)
+
+
+def _register_files(args: argparse.Namespace, model: np.ndarray, scene: np.ndarray) -> Any:
+    from .point_clouds import file_viewpoint, register_point_clouds
+
+    if args.viewpoint == NO_VIEWPOINT:
+        viewpoint = None
+    elif args.viewpoint is not None:
+        viewpoint = args.viewpoint
+    else:
+        viewpoint = file_viewpoint(args.scene_file)
+    return register_point_clouds(
+        model,
+        scene,
+        voxel_size=args.voxel_size,
+        config=_config(args) if _has_config_flags(args) else None,
+        seed=args.seed,
+        model=args.model,
+        viewpoint=viewpoint,
+        mutual=not args.no_mutual,
+        n_samples=None if args.all_correspondences else args.correspondences,
+        refine=not args.no_refine,
+        peel=not args.no_peel,
+        num_threads=args.num_threads,
+    )
+
+
+def _write_pictures(
+    args: argparse.Namespace, reg: Any, ground_truth: np.ndarray | None, bar: Any
+) -> None:
+    from .visualize import save_ply, save_registration_png
+
+    if args.png:
+        bar.set_postfix_str("png")
+        title = f"{Path(args.model_file).name} in {Path(args.scene_file).name}"
+        with atomic_path(args.png) as tmp:
+            save_registration_png(tmp, reg, ground_truth=ground_truth, title=title)
+        bar.update()
+    if args.ply:
+        bar.set_postfix_str("ply")
+        with atomic_path(args.ply) as tmp:
+            save_ply(
+                tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
+            )
+        bar.update()
+
+
+def _register_json(
+    args: argparse.Namespace, reg: Any, truth: dict[str, Any] | None
+) -> dict[str, Any]:
+    instances = []
+    for i, inst in enumerate(reg.instances):
+        entry = {
+            "T_target_source": inst.transformation.tolist(),
+            "inliers": len(inst),
+            "fitness": inst.fitness,
+            "inlier_rmse": inst.inlier_rmse,
+            "confidence": None if np.isnan(inst.confidence) else inst.confidence,
+            "pass": inst.pass_index,
+        }
+        if truth is not None:
+            entry["true_pose"] = truth["instance_truth"][i]
+        instances.append(entry)
+    return {
+        "model": args.model_file,
+        "scene": args.scene_file,
+        "voxel_size": reg.voxel_size,
+        "config": reg.config.to_dict(),
+        "instances": instances,
+        # "" when there is nothing to say; otherwise why the result is empty or doubtful.
+        "diagnosis": _diagnosis(reg),
+        "ground_truth": None
+        if truth is None
+        else {k: v for k, v in truth.items() if k != "instance_truth"},
+        "timings_s": reg.timings,
+    }
 
 
 def _has_config_flags(args: argparse.Namespace) -> bool:
@@ -430,6 +594,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(d)
     d.set_defaults(func=cmd_demo)
 
+    _add_eval_parser(sub)
+    _add_register_parser(sub)
+    _add_train_parser(sub)
+    return p
+
+
+def _add_eval_parser(sub: Any) -> None:
     e = sub.add_parser("eval", help="score the method on a benchmark (MR, MP, MF, strict F1)")
     e.add_argument(
         "--dataset",
@@ -447,7 +618,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--outlier-blocks",
         type=_int_at_least(0),
         default=40,
-        help="outlier blocks of 256 rows: 40 = 98%% outliers (test), 10 = training",
+        help="outlier blocks of 256 rows: 40 = the test protocol (about 2%% of the rows per "
+        "copy, 85%% wrong overall), 10 = training",
     )
     e.add_argument("--json", help="also write the figures to this JSON file")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -459,20 +631,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(e)
     e.set_defaults(func=cmd_eval)
 
+
+def _add_register_parser(sub: Any) -> None:
     r = sub.add_parser(
         "register",
         help="find every copy of a model in a scene (point cloud or mesh files)",
         description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz), compute FPFH, "
-        "match, and print one line per instance found.",
+        "match, and print one line per instance found (or why none was).",
     )
     r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
     r.add_argument("scene_file", metavar="SCENE", help="the scan holding its copies")
     r.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
     r.add_argument(
         "--viewpoint",
-        type=_xyz,
-        help="sensor position x,y,z for scene normals and verification (default: a PCD "
-        "scene's VIEWPOINT, else none: normals oriented without it)",
+        type=_viewpoint,
+        help="sensor position x,y,z for scene normals and verification, or none (default: a "
+        "PCD scene's VIEWPOINT, else none: normals oriented without it)",
     )
     r.add_argument(
         "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"
@@ -489,13 +663,22 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="one pass of the correspondence stage (no new passes over the unexplained scan)",
     )
-    r.add_argument("--out", help="write instances and timings to this JSON file")
+    r.add_argument(
+        "--ground-truth",
+        metavar="FILE",
+        help="true T_target_source poses (.npy of (G, 4, 4), or a JSON list of 4x4): the "
+        "report says which were found (RE < 15 deg, TE < 10%% of the model's diagonal) and the "
+        "picture draws the missed ones",
+    )
+    r.add_argument("--out", help="write instances, diagnosis and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
     r.add_argument("--ply", help="coloured point cloud of the result")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_config_flags(r)
     r.set_defaults(func=cmd_register)
 
+
+def _add_train_parser(sub: Any) -> None:
     t = sub.add_parser("train", help="train the correspondence embedding (needs torch)")
     t.add_argument("--config", help='JSON file of TrainConfig fields ("preset" to start from)')
     t.add_argument(
@@ -517,7 +700,6 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--shape-bank", help="a shape_bank.npz from an earlier run (no meshes needed)")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_train)
-    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:

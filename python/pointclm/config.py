@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _core
+from .errors import ConfigError, InputError
 
 __all__ = ["Config"]
 
@@ -102,15 +103,15 @@ class Config:
         ):
             value = getattr(self, name)
             if isinstance(value, bool):
-                raise ValueError(f"config field {name}: expected a number, got {value!r}")
+                raise ConfigError(f"config field {name}: expected a number, got {value!r}")
             if isinstance(value, int | float | np.integer | np.floating):
                 try:
                     object.__setattr__(self, name, float(value))  # numpy floats -> float
                 except OverflowError:
-                    raise ValueError(f"config field {name}: {value!r} is too large") from None
+                    raise ConfigError(f"config field {name}: {value!r} is too large") from None
         for name in ("refine", "merge_duplicates"):
             if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"config field {name}: expected True or False")
+                raise ConfigError(f"config field {name}: expected True or False")
         for name in (
             "tau_n",
             "min_count",
@@ -122,28 +123,28 @@ class Config:
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise ValueError(f"config field {name}: expected an int, got {value!r}")
+                raise ConfigError(f"config field {name}: expected an int, got {value!r}")
             if value < 0:
-                raise ValueError(f"config field {name}: must be >= 0, got {value}")
+                raise ConfigError(f"config field {name}: must be >= 0, got {value}")
             object.__setattr__(self, name, int(value))  # numpy ints -> int for the core
         level = self.cluster_level
         if level is not None:
             if isinstance(level, bool) or not isinstance(
                 level, int | float | np.integer | np.floating
             ):
-                raise ValueError(
+                raise ConfigError(
                     f"config field cluster_level: expected None or a number, got {level!r}"
                 )
             object.__setattr__(self, "cluster_level", float(level))
         nfa = self.max_nfa
         if nfa is not None:
             if isinstance(nfa, bool) or not isinstance(nfa, int | float | np.integer | np.floating):
-                raise ValueError(f"config field max_nfa: expected None or a number, got {nfa!r}")
+                raise ConfigError(f"config field max_nfa: expected None or a number, got {nfa!r}")
             object.__setattr__(self, "max_nfa", float(nfa))
         mi = self.max_instances
         if mi is not None:
             if isinstance(mi, bool) or not isinstance(mi, int | np.integer) or mi < 1:
-                raise ValueError(
+                raise ConfigError(
                     f"config field max_instances: expected None or an int >= 1, got {mi!r}"
                 )
             object.__setattr__(self, "max_instances", int(mi))
@@ -164,7 +165,7 @@ class Config:
         except OverflowError:  # an int beyond float range
             ok = False
         if not ok:
-            raise ValueError(f"scale factor must be a finite number > 0, got {factor!r}")
+            raise InputError(f"scale factor must be a finite number > 0, got {factor!r}")
         return replace(
             self,
             sigma_d=self.sigma_d * factor,

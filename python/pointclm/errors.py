@@ -35,10 +35,10 @@ Where each error of the Rust core (``pointclm::Error``) goes:
 - :class:`MemoryError`: ``Allocation``; :class:`KeyboardInterrupt`: ``Cancelled`` (Ctrl-C)
 
 The extension module's own argument checks (an array of the wrong shape, an unknown config
-field) raise the same classes; checks the Python layer makes before calling it (such as
-``pointclm.register``'s on its arrays) may still raise a plain :class:`ValueError`. Failures
-that are bugs in pointclm, not in the input, stay :class:`RuntimeError` ("internal error in
-pointclm (please report)").
+field) raise the same classes, and so do the checks the Python layer makes before calling it
+(``pointclm.register``'s on its arrays, a :class:`pointclm.Config` field). Failures that are
+bugs in pointclm, not in the input, stay :class:`RuntimeError` ("internal error in pointclm
+(please report)").
 
 Design decisions
 ----------------

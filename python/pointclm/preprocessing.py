@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from . import _core
+from .errors import InputError
 from .registration import _as_threads, as_matrix
 
 __all__ = [
@@ -50,9 +51,9 @@ def _positive(value: float, name: str) -> float:
     except OverflowError:  # an int beyond float range
         v = math.inf
     if not real:
-        raise ValueError(f"{name} must be a number, got {value!r}")
+        raise InputError(f"{name} must be a number, got {value!r}")
     if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        raise InputError(f"{name} must be a positive finite number, got {value!r}")
     return v
 
 
@@ -66,13 +67,13 @@ def _count(value: int, name: str, minimum: int) -> int:
         or not isinstance(value, int | np.integer)
         or not minimum <= value <= MAX_COUNT
     ):
-        raise ValueError(f"{name} must be an int in [{minimum}, 2**63 - 1], got {value!r}")
+        raise InputError(f"{name} must be an int in [{minimum}, 2**63 - 1], got {value!r}")
     return int(value)
 
 
 def _flag(value: bool, name: str) -> bool:
     if not isinstance(value, bool | np.bool_):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
+        raise InputError(f"{name} must be True or False, got {value!r}")
     return bool(value)
 
 
@@ -80,16 +81,16 @@ def _point(value: ArrayLike, name: str) -> tuple[float, float, float]:
     try:
         a = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}") from None
+        raise InputError(f"{name} must be 3 finite numbers, got {value!r}") from None
     if a.shape != (3,) or not np.isfinite(a).all():
-        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+        raise InputError(f"{name} must be 3 finite numbers, got {value!r}")
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
 def _points(x: ArrayLike, name: str) -> np.ndarray:
     a = as_matrix(x, name, 3)
     if len(a) == 0:
-        raise ValueError(f"{name} is empty: need at least one point")
+        raise InputError(f"{name} is empty: need at least one point")
     return a
 
 
@@ -113,7 +114,7 @@ def estimate_normals(
     most scanners put it) or `away_from` an inner point (a complete model's centroid).
     """
     if towards is not None and away_from is not None:
-        raise ValueError("give towards= or away_from=, not both")
+        raise InputError("give towards= or away_from=, not both")
     t = None if towards is None else _point(towards, "towards")
     a = None if away_from is None else _point(away_from, "away_from")
     if t is None and a is None:
@@ -143,11 +144,11 @@ def compute_fpfh(
     own) or "pcl" (the neighbour part only).
     """
     if not isinstance(variant, str) or variant not in ("open3d", "pcl"):
-        raise ValueError(f"variant must be 'open3d' or 'pcl', got {variant!r}")
+        raise InputError(f"variant must be 'open3d' or 'pcl', got {variant!r}")
     p = _points(points, "points")
     n = as_matrix(normals, "normals", 3)
     if len(n) != len(p):
-        raise ValueError(f"need one normal per point: {len(p)} points, {len(n)} normals")
+        raise InputError(f"need one normal per point: {len(p)} points, {len(n)} normals")
     return _core.compute_fpfh(
         p,
         n,
@@ -209,7 +210,7 @@ def estimate_viewpoint(
     p = _points(points, "points")
     n = as_matrix(normals, "normals", 3)
     if len(n) != len(p):
-        raise ValueError(f"need one normal per point: {len(p)} points, {len(n)} normals")
+        raise InputError(f"need one normal per point: {len(p)} points, {len(n)} normals")
     step = max(1, math.ceil(len(p) / VIEWPOINT_SAMPLE))
     p, n = p[::step], n[::step]
     centre = p.mean(0)
@@ -273,7 +274,7 @@ def describe(
     if voxel_size is not None:
         v = _positive(voxel_size, "voxel_size")
         if normals is not None:
-            raise ValueError(
+            raise InputError(
                 "normals given with voxel_size: downsampling would leave them unaligned; "
                 "pass voxel_size=None with normals, or drop the normals"
             )
@@ -281,7 +282,7 @@ def describe(
         normal_radius = 2.0 * v if normal_radius is None else normal_radius
         feature_radius = 5.0 * v if feature_radius is None else feature_radius
     if normal_radius is None and normals is None or feature_radius is None:
-        raise ValueError("without voxel_size, give feature_radius (and normal_radius or normals)")
+        raise InputError("without voxel_size, give feature_radius (and normal_radius or normals)")
     t1 = time.perf_counter()
     if normals is None:
         assert normal_radius is not None
@@ -350,12 +351,12 @@ def match_features(
     s = as_matrix(source, "source descriptors", None)
     t = as_matrix(target, "target descriptors", None)
     if len(s) == 0 or len(t) == 0:
-        raise ValueError("need at least one source and one target descriptor")
+        raise InputError("need at least one source and one target descriptor")
     if s.shape[1] != t.shape[1]:
-        raise ValueError(f"descriptor lengths differ: source {s.shape[1]}, target {t.shape[1]}")
+        raise InputError(f"descriptor lengths differ: source {s.shape[1]}, target {t.shape[1]}")
     n = None if n_samples is None else _count(n_samples, "n_samples", 1)
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**64:
-        raise ValueError(f"seed must be a non-negative int below 2**64, got {seed!r}")
+        raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
     src, tgt, dist = _core.match_features(
         s,
         t,

@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike
 from . import _core
 from ._core import RegistrationResult
 from .config import Config
+from .errors import ConfigError, InputError
 
 __all__ = ["register", "register_batch"]
 
@@ -25,18 +26,18 @@ def as_matrix(x: ArrayLike, name: str, columns: int | None) -> np.ndarray:
     try:
         a = np.asarray(x)
     except Exception as e:  # ragged lists and the like
-        raise ValueError(f"{name} could not be read as an array: {e}") from None
+        raise InputError(f"{name} could not be read as an array: {e}") from None
     if a.dtype == object or not (
         np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
     ):
-        raise ValueError(f"{name} must hold real numbers, got dtype {a.dtype}")
+        raise InputError(f"{name} must hold real numbers, got dtype {a.dtype}")
     if a.ndim != 2 or (columns is not None and a.shape[1] != columns):
         want = f"(N, {columns})" if columns is not None else "(N, D)"
-        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+        raise InputError(f"{name} must have shape {want}, got {a.shape}")
     a = np.ascontiguousarray(a, dtype=np.float64)
     if not np.isfinite(a).all():
         row = int(np.argwhere(~np.isfinite(a))[0, 0])
-        raise ValueError(f"{name} has a non-finite value (NaN or inf) in row {row}")
+        raise InputError(f"{name} has a non-finite value (NaN or inf) in row {row}")
     return a
 
 
@@ -46,17 +47,17 @@ def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.n
     try:
         a = np.asarray(first) if not isinstance(first, np.ndarray) else first
     except Exception as e:  # ragged lists and the like
-        raise ValueError(f"correspondences could not be read as an array: {e}") from None
+        raise InputError(f"correspondences could not be read as an array: {e}") from None
     if getattr(a, "ndim", 0) == 2 and a.shape[1] == 3:
         if second is None:
-            raise ValueError(
+            raise InputError(
                 "got (N, 3) points but no target: pass register(source_points, target_points) "
                 "or (N, 6) correspondences"
             )
         src = as_matrix(first, "source_points", 3)
         dst = as_matrix(second, "target_points", 3)
         if len(src) != len(dst):
-            raise ValueError(
+            raise InputError(
                 f"source_points and target_points must have the same length, "
                 f"got {len(src)} and {len(dst)}"
             )
@@ -66,7 +67,7 @@ def as_correspondences(first: ArrayLike, second: ArrayLike | None) -> tuple[np.n
         corr = as_matrix(first, "correspondences", 6)
         used = False
     if len(corr) < MIN_CORRESPONDENCES:
-        raise ValueError(f"need at least {MIN_CORRESPONDENCES} correspondences, got {len(corr)}")
+        raise InputError(f"need at least {MIN_CORRESPONDENCES} correspondences, got {len(corr)}")
     return corr, used
 
 
@@ -74,14 +75,14 @@ def with_normals(corr: np.ndarray, normals: ArrayLike) -> np.ndarray:
     """(N, 12) rows: the correspondences then their (N, 6) normals, checked non-zero."""
     n = as_matrix(normals, "normals", 6)
     if len(n) != len(corr):
-        raise ValueError(
+        raise InputError(
             f"normals must have one row (source normal | target normal) per correspondence: "
             f"{len(corr)}, got {len(n)}"
         )
     for side, cols in (("source", n[:, :3]), ("target", n[:, 3:])):
         zero = np.flatnonzero(~(np.linalg.norm(cols, axis=1) > 0))
         if len(zero):
-            raise ValueError(f"normals: the {side} normal of row {int(zero[0])} is zero")
+            raise InputError(f"normals: the {side} normal of row {int(zero[0])} is zero")
     return np.ascontiguousarray(np.hstack([corr, n]))
 
 
@@ -90,9 +91,9 @@ def as_features(features: ArrayLike | None, n: int) -> np.ndarray | None:
         return None
     f = as_matrix(features, "features", None)
     if len(f) != n:
-        raise ValueError(f"features must have one row per correspondence: {n}, got {len(f)}")
+        raise InputError(f"features must have one row per correspondence: {n}, got {len(f)}")
     if f.shape[1] == 0:
-        raise ValueError("features must have at least one column")
+        raise InputError("features must have at least one column")
     return f
 
 
@@ -103,11 +104,11 @@ def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
         known = {f.name for f in fields(Config)}
         unknown = [k for k in config if k not in known]
         if unknown:
-            raise ValueError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
+            raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
         return Config(**config).to_dict()
     if isinstance(config, Config):
         return config.to_dict()
-    raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
+    raise ConfigError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
 
 
 def register(
@@ -171,7 +172,7 @@ def register(
     if target is not None:
         corr, used = as_correspondences(correspondences, target)
         if not used:
-            raise ValueError(
+            raise InputError(
                 "target= goes with (N, 3) source points; with (N, 6) correspondences leave it out"
             )
     else:
@@ -184,7 +185,7 @@ def register(
     rows = corr if normals is None else with_normals(corr, normals)
     if model is not None:
         if feats is not None:
-            raise ValueError("pass either features or model, not both")
+            raise InputError("pass either features or model, not both")
         if backend == "rust":
             network = _rust_network(model)
             config = _model_config(network, config)
@@ -271,7 +272,19 @@ def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:
         corr, _ = as_correspondences(item, None)
         return corr, None
     except ValueError as e:
-        raise ValueError(f"scene {k}: {e}") from None
+        raise _in_scene(e, k) from None
+
+
+def _in_scene(e: ValueError, k: int) -> ValueError:
+    """`e` with the scene's index in front of its message, of the same class so that
+    ``except InputError`` (or FileNotFoundError) catches a batch's error as it does one
+    scene's, as the core's own batch errors do."""
+    message = f"scene {k}: {e}"
+    try:
+        renamed = type(e)(message)
+    except Exception:  # a class whose constructor does not take one message
+        return ValueError(message)
+    return renamed if isinstance(renamed, ValueError) else ValueError(message)
 
 
 def register_batch(
@@ -295,20 +308,20 @@ def register_batch(
     with torch the embeddings of all scenes are computed first, one after the other.
     """
     if isinstance(scenes, np.ndarray) and scenes.ndim == 2:
-        raise ValueError(
+        raise InputError(
             f"register_batch takes a list of scenes, got one {scenes.shape} array: "
             "use register(array) or register_batch([array])"
         )
     try:
         items: Sequence[Any] = list(scenes)
     except TypeError:
-        raise ValueError(f"scenes must be an iterable of scenes, got {type(scenes)}") from None
+        raise InputError(f"scenes must be an iterable of scenes, got {type(scenes)}") from None
     arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
     network = None
     backend = _check_backend(backend, model, device)
     if model is not None:
         if any(f is not None for _, f in arrays):
-            raise ValueError("pass either per-scene features or model, not both")
+            raise InputError("pass either per-scene features or model, not both")
         if backend == "rust":
             network = _rust_network(model)
             config = _model_config(network, config)
@@ -326,7 +339,7 @@ def register_batch(
 
 def _as_seed(seed: int) -> int:
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not (0 <= seed < 2**64):
-        raise ValueError(f"seed must be a non-negative int below 2**64, got {seed!r}")
+        raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
     return int(seed)
 
 
@@ -338,7 +351,7 @@ def _as_threads(num_threads: int | None) -> int | None:
         or not isinstance(num_threads, int | np.integer)
         or num_threads < 1
     ):
-        raise ValueError(f"num_threads must be an int >= 1 or None, got {num_threads!r}")
+        raise InputError(f"num_threads must be an int >= 1 or None, got {num_threads!r}")
     if num_threads >= 2**32:  # the core checks its own, lower, upper bound
-        raise ValueError(f"num_threads is too large: {num_threads}")
+        raise InputError(f"num_threads is too large: {num_threads}")
     return int(num_threads)

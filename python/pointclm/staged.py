@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from .config import Config
+from .errors import InputError
 from .registration import (
     MIN_CORRESPONDENCES,
     _as_seed,
@@ -38,7 +39,7 @@ def spatial_consistency(correspondences: ArrayLike, sigma_d: float = 0.05) -> np
     try:
         sigma = float(sigma_d)
     except (TypeError, ValueError):
-        raise ValueError(f"sigma_d must be a positive number, got {sigma_d!r}") from None
+        raise InputError(f"sigma_d must be a positive number, got {sigma_d!r}") from None
     return _core.spatial_consistency(corr, sigma)
 
 
@@ -81,7 +82,7 @@ def spectral_clustering(
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Labels, cluster count (eigengap when `n_clusters` is None) and Laplacian spectrum."""
     if not isinstance(assignment, str):
-        raise ValueError(f"assignment must be 'kmeans' or 'discretize', got {assignment!r}")
+        raise InputError(f"assignment must be 'kmeans' or 'discretize', got {assignment!r}")
     return _core.spectral_clustering(
         as_matrix(affinity, "affinity", None),
         None if n_clusters is None else _as_count(n_clusters, "n_clusters"),
@@ -94,9 +95,9 @@ def spectral_clustering(
 
 def _as_count(value: int, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        raise InputError(f"{name} must be an int >= 1, got {value!r}")
     if value >= 2**63:  # would overflow the core's usize
-        raise ValueError(f"{name} is too large: {value}")
+        raise InputError(f"{name} is too large: {value}")
     return int(value)
 
 
@@ -105,9 +106,9 @@ def kabsch(source: ArrayLike, target: ArrayLike) -> np.ndarray:
     src = as_matrix(source, "source", 3)
     dst = as_matrix(target, "target", 3)
     if len(src) != len(dst):
-        raise ValueError(
+        raise InputError(
             f"source and target must have the same length, got {len(src)} and {len(dst)}"
         )
     if len(src) < MIN_CORRESPONDENCES:
-        raise ValueError(f"need at least {MIN_CORRESPONDENCES} point pairs, got {len(src)}")
+        raise InputError(f"need at least {MIN_CORRESPONDENCES} point pairs, got {len(src)}")
     return _core.kabsch(src, dst)
