@@ -206,6 +206,10 @@ def test_registration_png_uses_the_results_scores(tmp_path: Path, monkeypatch) -
     empty.result = [object(), object()]
     save_registration_png(tmp_path / "none.png", empty)
     assert "2 poses" in seen["reason"] and "supported none" in seen["reason"]
+    # The result's own diagnosis, when it has one, is the reason shown.
+    empty.diagnosis = "no candidate pose: try a smaller voxel"
+    save_registration_png(tmp_path / "none.png", empty)
+    assert seen["reason"] == "no candidate pose: try a smaller voxel"
 
 
 def test_missing_matplotlib_is_a_clear_import_error(monkeypatch) -> None:

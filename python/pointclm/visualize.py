@@ -440,7 +440,7 @@ def save_png(
 
 def _empty_reason(reg: Any) -> str | None:
     """Why a point-cloud registration found nothing, from what it carries."""
-    given = getattr(reg, "reason", None)
+    given = getattr(reg, "diagnosis", None)
     if given:
         return str(given)
     proposed = len(reg.result) if getattr(reg, "result", None) is not None else 0
