@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pointclm.point_clouds import _config, network_units, scaled_config
+from pointclm.embedding import network_units
+from pointclm.point_clouds import cloud_config, scaled_config
 from pointclm.training.config import TrainConfig
 from pointclm.training.realistic import SceneBank, near_misses, realistic_sample, scene_seed
 
@@ -68,19 +69,19 @@ def test_point_cloud_configs_scale_and_take_the_networks_thresholds() -> None:
     from pointclm.model import load_metadata
     from pointclm.point_clouds import REFINED_THRESHOLDS
 
-    assert _config(None, 0.01, None, False) == scaled_config(0.01)
+    assert cloud_config(0.01, refine=False) == scaled_config(0.01) == Config.for_voxel(0.01)
     # Refined poses: verification on the clouds judges, so no a-contrario test before it.
     refined = Config(**REFINED_THRESHOLDS, max_nfa=None)
-    assert _config(None, 0.01, None, True) == scaled_config(0.01, refined)
+    assert cloud_config(0.01) == scaled_config(0.01, refined)
     assert scaled_config(0.01).sigma_d == pytest.approx(0.03)
     meta = load_metadata("default")
     for refine, key in ((True, ""), (False, "_no_refine")):
         wanted = dict(meta["recommended_point_cloud_config" + key])
         if refine:
             wanted["max_nfa"] = None
-        assert _config(None, 0.01, "default", refine) == scaled_config(0.01, Config(**wanted))
+        assert cloud_config(0.01, "default", refine) == scaled_config(0.01, Config(**wanted))
     # The two defaults differ: refined poses want low count thresholds, raw ones do not.
-    assert _config(None, 0.01, None, True) != _config(None, 0.01, None, False)
+    assert cloud_config(0.01, refine=True) != cloud_config(0.01, refine=False)
 
 
 def test_config_rejects_leaks_and_bad_fractions() -> None:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from .config import Config
+from .embedding import resolve
 from .metrics import SceneScore, Summary, score_scene, summarize
 from .registration import register
 
@@ -54,10 +55,10 @@ def evaluate(
 ) -> Evaluation:
     """Register each scene (objects with `correspondences` and `poses`) and score it.
 
-    Scenes with a ``voxel_size`` (the realistic ones) are in real units: `config` (default
-    `Config()`, or the model's recommended thresholds) is scaled to the voxel as
-    :func:`pointclm.register_point_clouds` does, and a scene's own ``max_translation``
-    replaces the default TE threshold.
+    Scenes with a ``voxel_size`` (realistic ones) are in real units: a given `config`, in
+    synthetic units, is scaled to each scene's voxel by :meth:`Config.for_voxel`; without one,
+    `register_point_clouds`' default applies (:func:`pointclm.point_clouds.cloud_config`). A
+    scene's own ``max_translation`` replaces the default TE threshold.
 
     `progress` wraps the scene iterable (e.g. `tqdm.tqdm`) when given; `model` is passed to
     `register` (the learned embedding; its time counts in the per-scene time). Scenes that
@@ -114,15 +115,15 @@ def _register_scaled(
 ) -> Any:
     """Register correspondences in real units as `register_point_clouds` does, with the
     default thresholds for refined poses if `refine` (the refinement itself is the caller's)."""
-    from .point_clouds import _config, scaled_config
+    from .point_clouds import cloud_config
 
     # A given config is in synthetic units (like the CLI's flags): scale it too.
     cfg = (
-        scaled_config(voxel, config) if config is not None else _config(None, voxel, model, refine)
+        Config.for_voxel(voxel, config)
+        if config is not None
+        else cloud_config(voxel, model, refine)
     )
     features = None
     if model is not None:
-        from .point_clouds import embed_scaled
-
-        features = embed_scaled(corr, model, cfg, num_threads)
+        features = resolve(model).embed(corr, cfg.sigma_d, num_threads=num_threads)
     return register(corr, features, cfg, seed, num_threads=num_threads)

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
+from .embedding import Embedding, resolve
 from .refinement import (
     MAX_CONTRADICTION,
     MIN_FITNESS,
@@ -39,9 +40,9 @@ __all__ = [
     "PEEL_CLUSTER_LEVEL",
     "PEEL_RADIUS_VOXELS",
     "Pass",
+    "cloud_config",
     "default_voxel_size",
     "file_viewpoint",
-    "network_units",
     "register_point_clouds",
     "scaled_config",
     "unexplained_points",
@@ -84,29 +85,31 @@ PEEL_RADIUS_VOXELS = 2.0
 #: parts with about half visible needs a few rounds of several copies each).
 MAX_PEEL_ROUNDS = 20
 
-#: A correspondence is an inlier of a pose when the pose brings its ends within this many
-#: voxels (the matched points each sit within about a voxel of the true ones).
-INLIER_VOXELS = 2.0
-
 
 def scaled_config(voxel_size: float, base: Config | None = None) -> Config:
-    """`base` (default `Config()`) with its lengths scaled to clouds downsampled at
-    `voxel_size`: sigma_d = 3 voxels, the clustering affinity in its default ratio to it, and
-    the inlier threshold at `INLIER_VOXELS` = 2 voxels for `Config()`'s (other values of
-    `base.inlier_threshold` in proportion).
+    """`Config.for_voxel(voxel_size, base)` (kept under this name for existing callers):
+    `base` (default `Config()`, synthetic units) in the units of clouds downsampled at
+    `voxel_size`; the rule and its reasons are there."""
+    return Config.for_voxel(voxel_size, base)
 
-    Why 3: a correct descriptor match lands within about a voxel of the true point on each
-    side, so the pairwise length differences that spatial consistency compares are off by up
-    to about 2 voxels; at sigma_d = 3 voxels their consistency stays above 0.5. Why 2 for
-    inliers: the same voxel on each side bounds a correct pose's residual; the synthetic
-    ratio (twice sigma_d, 6 voxels) lets a wrong pose collect as many chance inliers on a
-    dense scan as a right one, and a least-squares refit on them drifts (chosen on the
-    validation models: MF 17.6 -> 20.5 on dragon, happy and armadillo scenes).
-    """
-    base = base or Config()
-    scaled = base.scaled(3.0 * voxel_size / base.sigma_d)
-    per_unit = INLIER_VOXELS * voxel_size / Config().inlier_threshold
-    return replace(scaled, inlier_threshold=base.inlier_threshold * per_unit)
+
+def cloud_config(voxel_size: float, model: Any = None, refine: bool = True) -> Config:
+    """`register_point_clouds`' config when none is given, in the clouds' units: the
+    thresholds for refined poses (`REFINED_THRESHOLDS`) or raw ones (`Config()`), or those
+    recommended with `model` (:meth:`pointclm.embedding.Embedding.recommended_config`),
+    scaled by :meth:`Config.for_voxel`. `evaluate` uses the same on realistic scenes."""
+    base = Config(**REFINED_THRESHOLDS) if refine else Config()
+    if model is not None:
+        emb = resolve(model)
+        recommended = emb.recommended_config("point_clouds" if refine else "point_clouds_no_refine")
+        base = recommended or base
+    if refine:
+        # Verification on the clouds judges every proposal far better than a count of
+        # correspondences can, so the correspondence stage's a-contrario test would only
+        # drop copies before they are looked at (on the validation scenes it left one
+        # candidate where verification keeps several).
+        base = replace(base, max_nfa=None)
+    return Config.for_voxel(voxel_size, base)
 
 
 @dataclass(frozen=True)
@@ -280,16 +283,18 @@ def register_point_clouds(
         Downsampling voxel, in the clouds' units; default: the model's bounding-box diagonal
         / 40. Normals use 2 voxels, FPFH 5 voxels.
     config : Config or dict, optional
-        Pipeline settings in the clouds' units. Default: :func:`scaled_config` of the voxel,
+        Pipeline settings in the clouds' units, used as given (``Config.for_voxel(voxel,
+        base)`` makes one from synthetic-unit settings). Default: :meth:`Config.for_voxel`,
         with the thresholds chosen for refined poses (`REFINED_THRESHOLDS`, or a `model`'s
         ``recommended_point_cloud_config``), and with `peel` a cluster count of at least
         `PEEL_CLUSTER_LEVEL`'s; with ``refine=False``, `Config()`'s (or the model's
         ``recommended_point_cloud_config_no_refine``).
     seed : int
         Seeds the sampling of correspondences, clustering and RANSAC.
-    model : str, path or torch module, optional
-        The learned embedding ("default", "paper", a weight file): PointCLM proper. The
-        correspondences are rescaled to the network's training units (sigma_d) first.
+    model : str, path, pointclm.Network or torch module, optional
+        The learned embedding ("default", "paper", a weight file, a loaded network):
+        PointCLM proper (:func:`pointclm.embedding.resolve`). The correspondences are
+        converted to the network's training units (by sigma_d) first.
     viewpoint : array_like, optional
         The scan's sensor position: scan normals point towards it, and verification judges
         each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
@@ -329,6 +334,7 @@ def register_point_clouds(
     _as_threads(num_threads)  # argument errors before the files are read
     pp._flag(refine, "refine")
     pp._flag(mutual, "mutual")
+    embedding = None if model is None else resolve(model)  # a bad model fails before the work
     view = None if viewpoint is None else pp._point(viewpoint, "viewpoint")
     src = _load(source, "source")
     tgt = _load(target, "target")
@@ -346,7 +352,7 @@ def register_point_clouds(
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
     matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples, "k": k}
-    run = _Run(src_d, tgt_d, voxel, view, matching, normals, seed, model, num_threads)
+    run = _Run(src_d, tgt_d, voxel, view, matching, normals, seed, embedding, num_threads)
     reg = _register(run, config, refine, peel)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
@@ -365,8 +371,15 @@ class _Run:
     matching: dict[str, Any]
     normals: bool
     seed: int
-    model: Any
+    #: The learned embedding, resolved once for every pass; None: training-free.
+    model: Embedding | None
     num_threads: int | None
+
+    def features(self, corr: np.ndarray, cfg: Config) -> np.ndarray | None:
+        """The learned embedding of `corr` (in the units of `cfg`), or None without one."""
+        if self.model is None:
+            return None
+        return self.model.embed(corr, cfg.sigma_d, num_threads=self.num_threads)
 
 
 def _describe_scan(
@@ -451,9 +464,7 @@ def _register(
     cfg = _config(config, run.voxel, run.model, refine)
     if config is None and refine and peel and cfg.cluster_level is None:
         cfg = replace(cfg, cluster_level=PEEL_CLUSTER_LEVEL)
-    features = None
-    if run.model is not None:
-        features = embed_scaled(corr, run.model, cfg, run.num_threads)
+    features = run.features(corr, cfg)
     t3 = time.perf_counter()
     result = register(
         corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
@@ -659,9 +670,7 @@ def _peel(
         )
         if len(corr) < 3:
             break
-        features = (
-            None if run.model is None else embed_scaled(corr, run.model, cfg, run.num_threads)
-        )
+        features = run.features(corr, cfg)
         result = register(
             corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals
         )
@@ -776,54 +785,20 @@ def _merge(
     return _take(both, order), [tags[i] for i in order]
 
 
-def network_units(corr: np.ndarray, sigma_d: float, network_sigma_d: float) -> np.ndarray:
-    """Correspondences in real units as the network saw them in training: each side centred
-    on its centroid (translations change no consistency, and the network must not depend on
-    where a scan's origin lies) and scaled by ``network_sigma_d / sigma_d``, so the network
-    attends with the length tolerance it was trained with."""
-    c = np.asarray(corr, dtype=np.float64)
-    centred = np.hstack([c[:, :3] - c[:, :3].mean(0), c[:, 3:] - c[:, 3:].mean(0)])
-    return np.ascontiguousarray(centred * (network_sigma_d / sigma_d))
-
-
 def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | None) -> np.ndarray:
-    """The learned embedding of correspondences in real units.
-
-    The network attends with the sigma_d it was trained with (synthetic units): it sees the
-    correspondences in network units (:func:`network_units`). Shipped names, weight files and
-    `pointclm.Network` run on the Rust network; a torch module on torch.
-    """
-    from .registration import _is_weights, _rust_network, _torch_embed
-
-    scaled = network_units(corr, cfg.sigma_d, Config().sigma_d)
-    if _is_weights(model) or type(model).__name__ == "Network":
-        return np.asarray(_rust_network(model).embed(scaled, num_threads=num_threads))
-    return _torch_embed(scaled, model, None)
+    """The learned embedding of correspondences in the units of `cfg` (kept for existing
+    callers): ``pointclm.embedding.resolve(model).embed(corr, cfg.sigma_d)``."""
+    return resolve(model).embed(corr, cfg.sigma_d, num_threads=num_threads)
 
 
 def _config(
     config: Config | dict[str, Any] | None, voxel: float, model: Any, refine: bool
 ) -> Config:
-    """The caller's config as given (already in the clouds' units), else the default
-    thresholds (or the model's recommended ones) for refined or raw poses, scaled to the
-    voxel."""
+    """The caller's config as given (already in the clouds' units), else `cloud_config`."""
     if isinstance(config, Config):
         return config
     if isinstance(config, dict):
         return Config(**as_config(config))  # unknown keys: a ValueError naming them
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
-    base = Config(**REFINED_THRESHOLDS) if refine else Config()
-    if isinstance(model, str | os.PathLike):
-        from .model import load_metadata
-
-        meta = load_metadata(model)
-        key = "recommended_point_cloud_config" + ("" if refine else "_no_refine")
-        base = Config(**as_config(meta.get(key, meta.get("recommended_config", {}))))
-    if refine:
-        # Verification on the clouds judges every proposal far better than a count of
-        # correspondences can, so the correspondence stage's a-contrario test would only
-        # drop copies before they are looked at (on the validation scenes it left one
-        # candidate where verification keeps several).
-        base = replace(base, max_nfa=None)
-    return scaled_config(voxel, base)
+    return cloud_config(voxel, model, refine)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable, Sequence
 from dataclasses import fields
 from typing import Any
@@ -13,6 +12,7 @@ from numpy.typing import ArrayLike
 from . import _core
 from ._core import RegistrationResult
 from .config import Config
+from .embedding import check_backend, resolve
 from .errors import ConfigError, InputError
 
 __all__ = ["register", "register_batch"]
@@ -137,7 +137,8 @@ def register(
         first argument holds points, the second positional argument is the target; to give
         features with points, pass ``register(source, target=target, features=f)``.
     config : Config or dict, optional
-        Thresholds; `Config()` by default.
+        Thresholds, lengths in the units of the correspondences; `Config()` by default (the
+        synthetic protocol's units; ``Config().scaled(f)`` for coordinates `f` times larger).
     seed : int
         Seeds clustering and RANSAC; the same seed gives the same result whatever
         `num_threads`.
@@ -148,7 +149,9 @@ def register(
         shipped), "paper" (paper-size, shipped), a weight file (``.safetensors`` with its
         ``.json``), a loaded `pointclm.Network`, or (with ``backend="torch"``) a torch module.
         Without a `config`, the pruning thresholds chosen with that network on its validation
-        shapes are used. None (default) is the training-free pipeline.
+        shapes are used. The network sees the correspondences in the units it was trained in
+        (converted when the config's ``sigma_d`` differs from the network's; see
+        :mod:`pointclm.embedding`). None (default) is the training-free pipeline.
     backend : {"rust", "torch"}
         Where the embedding is computed: "rust" (default; the core's own forward pass on the
         CPU, no torch needed, its time in ``timings["embedding"]``) or "torch" (needs torch;
@@ -181,17 +184,13 @@ def register(
             features = None
     feats = as_features(features, len(corr))
     network = None
-    backend = _check_backend(backend, model, device)
+    backend = check_backend(backend, model, device)
     rows = corr if normals is None else with_normals(corr, normals)
     if model is not None:
         if feats is not None:
             raise InputError("pass either features or model, not both")
-        if backend == "rust":
-            network = _rust_network(model)
-            config = _model_config(network, config)
-        else:
-            feats = _torch_embed(corr, model, device)
-            config = _model_config(model, config)
+        network, embedded, config = _embedding(model, backend, device, config, [corr], num_threads)
+        feats = None if embedded is None else embedded[0]
     return _core.register(
         rows,
         feats,
@@ -202,63 +201,33 @@ def register(
     )
 
 
-BACKENDS = ("rust", "torch")
+def _embedding(
+    model: Any,
+    backend: str,
+    device: str | None,
+    config: Config | dict[str, Any] | None,
+    corrs: list[np.ndarray],
+    num_threads: int | None,
+) -> tuple[_core.Network | None, list[np.ndarray] | None, Any]:
+    """The network for the core to run, or else each scene's embedding computed here; and the
+    config: the caller's, else the one recommended with the network.
 
-
-def _is_weights(model: Any) -> bool:
-    """A shipped name or a path (either backend loads it), as opposed to a loaded network."""
-    return isinstance(model, str | os.PathLike)
-
-
-def _check_backend(backend: Any, model: Any, device: Any) -> str:
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be 'rust' or 'torch', got {backend!r}")
-    if device is not None:
-        if model is None:
-            raise ValueError("device= applies to the learned embedding: pass model= too")
-        if backend != "torch" and device != "cpu":
-            raise ValueError(
-                f"device={device!r} needs backend='torch'; the Rust network runs on the CPU"
-            )
-    if model is None:
-        return str(backend)
-    if isinstance(model, _core.Network):
-        if backend != "rust":
-            raise ValueError("a pointclm.Network is evaluated by backend='rust'")
-    elif not _is_weights(model) and backend != "torch":
-        raise ValueError(
-            f"model of type {type(model).__name__} needs backend='torch'; the Rust backend "
-            "takes a shipped name, a weight file or a pointclm.Network"
-        )
-    return str(backend)
-
-
-def _rust_network(model: Any) -> _core.Network:
-    if isinstance(model, _core.Network):
-        return model
-    from .model.weights import load_network  # torch-free
-
-    return load_network(model)
-
-
-def _torch_embed(corr: np.ndarray, model: Any, device: str | None) -> np.ndarray:
-    from .model.embed import embed  # torch is imported only when asked for
-
-    return embed(corr, model, device=device or "cpu")
-
-
-def _model_config(model: Any, config: Config | dict[str, Any] | None) -> Any:
-    """The caller's config, else the shipped or saved network's recommended thresholds (a bare
-    torch module carries none: the defaults apply)."""
-    if config is not None:
-        return config
-    if isinstance(model, _core.Network):
-        return Config(**model.recommended_config())
-    if not _is_weights(model):
-        return None
-    from .model.weights import load_metadata
-
-    return Config(**as_config(load_metadata(model).get("recommended_config", {})))
+    The core runs its network on the coordinates as given (and times it), so it gets the
+    network only when they are in the network's training units (the config's sigma_d is the
+    network's). Otherwise each scene is converted to those units and embedded here
+    (:mod:`pointclm.embedding`), so that ``config=Config().scaled(f)`` is right for
+    coordinates `f` times larger.
+    """
+    emb = resolve(model, backend, device)
+    if config is None:
+        config = emb.recommended_config()
+    sigma_d = as_config(config)["sigma_d"]
+    if not emb.in_training_units(sigma_d):
+        threads = _as_threads(num_threads)
+        return None, [emb.embed(c, sigma_d, num_threads=threads) for c in corrs], config
+    if emb.backend == "rust":
+        return emb.network, None, config
+    return None, [emb.embed(c) for c in corrs], config
 
 
 def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:
@@ -305,7 +274,9 @@ def register_batch(
     `seed`, so ``register_batch(s)[i]`` equals ``register(s[i])`` whatever `num_threads`.
     `model`, `backend` and `device` are as in `register`: with the Rust backend each scene's
     embedding runs on the thread of that scene (the results do not depend on `num_threads`);
-    with torch the embeddings of all scenes are computed first, one after the other.
+    with torch the embeddings of all scenes are computed first, one after the other. So are
+    they when the config's ``sigma_d`` is not the network's (coordinates in other units are
+    converted to the network's first, see `register`).
     """
     if isinstance(scenes, np.ndarray) and scenes.ndim == 2:
         raise InputError(
@@ -318,16 +289,14 @@ def register_batch(
         raise InputError(f"scenes must be an iterable of scenes, got {type(scenes)}") from None
     arrays = [_scene_arrays(item, k) for k, item in enumerate(items)]
     network = None
-    backend = _check_backend(backend, model, device)
+    backend = check_backend(backend, model, device)
     if model is not None:
         if any(f is not None for _, f in arrays):
             raise InputError("pass either per-scene features or model, not both")
-        if backend == "rust":
-            network = _rust_network(model)
-            config = _model_config(network, config)
-        else:
-            arrays = [(c, _torch_embed(c, model, device)) for c, _ in arrays]
-            config = _model_config(model, config)
+        corrs = [c for c, _ in arrays]
+        network, embedded, config = _embedding(model, backend, device, config, corrs, num_threads)
+        if embedded is not None:
+            arrays = list(zip(corrs, embedded, strict=True))
     return _core.register_batch(
         arrays,
         as_config(config),

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .weights import _torch, load_model, weights_path
+from .weights import load_model, require_torch, weights_path
 
 __all__ = ["embed", "resolve_model"]
 
@@ -31,7 +31,7 @@ def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cp
 
     `pointclm.model.load_network(model).embed(...)` computes the same in Rust without torch.
     """
-    torch = _torch()
+    torch = require_torch()
 
     net = resolve_model(model, device)
     with torch.no_grad():

@@ -25,6 +25,7 @@ __all__ = [
     "load_metadata",
     "load_model",
     "load_network",
+    "require_torch",
     "save_model",
     "weights_path",
 ]
@@ -72,7 +73,8 @@ def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     return meta
 
 
-def _torch() -> Any:
+def require_torch() -> Any:
+    """The torch module, or an ImportError that says how to install it."""
     try:
         import torch
     except ImportError:
@@ -131,7 +133,7 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
     Raises WeightsNotFoundError (a FileNotFoundError) when a file is missing, WeightsError
     when it does not match its architecture (both are ValueErrors).
     """
-    _torch()
+    require_torch()
     from safetensors.torch import load_file
 
     from .network import EmbeddingConfig, SCNonlocal

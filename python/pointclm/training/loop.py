@@ -124,7 +124,8 @@ def validate_realistic(
     """The same on realistic scenes, in real units (:func:`score_bank`)."""
     import torch
 
-    from ..point_clouds import network_units, scaled_config
+    from ..embedding import network_units
+    from ..point_clouds import scaled_config
 
     model.eval()
     feats = []

@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
+from ..embedding import network_units
 from ..io.arrays import read_npz_members
 from ..io.files import read_checked
-from ..point_clouds import network_units, scaled_config
+from ..point_clouds import scaled_config
 from .config import VAL_SHAPES
 
 __all__ = ["SceneBank", "bank_scene", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
