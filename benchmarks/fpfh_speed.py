@@ -34,7 +34,12 @@ def main() -> None:
     import open3d as o3d
     import pointclm
     import pointclm.preprocessing as pp
-    from pointclm.datasets.scenes import SceneParams, _dense, default_data_dir, make_realistic_scene
+    from pointclm.datasets.scenes import (
+        SceneParams,
+        default_data_dir,
+        dense_model,
+        make_realistic_scene,
+    )
 
     data = default_data_dir()
     rng = np.random.default_rng(0)
@@ -43,7 +48,7 @@ def main() -> None:
     target = scene.target_points
     if len(target) >= 20_000:
         target = target[np.sort(rng.choice(len(target), 20_000, replace=False))]
-    model, _ = _dense("stanford/bunny", str(data) if data else None)
+    model, _ = dense_model("stanford/bunny", str(data) if data else None)
     source = model[np.sort(rng.choice(len(model), 5_000, replace=False))]
     voxel = scene.voxel_size
     rad, nn = 5 * voxel, 100

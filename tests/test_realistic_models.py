@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from pointclm.datasets.procedural import PROCEDURAL_SHAPES
 from pointclm.datasets.scenes import (
-    _MODELS,
     HELDOUT_MODELS,
+    MODEL_FILES,
     VALIDATION_MODELS,
     SceneParams,
     _up_rotation,
@@ -44,14 +44,14 @@ rm = _load()
 
 def test_split_covers_every_model_once() -> None:
     assert not set(VALIDATION_MODELS) & set(HELDOUT_MODELS)
-    assert set(VALIDATION_MODELS) | set(HELDOUT_MODELS) == set(_MODELS) | set(PROCEDURAL_SHAPES)
+    assert set(VALIDATION_MODELS) | set(HELDOUT_MODELS) == set(MODEL_FILES) | set(PROCEDURAL_SHAPES)
     assert "stanford/bunny" in HELDOUT_MODELS
     assert sum(m.startswith("common3d/") for m in HELDOUT_MODELS) == 6
 
 
 @needs_data
 def test_every_model_file_is_in_the_data_folder() -> None:
-    for rel, up in _MODELS.values():
+    for rel, up in MODEL_FILES.values():
         assert (DATA / rel).is_file(), rel
         assert up in ("x", "y", "z", "-z")
 

@@ -30,7 +30,7 @@ from .refinement import (
     RefinedPoses,
     refine_poses,
 )
-from .registration import _as_threads, as_config, register
+from .registration import as_config, as_threads, register
 
 __all__ = [
     "REFINED_THRESHOLDS",
@@ -240,7 +240,7 @@ def _load(cloud: Any, name: str) -> np.ndarray:
         from .io import load_points
 
         return load_points(cloud)
-    return pp._points(cloud, name)
+    return pp.as_points(cloud, name)
 
 
 def file_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
@@ -331,19 +331,19 @@ def register_point_clouds(
     what to try; ``print(result)`` shows a summary.
     """
     t0 = time.perf_counter()
-    _as_threads(num_threads)  # argument errors before the files are read
-    pp._flag(refine, "refine")
-    pp._flag(mutual, "mutual")
+    as_threads(num_threads)  # argument errors before the files are read
+    pp.as_flag(refine, "refine")
+    pp.as_flag(mutual, "mutual")
     embedding = None if model is None else resolve(model)  # a bad model fails before the work
-    view = None if viewpoint is None else pp._point(viewpoint, "viewpoint")
+    view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
     src = _load(source, "source")
     tgt = _load(target, "target")
     if view is None and isinstance(target, str | os.PathLike):
         found = file_viewpoint(target)
-        view = None if found is None else pp._point(found, "viewpoint")
+        view = None if found is None else pp.as_point(found, "viewpoint")
     t_load = time.perf_counter() - t0
     voxel = (
-        default_voxel_size(src) if voxel_size is None else pp._positive(voxel_size, "voxel_size")
+        default_voxel_size(src) if voxel_size is None else pp.as_positive(voxel_size, "voxel_size")
     )
     if not voxel > 0:
         raise ValueError("the source model has zero extent: give voxel_size")

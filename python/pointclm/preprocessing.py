@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from .errors import InputError
-from .registration import _as_threads, as_matrix
+from .registration import as_matrix, as_threads
 
 __all__ = [
     "DescribedCloud",
@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 
-def _positive(value: float, name: str) -> float:
+def as_positive(value: float, name: str) -> float:
     # bool and str convert with float() but are not lengths: refused, as register refuses them.
     real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
         value, bool | np.bool_
@@ -71,13 +71,13 @@ def _count(value: int, name: str, minimum: int) -> int:
     return int(value)
 
 
-def _flag(value: bool, name: str) -> bool:
+def as_flag(value: bool, name: str) -> bool:
     if not isinstance(value, bool | np.bool_):
         raise InputError(f"{name} must be True or False, got {value!r}")
     return bool(value)
 
 
-def _point(value: ArrayLike, name: str) -> tuple[float, float, float]:
+def as_point(value: ArrayLike, name: str) -> tuple[float, float, float]:
     try:
         a = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError, OverflowError):
@@ -87,7 +87,7 @@ def _point(value: ArrayLike, name: str) -> tuple[float, float, float]:
     return (float(a[0]), float(a[1]), float(a[2]))
 
 
-def _points(x: ArrayLike, name: str) -> np.ndarray:
+def as_points(x: ArrayLike, name: str) -> np.ndarray:
     a = as_matrix(x, name, 3)
     if len(a) == 0:
         raise InputError(f"{name} is empty: need at least one point")
@@ -96,7 +96,9 @@ def _points(x: ArrayLike, name: str) -> np.ndarray:
 
 def voxel_downsample(points: ArrayLike, voxel_size: float) -> np.ndarray:
     """The centroid of the points in each occupied voxel (M, 3), ordered by voxel index."""
-    return _core.voxel_downsample(_points(points, "points"), _positive(voxel_size, "voxel_size"))
+    return _core.voxel_downsample(
+        as_points(points, "points"), as_positive(voxel_size, "voxel_size")
+    )
 
 
 def estimate_normals(
@@ -115,17 +117,17 @@ def estimate_normals(
     """
     if towards is not None and away_from is not None:
         raise InputError("give towards= or away_from=, not both")
-    t = None if towards is None else _point(towards, "towards")
-    a = None if away_from is None else _point(away_from, "away_from")
+    t = None if towards is None else as_point(towards, "towards")
+    a = None if away_from is None else as_point(away_from, "away_from")
     if t is None and a is None:
         t = (0.0, 0.0, 0.0)
     return _core.estimate_normals(
-        _points(points, "points"),
-        _positive(radius, "radius"),
+        as_points(points, "points"),
+        as_positive(radius, "radius"),
         _count(max_nn, "max_nn", 3),
         towards=t,
         away_from=a,
-        num_threads=_as_threads(num_threads),
+        num_threads=as_threads(num_threads),
     )
 
 
@@ -145,17 +147,17 @@ def compute_fpfh(
     """
     if not isinstance(variant, str) or variant not in ("open3d", "pcl"):
         raise InputError(f"variant must be 'open3d' or 'pcl', got {variant!r}")
-    p = _points(points, "points")
+    p = as_points(points, "points")
     n = as_matrix(normals, "normals", 3)
     if len(n) != len(p):
         raise InputError(f"need one normal per point: {len(p)} points, {len(n)} normals")
     return _core.compute_fpfh(
         p,
         n,
-        _positive(radius, "radius"),
+        as_positive(radius, "radius"),
         _count(max_nn, "max_nn", 2),
         variant=variant,
-        num_threads=_as_threads(num_threads),
+        num_threads=as_threads(num_threads),
     )
 
 
@@ -207,7 +209,7 @@ def estimate_viewpoint(
     to the caller (:func:`pointclm.register_point_clouds` asks which sign makes the scan's
     descriptors look like the model's).
     """
-    p = _points(points, "points")
+    p = as_points(points, "points")
     n = as_matrix(normals, "normals", 3)
     if len(n) != len(p):
         raise InputError(f"need one normal per point: {len(p)} points, {len(n)} normals")
@@ -231,9 +233,9 @@ def estimate_viewpoint(
 
 def orient_towards(points: ArrayLike, normals: ArrayLike, viewpoint: ArrayLike) -> np.ndarray:
     """`normals` with each sign flipped to face `viewpoint` (as `estimate_normals`' towards)."""
-    p = _points(points, "points")
+    p = as_points(points, "points")
     n = as_matrix(normals, "normals", 3)
-    eye = np.asarray(_point(viewpoint, "viewpoint"))
+    eye = np.asarray(as_point(viewpoint, "viewpoint"))
     facing = np.einsum("ij,ij->i", eye - p, n) >= 0.0
     return np.where(facing[:, None], n, -n)
 
@@ -269,10 +271,10 @@ def describe(
     normals, 5 for descriptors. Without a voxel size both radii must be given.
     """
     t0 = time.perf_counter()
-    pts = _points(points, "points")
-    _as_threads(num_threads)  # checked before any work
+    pts = as_points(points, "points")
+    as_threads(num_threads)  # checked before any work
     if voxel_size is not None:
-        v = _positive(voxel_size, "voxel_size")
+        v = as_positive(voxel_size, "voxel_size")
         if normals is not None:
             raise InputError(
                 "normals given with voxel_size: downsampling would leave them unaligned; "
@@ -361,10 +363,10 @@ def match_features(
         s,
         t,
         top_k=_count(top_k, "top_k", 1),
-        mutual=_flag(mutual, "mutual"),
+        mutual=as_flag(mutual, "mutual"),
         n_samples=n,
         seed=int(seed),
-        num_threads=_as_threads(num_threads),
+        num_threads=as_threads(num_threads),
         k=_count(k, "k", 1),
     )
     return Matches(src, tgt, dist)

@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
-from .registration import _as_threads
+from .registration import as_threads
 
 __all__ = [
     "MAX_CONTRADICTION",
@@ -128,9 +128,9 @@ def refine_poses(
         A pose is a duplicate when more than this share of the scan points it explains are
         explained by a surer pose; 1 keeps duplicates.
     """
-    src = pp._points(source_points, "source_points")
-    tgt = pp._points(target_points, "target_points")
-    voxel = pp._positive(voxel_size, "voxel_size")
+    src = pp.as_points(source_points, "source_points")
+    tgt = pp.as_points(target_points, "target_points")
+    voxel = pp.as_positive(voxel_size, "voxel_size")
     try:
         poses = np.asarray(transformations, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
@@ -155,7 +155,7 @@ def refine_poses(
             tgt,
             np.ascontiguousarray(poses),
             voxel,
-            pp._flag(icp, "icp"),
+            pp.as_flag(icp, "icp"),
             eye,
             _number(min_visible_fitness, "min_visible_fitness"),
             _number(max_contradiction, "max_contradiction"),
@@ -163,7 +163,7 @@ def refine_poses(
             _number(min_fitness, "min_fitness"),
             _number(min_relative_fitness, "min_relative_fitness"),
             _number(max_shared, "max_shared"),
-            num_threads=_as_threads(num_threads),
+            num_threads=as_threads(num_threads),
         ),
     )
     confidence, fitness, visible, contradiction, seen, rmse = columns

@@ -195,8 +195,8 @@ def register(
         rows,
         feats,
         as_config(config),
-        _as_seed(seed),
-        num_threads=_as_threads(num_threads),
+        as_seed(seed),
+        num_threads=as_threads(num_threads),
         network=network,
     )
 
@@ -223,7 +223,7 @@ def _embedding(
         config = emb.recommended_config()
     sigma_d = as_config(config)["sigma_d"]
     if not emb.in_training_units(sigma_d):
-        threads = _as_threads(num_threads)
+        threads = as_threads(num_threads)
         return None, [emb.embed(c, sigma_d, num_threads=threads) for c in corrs], config
     if emb.backend == "rust":
         return emb.network, None, config
@@ -300,19 +300,19 @@ def register_batch(
     return _core.register_batch(
         arrays,
         as_config(config),
-        _as_seed(seed),
-        num_threads=_as_threads(num_threads),
+        as_seed(seed),
+        num_threads=as_threads(num_threads),
         network=network,
     )
 
 
-def _as_seed(seed: int) -> int:
+def as_seed(seed: int) -> int:
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not (0 <= seed < 2**64):
         raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
     return int(seed)
 
 
-def _as_threads(num_threads: int | None) -> int | None:
+def as_threads(num_threads: int | None) -> int | None:
     if num_threads is None:
         return None
     if (

@@ -15,12 +15,12 @@ from .config import Config
 from .errors import InputError
 from .registration import (
     MIN_CORRESPONDENCES,
-    _as_seed,
-    _as_threads,
     as_config,
     as_correspondences,
     as_features,
     as_matrix,
+    as_seed,
+    as_threads,
 )
 
 __all__ = [
@@ -57,7 +57,7 @@ def density_counts(
         corr,
         as_features(features, len(corr)),
         as_config(config),
-        num_threads=_as_threads(num_threads),
+        num_threads=as_threads(num_threads),
     )
 
 
@@ -89,7 +89,7 @@ def spectral_clustering(
         None if max_clusters is None else _as_count(max_clusters, "max_clusters"),
         assignment,
         _as_count(restarts, "restarts"),
-        _as_seed(seed),
+        as_seed(seed),
     )
 
 

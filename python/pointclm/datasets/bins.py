@@ -55,7 +55,7 @@ import numpy as np
 
 from ..errors import PathNotFoundError
 from .procedural import PROCEDURAL_SHAPES
-from .scenes import _MODELS, HELDOUT_MODELS, VALIDATION_MODELS, _dense, default_data_dir
+from .scenes import HELDOUT_MODELS, MODEL_FILES, VALIDATION_MODELS, default_data_dir, dense_model
 
 __all__ = [
     "BIN_MODELS_HELD_OUT",
@@ -179,8 +179,8 @@ class BinScene:
 def _model_points(name: str, data_dir: str | None) -> np.ndarray:
     """Dense samples of a model by name: the realistic scenes' models, procedural shapes, or
     ``common3d/<mesh>`` from the data folder."""
-    if name in _MODELS or name in PROCEDURAL_SHAPES or name == "bunny":
-        return _dense(name, data_dir)[0]
+    if name in MODEL_FILES or name in PROCEDURAL_SHAPES or name == "bunny":
+        return dense_model(name, data_dir)[0]
     if name.startswith("common3d/"):
         if data_dir is None:
             raise ValueError(
@@ -189,9 +189,9 @@ def _model_points(name: str, data_dir: str | None) -> np.ndarray:
         path = Path(data_dir) / f"{name}.ply"
         if not path.is_file():
             raise PathNotFoundError(f"model {name!r}: no mesh at {path}")
-        return _dense(str(path), data_dir)[0]
+        return dense_model(str(path), data_dir)[0]
     raise ValueError(
-        f"unknown model {name!r}: use one of {sorted(_MODELS)}, common3d/<mesh> or a "
+        f"unknown model {name!r}: use one of {sorted(MODEL_FILES)}, common3d/<mesh> or a "
         f"procedural shape {list(PROCEDURAL_SHAPES)}"
     )
 

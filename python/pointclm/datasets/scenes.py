@@ -39,7 +39,7 @@ import numpy as np
 
 from ..point_clouds import scaled_config as scene_config
 from .procedural import PROCEDURAL_SHAPES, procedural_mesh
-from .shapes import _bunny_mesh, sample_surface
+from .shapes import bunny_mesh, sample_surface
 
 __all__ = [
     "DEFAULT_CLUTTER",
@@ -59,7 +59,7 @@ __all__ = [
 #: (y up); the two CAD parts rest as they would on a table or in a bin: the fandisk on its
 #: largest flat face (z = max, "-z" up: its block stands on the fan plate), the rocker arm
 #: lying flat, its bore vertical (x up).
-_MODELS: dict[str, tuple[str, str]] = {
+MODEL_FILES: dict[str, tuple[str, str]] = {
     "stanford/bunny": ("stanford/bunny/reconstruction/bun_zipper_res2.ply", "y"),
     "stanford/dragon": ("stanford/dragon/dragon_spica_21790v.ply", "y"),
     "stanford/happy": ("stanford/happy/happy_vrip_res3.ply", "y"),
@@ -210,24 +210,24 @@ def _resolve_dir(params: SceneParams) -> Path | None:
 
 
 @lru_cache(maxsize=32)
-def _dense(name: str, data_dir: str | None) -> tuple[np.ndarray, str]:
+def dense_model(name: str, data_dir: str | None) -> tuple[np.ndarray, str]:
     """Dense surface samples of a model in its own frame (seeded, cached) and its up axis."""
     rng = np.random.default_rng(12345)
     if name == "bunny":
-        v, f = _bunny_mesh()
+        v, f = bunny_mesh()
         return sample_surface(v, f, _DENSE, rng), "y"
     if name in PROCEDURAL_SHAPES:
         v, f = procedural_mesh(name)
         return sample_surface(v, f, _DENSE, rng), "z"
     from ..io import read_point_cloud
 
-    if name in _MODELS:
+    if name in MODEL_FILES:
         if data_dir is None:
             raise ValueError(
                 f"model {name!r} lives in the data folder: pass data_dir= or set "
                 "POINTCLM_DATA_DIR (or use model='bunny', the packaged one)"
             )
-        rel, up = _MODELS[name]
+        rel, up = MODEL_FILES[name]
         path = Path(data_dir) / rel
     else:
         path, up = Path(name), "z"
@@ -350,7 +350,7 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
     rng = np.random.default_rng(seed)
     data_dir = _resolve_dir(params)
     dd = str(data_dir) if data_dir is not None else None
-    model_pts, model_up = _dense(params.model, dd)
+    model_pts, model_up = dense_model(params.model, dd)
     lo, hi = model_pts.min(0), model_pts.max(0)
     diameter = float(np.linalg.norm(hi - lo))
     voxel = diameter * params.voxel_fraction
@@ -373,7 +373,7 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
     clutter: list[tuple[np.ndarray, float]] = []
     for _ in range(n_clut):
         name = clutter_pool[int(rng.integers(len(clutter_pool)))]
-        pts, up = _dense(name, dd)
+        pts, up = dense_model(name, dd)
         pts = pts @ _up_rotation(up).T
         ext = float(np.linalg.norm(pts.max(0) - pts.min(0)))
         scale = diameter * rng.uniform(0.6, 1.4) / ext

@@ -141,7 +141,7 @@ def _sample_points(points: np.ndarray, n_points: int, rng: np.random.Generator) 
     return points[rng.choice(len(points), size=n_points, replace=replace)]
 
 
-def _bunny_mesh() -> tuple[np.ndarray, np.ndarray]:
+def bunny_mesh() -> tuple[np.ndarray, np.ndarray]:
     with np.load(_BUNNY) as data:
         return data["vertices"], data["faces"]
 
@@ -328,7 +328,7 @@ def load_shape(
     gen = np.random.default_rng(rng)
     key = os.fspath(name_or_path)
     if key == "bunny":
-        verts, faces = _bunny_mesh()
+        verts, faces = bunny_mesh()
         return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
     if key in PROCEDURAL_SHAPES:
         verts, faces = procedural_mesh(key)
