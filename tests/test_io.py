@@ -620,6 +620,44 @@ def test_readers_need_only_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
         assert_valid(read_point_cloud(data_file(rel), n_samples=100))
 
 
+def test_datasets_read_meshes_through_io_without_trimesh(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One mesh path: load_shape/load_mesh read PLY and OFF with pointclm.io, not trimesh."""
+    from pointclm.datasets import load_mesh, load_shape
+    from pointclm.io import read_mesh
+
+    monkeypatch.setitem(sys.modules, "trimesh", None)  # any import of it now fails
+    for rel in ("stanford/bunny/reconstruction/bun_zipper_res4.ply", "modelnet/bed_fmr.off"):
+        mesh = read_mesh(data_file(rel))
+        verts, faces = load_mesh(data_file(rel))
+        np.testing.assert_array_equal(verts, mesh.vertices)
+        np.testing.assert_array_equal(faces, mesh.triangles)
+        assert load_shape(data_file(rel), 100).shape == (100, 3)
+
+
+def test_read_mesh_and_the_one_sampler(tmp_path: Path) -> None:
+    """read_mesh returns triangles unsampled; read_point_cloud, sample_mesh and
+    datasets.sample_surface draw the same points from a seed."""
+    from pointclm.datasets import sample_surface
+    from pointclm.io import read_mesh, sample_mesh
+
+    path = tmp_path / "quad.off"
+    path.write_text("OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n")
+    mesh = read_mesh(path)
+    np.testing.assert_array_equal(mesh.triangles, [[0, 1, 2], [0, 2, 3]])
+    expected = sample_mesh(mesh.vertices, mesh.triangles, 500, seed=3).points
+    np.testing.assert_array_equal(read_point_cloud(path, n_samples=500, seed=3).points, expected)
+    np.testing.assert_array_equal(sample_surface(mesh.vertices, mesh.triangles, 500, 3), expected)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        read_mesh(tmp_path / "missing.ply")
+    (tmp_path / "quad.xyz").write_text("0 0 0\n")
+    with pytest.raises(ValueError, match="unsupported file type"):
+        read_mesh(tmp_path / "quad.xyz")
+    obj = tmp_path / "tri.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    pytest.importorskip("trimesh")  # the optional fallback for formats io does not parse
+    np.testing.assert_array_equal(read_mesh(obj).triangles, [[0, 1, 2]])
+
+
 def test_face_index_out_of_range(tmp_path: Path) -> None:
     path = tmp_path / "broken.off"
     path.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 99\n")

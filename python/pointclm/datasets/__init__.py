@@ -2,9 +2,9 @@
 
 Why a separate subpackage: the registration core needs only numpy arrays of correspondences;
 everything that *makes* such arrays (shape sampling, the paper's seeded synthetic protocol,
-scale-test scenes) lives here, importable with numpy alone. Mesh files need trimesh
-(``pip install pointclm[io]``) and ModelNet40's HDF5 release needs h5py; both are imported
-only when used.
+scale-test scenes) lives here, importable with numpy alone. Mesh files are read through
+:func:`pointclm.io.read_mesh` (OBJ and STL need trimesh, ``pip install pointclm[io]``);
+ModelNet40's HDF5 release needs h5py; both are imported only when used.
 """
 
 from __future__ import annotations

@@ -3,22 +3,25 @@
 Why: the synthetic protocol (SPEC section 3) starts from a unit-sphere-normalised 2048-point
 cloud of one object. The paper draws it from ModelNet40's ``ply_hdf5_2048`` release; this
 module offers that (with h5py) and, so that nothing must be downloaded, the packaged Stanford
-bunny (numpy only), a few procedural shapes, and any mesh file trimesh can read.
+bunny (numpy only), a few procedural shapes, and any mesh file :func:`pointclm.io.read_mesh`
+reads (PLY, OFF and numpy arrays natively; OBJ and STL with trimesh).
 
-Clouds are sampled uniformly by surface area (area-weighted triangle choice, then uniform
-barycentric coordinates) from a seeded :class:`numpy.random.Generator`, then centred on their
-centroid and scaled so that the largest norm is 1.
+Clouds are sampled uniformly by surface area with :func:`pointclm.io.mesh.sample_mesh`, the
+project's one surface sampler (area-weighted triangle choice, then uniform barycentric
+coordinates), from a seeded :class:`numpy.random.Generator`, then centred on their centroid
+and scaled so that the largest norm is 1.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from ..errors import PathNotFoundError
+from ..io.mesh import sample_mesh
+from ..io.reader import MESH_SUFFIXES, read_mesh
 from .procedural import PROCEDURAL_SHAPES, procedural_mesh
 
 __all__ = [
@@ -33,9 +36,6 @@ __all__ = [
 
 _DATA = Path(__file__).resolve().parent / "data"
 _BUNNY = _DATA / "bunny_res4.npz"
-
-#: File suffixes :func:`load_shape` reads (``.npy``/``.npz`` with numpy, the rest with trimesh).
-MESH_SUFFIXES: tuple[str, ...] = (".ply", ".off", ".obj", ".stl", ".npy", ".npz")
 
 #: Clean names for the files of the project's data folder (``data/SOURCES.md``).
 _KNOWN_FILES: dict[str, str] = {
@@ -95,6 +95,10 @@ def sample_surface(
 ) -> np.ndarray:
     """Sample points uniformly by area on a triangle mesh.
 
+    The points of :func:`pointclm.io.mesh.sample_mesh` (the one sampler, so a seed gives the
+    same points through :mod:`pointclm.io` and here); triangles touching a non-finite vertex
+    get no samples.
+
     Parameters
     ----------
     vertices : numpy.ndarray
@@ -114,25 +118,15 @@ def sample_surface(
     Raises
     ------
     ValueError
-        If the mesh has no triangle of positive area or indices out of range.
+        If the mesh has no triangle of positive, finite area, indices out of range, or
+        ``n_points`` is not a positive int.
     """
-    rng = np.random.default_rng(rng)
-    v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
         raise ValueError(f"expected (F, 3) triangles, got shape {f.shape}")
-    if f.min() < 0 or f.max() >= len(v):
+    if f.min() < 0 or f.max() >= len(vertices):
         raise ValueError("face indices out of range")
-    tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    total = area.sum()
-    if not np.isfinite(total) or total <= 0:
-        raise ValueError("mesh has no triangle of positive, finite area")
-    idx = rng.choice(len(f), size=n_points, p=area / total)
-    r1 = np.sqrt(rng.random(n_points))[:, None]
-    r2 = rng.random(n_points)[:, None]
-    a, b, c = tri[idx, 0], tri[idx, 1], tri[idx, 2]
-    return (1 - r1) * a + r1 * (1 - r2) * b + r1 * r2 * c
+    return sample_mesh(vertices, f, n_points, np.random.default_rng(rng)).points
 
 
 def _sample_points(points: np.ndarray, n_points: int, rng: np.random.Generator) -> np.ndarray:
@@ -146,22 +140,13 @@ def bunny_mesh() -> tuple[np.ndarray, np.ndarray]:
         return data["vertices"], data["faces"]
 
 
-def _trimesh() -> Any:
-    try:
-        import trimesh
-    except ImportError as err:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "reading mesh files needs trimesh: pip install pointclm[io]  (or pip install trimesh)"
-        ) from err
-    return trimesh
-
-
 def load_mesh(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read a mesh or point-cloud file.
+    """Read a mesh or point-cloud file (:func:`pointclm.io.read_mesh`).
 
     ``.npy`` holds an (N, 3) cloud; ``.npz`` holds ``vertices`` and optionally ``faces`` (the
-    packaged format); ``.ply``/``.off``/``.obj``/``.stl`` are read with trimesh (lazily
-    imported, ``pip install pointclm[io]``), scenes being merged into one mesh.
+    packaged format); ``.ply``/``.off`` are read by :mod:`pointclm.io`, ``.obj``/``.stl``
+    with trimesh (lazily imported, ``pip install pointclm[io]``), scenes being merged into
+    one mesh.
 
     Parameters
     ----------
@@ -184,65 +169,8 @@ def load_mesh(path: PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     ImportError
         If trimesh is needed and not installed.
     """
-    p = Path(path)
-    suffix = p.suffix.lower()
-    if not p.is_file():
-        raise PathNotFoundError(f"{p}: no such file")
-    if suffix not in MESH_SUFFIXES:
-        raise ValueError(f"{p}: unsupported file type {suffix!r} (use {', '.join(MESH_SUFFIXES)})")
-    try:
-        if suffix in (".npy", ".npz"):
-            verts, faces = _read_numpy(p)
-        else:
-            verts, faces = _read_trimesh(p, _trimesh())
-    except ImportError:
-        raise
-    except Exception as err:  # noqa: BLE001 - any parser failure becomes a ValueError
-        raise ValueError(f"{p}: cannot read it ({type(err).__name__}: {err})") from err
-    verts = np.asarray(verts, dtype=np.float64)
-    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
-        raise ValueError(f"{p}: no 3D points in the file (vertex array shape {verts.shape})")
-    if not np.all(np.isfinite(verts)):
-        raise ValueError(f"{p}: vertices contain NaN or infinity")
-    if faces is not None:
-        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        if len(faces) == 0:
-            faces = None
-        elif faces.min() < 0 or faces.max() >= len(verts):
-            raise ValueError(f"{p}: face indices out of range")
-    return verts, faces
-
-
-def _read_numpy(p: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    # pointclm.io's readers: no pickle, declared sizes checked before anything is allocated,
-    # only the members needed decompressed, only regular files opened.
-    from ..io.arrays import read_npy, read_npz_members
-    from ..io.files import read_checked
-
-    _, raw = read_checked(p, "mesh file")
-    if p.suffix.lower() == ".npy":
-        return read_npy(raw), None
-    arrays, names = read_npz_members(raw, ("vertices", "faces"))
-    if "vertices" not in arrays:
-        raise ValueError(f"no 'vertices' array (arrays: {', '.join(names) or 'none'})")
-    return arrays["vertices"], arrays.get("faces")
-
-
-def _read_trimesh(p: Path, trimesh: Any) -> tuple[np.ndarray, np.ndarray | None]:
-    loaded = trimesh.load(str(p), process=False)
-    # A scene (e.g. an OBJ with several objects) is flattened with its transforms applied.
-    geoms = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
-    verts, faces, offset = [], [], 0
-    for g in geoms:
-        v = np.asarray(getattr(g, "vertices", np.empty((0, 3))), dtype=np.float64)
-        f = getattr(g, "faces", None)
-        if f is not None and len(f):
-            faces.append(np.asarray(f, dtype=np.int64) + offset)
-        verts.append(v.reshape(-1, 3))
-        offset += len(v)
-    if not verts:
-        return np.empty((0, 3)), None
-    return np.vstack(verts), (np.vstack(faces) if faces else None)
+    mesh = read_mesh(path)
+    return mesh.vertices, mesh.triangles
 
 
 def _data_files(data_dir: PathLike) -> dict[str, Path]:
@@ -333,6 +261,17 @@ def load_shape(
     if key in PROCEDURAL_SHAPES:
         verts, faces = procedural_mesh(key)
         return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
+    path = _shape_file(key, data_dir)
+    try:
+        return normalize_unit_sphere(_file_samples(path, n_points, gen))
+    except ValueError as err:
+        if str(err).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: {err}") from err
+
+
+def _shape_file(key: str, data_dir: PathLike | None) -> Path:
+    """The file a shape name or path names (a data-folder name resolved in ``data_dir``)."""
     path = Path(key)
     if data_dir is not None and not path.is_file():
         files = _data_files(data_dir)
@@ -346,18 +285,15 @@ def load_shape(
             f"{key!r} is neither a known shape nor an existing file{hint}; known shapes: "
             f"{', '.join(available_shapes(data_dir))}"
         )
+    return path
+
+
+def _file_samples(path: Path, n_points: int, gen: np.random.Generator) -> np.ndarray:
+    """A mesh file sampled by area; a point-only file by a random subset of its points."""
     file_verts, file_faces = load_mesh(path)
     if file_faces is None:
-        pts = _sample_points(file_verts, n_points, gen)
-    else:
-        try:
-            pts = sample_surface(file_verts, file_faces, n_points, gen)
-        except ValueError as err:
-            raise ValueError(f"{path}: {err}") from err
-    try:
-        return normalize_unit_sphere(pts)
-    except ValueError as err:
-        raise ValueError(f"{path}: {err}") from err
+        return _sample_points(file_verts, n_points, gen)
+    return sample_surface(file_verts, file_faces, n_points, gen)
 
 
 def modelnet40_shapes(

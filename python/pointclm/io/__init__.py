@@ -3,6 +3,7 @@
 >>> from pointclm.io import read_point_cloud, load_points, write_ply   # doctest: +SKIP
 >>> cloud = read_point_cloud("scene.pcd")            # PointCloud(points, normals, colors)
 >>> src = load_points("model.ply", n_samples=5000)   # (N, 3) float64, mesh sampled by area
+>>> mesh = read_mesh("model.off")                    # Mesh(vertices, triangles), unsampled
 
 Formats: PLY (ASCII, binary little/big endian), PCD (ascii, binary, binary_compressed),
 OFF, ``.xyz``/``.txt``/``.pts`` text, ``.npy``/``.npz``; plus Open3D's feature ``.bin``
@@ -11,7 +12,8 @@ files (:func:`read_open3d_feature`).
 Design decisions
 ----------------
 - **numpy only, no optional dependency.** ``pip install pointclm`` (numpy + tqdm) reads every
-  format above; nothing here imports trimesh or a PCD library. PLY, OFF and PCD are short
+  format above; nothing here imports a PCD library, and trimesh only as the fallback of
+  :func:`read_mesh` for OBJ and STL, which no reader here parses. PLY, OFF and PCD are short
   specifications, and one implementation means a file gives the same cloud, and a seed the
   same samples, whether or not the ``[io]`` extra is installed. trimesh (MIT) was the
   candidate for PLY/OFF; it was not used at runtime because (a) it would make the default
@@ -23,10 +25,12 @@ Design decisions
   and the C extension ``python-neo-lzf``; :mod:`pointclm.io.lzf` is a pure-Python LZF
   decoder instead (a 640x480 organised Kinect cloud, 2.5 MB compressed, decodes in about a
   quarter of a second).
-- **Meshes are sampled, not returned as vertices**: a PLY or OFF file with faces gives
-  ``n_samples`` points drawn uniformly by area (default ``max(10_000, vertices)``), seeded,
-  with the normal of the triangle each point lies on; a file without faces gives its
-  vertices (with normals and colours when stored).
+- **One mesh path**: :func:`read_mesh` returns a file's vertices and triangles unsampled
+  (:mod:`pointclm.datasets` reads every mesh through it), and :func:`sample_mesh` is the one
+  surface sampler. :func:`read_point_cloud` samples meshes rather than returning their
+  vertices: a PLY or OFF file with faces gives ``n_samples`` points drawn uniformly by area
+  (default ``max(10_000, vertices)``), seeded, with the normal of the triangle each point
+  lies on; a file without faces gives its vertices (with normals and colours when stored).
 - **Only finite points**: rows with NaN/inf coordinates are dropped (organised clouds use
   them for missing pixels), keeping normals and colours aligned; a file with no finite
   point is an error, never an empty cloud.
@@ -48,15 +52,20 @@ Design decisions
 from __future__ import annotations
 
 from .features import read_open3d_feature
+from .mesh import Mesh, sample_mesh
 from .ply import write_ply
 from .pointcloud import PointCloud
-from .reader import SUPPORTED_SUFFIXES, load_points, read_point_cloud
+from .reader import MESH_SUFFIXES, SUPPORTED_SUFFIXES, load_points, read_mesh, read_point_cloud
 
 __all__ = [
+    "MESH_SUFFIXES",
     "SUPPORTED_SUFFIXES",
+    "Mesh",
     "PointCloud",
     "load_points",
+    "read_mesh",
     "read_open3d_feature",
     "read_point_cloud",
+    "sample_mesh",
     "write_ply",
 ]

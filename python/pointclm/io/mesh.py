@@ -1,21 +1,24 @@
-"""Turning a polygon mesh into a point cloud by uniform area sampling.
+"""Meshes as files hold them, and turning one into a point cloud by uniform area sampling.
 
 Why sample instead of returning the vertices: registration compares point densities, and a
 mesh's vertices are dense where the modeller needed detail, not where the surface is. Area
 weighting gives the uniform surface density a depth sensor would.
 
-The draws follow the same recipe as :func:`pointclm.datasets.shapes.sample_surface` (one
-area-weighted ``Generator.choice`` of triangles, then ``sqrt(r1)``/``r2`` barycentric
-coordinates), so a given seed gives the same points through either entry point.
+:func:`sample_mesh` is the project's only surface sampler: :func:`pointclm.io.read_point_cloud`
+samples PLY and OFF meshes with it, and :func:`pointclm.datasets.sample_surface` (the shapes
+and realistic scenes) calls it, so a given seed gives the same points through every entry
+point.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .pointcloud import PointCloud
+from .pointcloud import PointCloud, finite_cloud
 
-__all__ = ["check_n_samples", "default_n_samples", "sample_mesh", "triangulate"]
+__all__ = ["Mesh", "check_n_samples", "default_n_samples", "sample_mesh", "triangulate"]
 
 #: Fewest points :func:`sample_mesh` draws by default (more for meshes with more vertices).
 MIN_DEFAULT_SAMPLES = 10_000
@@ -61,14 +64,47 @@ def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     return np.stack([flat[first], flat[first + j + 1], flat[first + j + 2]], axis=1)
 
 
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A mesh or point file's content before sampling.
+
+    Attributes
+    ----------
+    vertices : numpy.ndarray
+        (V, 3) float64 positions as stored (non-finite rows kept: they are the caller's to
+        reject or drop).
+    triangles : numpy.ndarray or None
+        (T, 3) int64 vertex indices (polygons fan-triangulated), or None for a file without
+        faces (a point cloud).
+    normals, colors : numpy.ndarray or None
+        (V, 3) per-vertex normals and colours in [0, 1] when the file stores them.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+
+    def sampled(self, n_samples: int | None = None, seed: int | None = 0) -> PointCloud:
+        """A mesh sampled by area (:func:`sample_mesh`); a point file's finite vertices."""
+        if self.triangles is None:
+            return finite_cloud(self.vertices, self.normals, self.colors)
+        return sample_mesh(
+            self.vertices, self.triangles, n_samples, seed, vertex_colors=self.colors
+        )
+
+
 def sample_mesh(
     vertices: np.ndarray,
     triangles: np.ndarray,
     n_samples: int | None = None,
-    seed: int | None = 0,
+    seed: int | np.random.Generator | None = 0,
     vertex_colors: np.ndarray | None = None,
 ) -> PointCloud:
     """Draw points uniformly by area on a triangle mesh.
+
+    One area-weighted ``Generator.choice`` of triangles, then ``sqrt(r1)``/``r2``
+    barycentric coordinates: the draws, and so the points of a seed, never change.
 
     Parameters
     ----------
@@ -78,8 +114,9 @@ def sample_mesh(
         (T, 3) integer vertex indices.
     n_samples : int, optional
         Number of points; default ``max(10_000, V)``.
-    seed : int or None
-        Seed of :func:`numpy.random.default_rng`; the same seed gives the same points.
+    seed : int or numpy.random.Generator or None
+        Seed of :func:`numpy.random.default_rng`, or a generator to draw from; the same seed
+        gives the same points.
     vertex_colors : numpy.ndarray, optional
         (V, 3) in [0, 1], interpolated barycentrically onto the samples.
 
@@ -103,18 +140,7 @@ def sample_mesh(
     corners = verts[tris]
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     cross_norm = np.linalg.norm(cross, axis=1)
-    area = 0.5 * cross_norm
-    area[~np.isfinite(area)] = 0.0
-    total = area.sum()
-    if not (np.isfinite(total) and total > 0):
-        raise ValueError(
-            f"the mesh's {len(tris)} triangles have no positive, finite area to sample from"
-        )
-    rng = np.random.default_rng(seed)
-    face = rng.choice(len(tris), size=n, p=area / total)
-    r1 = np.sqrt(rng.random(n))[:, None]
-    r2 = rng.random(n)[:, None]
-    # Written out term by term (not einsum) to match datasets.shapes.sample_surface bit for bit.
+    face, r1, r2 = _draw(0.5 * cross_norm, n, np.random.default_rng(seed))
     a, b, c = corners[face, 0], corners[face, 1], corners[face, 2]
     points = (1 - r1) * a + r1 * (1 - r2) * b + r1 * r2 * c
     normals = cross[face] / cross_norm[face, None]
@@ -124,6 +150,23 @@ def sample_mesh(
         ca, cb, cc = vc[tris[face, 0]], vc[tris[face, 1]], vc[tris[face, 2]]
         colors = np.clip((1 - r1) * ca + r1 * (1 - r2) * cb + r1 * r2 * cc, 0.0, 1.0)
     return PointCloud(points=points, normals=normals, colors=colors)
+
+
+def _draw(
+    area: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The triangle of each sample (by area) and its barycentric draws ``sqrt(r1)``, ``r2``,
+    drawn in this order: every seeded mesh sample in the project depends on it."""
+    area[~np.isfinite(area)] = 0.0
+    total = area.sum()
+    if not (np.isfinite(total) and total > 0):
+        raise ValueError(
+            f"the mesh's {len(area)} triangles have no positive, finite area to sample from"
+        )
+    face = rng.choice(len(area), size=n, p=area / total)
+    r1 = np.sqrt(rng.random(n))[:, None]
+    r2 = rng.random(n)[:, None]
+    return face, r1, r2
 
 
 def check_n_samples(n_samples: int) -> int:

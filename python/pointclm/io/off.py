@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import sample_mesh, triangulate
-from .pointcloud import PointCloud, finite_cloud
+from .mesh import Mesh, triangulate
+from .pointcloud import PointCloud
 
-__all__ = ["parse_off"]
+__all__ = ["off_mesh", "parse_off"]
 
 
 def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) -> PointCloud:
@@ -23,6 +23,18 @@ def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
     ------
     ValueError
         Not an OFF file, binary OFF, truncated data, or face indices out of range.
+    """
+    return off_mesh(raw).sampled(n_samples, seed)
+
+
+def off_mesh(raw: bytes) -> Mesh:
+    """Read an OFF file's bytes as stored: vertices and triangles (None without faces), and
+    the vertices' normals (``NOFF``) for a face-less file.
+
+    Raises
+    ------
+    ValueError
+        As :func:`parse_off`.
     """
     text = raw.decode("latin-1")
     # (file line number, content): comments and blank lines are skipped, but errors name the
@@ -69,11 +81,11 @@ def parse_off(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
     vertices = table[:, :3]
     if n_faces == 0:
         normals = table[:, 3:6] if "N" in stem[:-3] and table.shape[1] >= 6 else None
-        return finite_cloud(vertices, normals)
+        return Mesh(vertices, None, normals)
     face_numbers = [i for i, _ in numbered[body + n_vertices : body + n_vertices + n_faces]]
     counts, items = _faces(face_lines, face_numbers)
     _check_indices(counts, items, n_vertices, face_numbers)
-    return sample_mesh(vertices, triangulate(counts, items), n_samples, seed)
+    return Mesh(vertices, triangulate(counts, items))
 
 
 def _faces(face_lines: list[str], numbers: list[int]) -> tuple[np.ndarray, np.ndarray]:

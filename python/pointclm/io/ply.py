@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from .files import atomic_path, check_output_path
-from .mesh import sample_mesh, triangulate
-from .pointcloud import PointCloud, check_integers, finite_cloud, unit_colors
+from .mesh import Mesh, triangulate
+from .pointcloud import PointCloud, check_integers, unit_colors
 
-__all__ = ["parse_ply", "write_ply"]
+__all__ = ["parse_ply", "ply_mesh", "write_ply"]
 
 _TYPES = {
     "char": "i1",
@@ -494,6 +494,18 @@ def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
         Malformed header, truncated data, no x/y/z vertex properties, face indices out of
         range, or no finite point (messages without the path; the caller adds it).
     """
+    return ply_mesh(raw).sampled(n_samples, seed)
+
+
+def ply_mesh(raw: bytes) -> Mesh:
+    """Read a PLY file's bytes as stored: vertices, triangles (None without faces) and the
+    vertices' normals and colours.
+
+    Raises
+    ------
+    ValueError
+        As :func:`parse_ply`, except that non-finite vertices are kept.
+    """
     tables, first_lines = _read_tables(raw)
     vertex = tables.get("vertex")
     if vertex is None:
@@ -515,18 +527,23 @@ def parse_ply(raw: bytes, n_samples: int | None = None, seed: int | None = 0) ->
         if channels is not None:
             colors = unit_colors(channels)
             break
-    face = tables.get("face")
-    if face is not None:
-        lists = [v for v in face.values() if isinstance(v, _ListValues)]
-        named = face.get("vertex_indices", face.get("vertex_index"))
-        faces = named if isinstance(named, _ListValues) else (lists[0] if lists else None)
-        if faces is None and face:
-            raise ValueError("PLY face element has no list of vertex indices")
-        if faces is not None and len(faces.counts):
-            _check_face_indices(faces, len(points), first_lines.get("face"))
-            triangles = triangulate(faces.counts, faces.items.astype(np.int64))
-            return sample_mesh(points, triangles, n_samples, seed, vertex_colors=colors)
-    return finite_cloud(points, None if normals is None else normals.astype(np.float64), colors)
+    triangles = _triangles(tables.get("face"), len(points), first_lines.get("face"))
+    return Mesh(points, triangles, None if normals is None else normals.astype(np.float64), colors)
+
+
+def _triangles(face: _Table | None, n_vertices: int, first_line: int | None) -> np.ndarray | None:
+    """The face element's polygons as triangles, or None when there is no face to sample."""
+    if face is None:
+        return None
+    lists = [v for v in face.values() if isinstance(v, _ListValues)]
+    named = face.get("vertex_indices", face.get("vertex_index"))
+    faces = named if isinstance(named, _ListValues) else (lists[0] if lists else None)
+    if faces is None and face:
+        raise ValueError("PLY face element has no list of vertex indices")
+    if faces is None or not len(faces.counts):
+        return None
+    _check_face_indices(faces, n_vertices, first_line)
+    return triangulate(faces.counts, faces.items.astype(np.int64))
 
 
 def write_ply(
@@ -566,12 +583,30 @@ def write_ply(
         colors = points.colors if colors is None else colors
         normals = points.normals if normals is None else normals
         points = points.points
+    record, fields = _vertex_records(*_checked_columns(points, colors, normals))
+    names = {"<f8": "double", "u1": "uchar"}
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment written by pointclm",
+        f"element vertex {len(record)}",
+        *(f"property {names[code]} {name}" for name, code in fields),
+        "end_header",
+    ]
+    with atomic_path(file) as tmp, open(tmp, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(record.tobytes())
+
+
+def _checked_columns(
+    points: Any, colors: Any, normals: Any
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Points, normals and 8-bit colours checked (all before anything is written)."""
     pts = _real(points, "points")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"points must be a non-empty (N, 3) array, got shape {pts.shape}")
     if not np.isfinite(pts).all():
         raise ValueError("points must be finite (PLY readers would choke on NaN/inf)")
-    fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     nrm = None
     if normals is not None:
         nrm = _real(normals, "normals")
@@ -579,10 +614,19 @@ def write_ply(
             raise ValueError(f"normals must have shape {pts.shape}, got {nrm.shape}")
         if not np.isfinite(nrm).all():
             raise ValueError("normals must be finite")
+    col = None if colors is None else _colors_u8(colors, pts.shape)
+    return pts, nrm, col
+
+
+def _vertex_records(
+    pts: np.ndarray, nrm: np.ndarray | None, col: np.ndarray | None
+) -> tuple[np.ndarray, list[tuple[str, str]]]:
+    """One little-endian record per vertex (x y z, then nx ny nz, then red green blue) and
+    the fields' names and types."""
+    fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    if nrm is not None:
         fields += [("nx", "<f8"), ("ny", "<f8"), ("nz", "<f8")]
-    col = None
-    if colors is not None:
-        col = _colors_u8(colors, pts.shape)
+    if col is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     record = np.empty(len(pts), dtype=fields)
     for i, axis in enumerate("xyz"):
@@ -592,18 +636,7 @@ def write_ply(
     if col is not None:
         for i, channel in enumerate(("red", "green", "blue")):
             record[channel] = col[:, i]
-    names = {"<f8": "double", "u1": "uchar"}
-    header = [
-        "ply",
-        "format binary_little_endian 1.0",
-        "comment written by pointclm",
-        f"element vertex {len(pts)}",
-        *(f"property {names[code]} {name}" for name, code in fields),
-        "end_header",
-    ]
-    with atomic_path(file) as tmp, open(tmp, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(record.tobytes())
+    return record, fields
 
 
 def _real(values: Any, name: str) -> np.ndarray:

@@ -14,16 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrays import parse_npy, parse_npz
+from ..errors import PathNotFoundError
+from .arrays import parse_npy, parse_npz, read_npy, read_npz_members
 from .files import as_path, read_checked
-from .mesh import check_n_samples
-from .off import parse_off
+from .mesh import Mesh, check_n_samples
+from .off import off_mesh, parse_off
 from .pcd import parse_pcd
-from .ply import parse_ply
+from .ply import parse_ply, ply_mesh
 from .pointcloud import PointCloud
 from .text import parse_text
 
-__all__ = ["SUPPORTED_SUFFIXES", "load_points", "read_point_cloud"]
+__all__ = ["MESH_SUFFIXES", "SUPPORTED_SUFFIXES", "load_points", "read_mesh", "read_point_cloud"]
 
 #: Readers of formats that may hold a mesh (sampled with ``n_samples`` and ``seed``).
 _MESH_READERS: dict[str, Callable[[bytes, int | None, int | None], PointCloud]] = {
@@ -42,6 +43,11 @@ _CLOUD_READERS: dict[str, Callable[[bytes], PointCloud]] = {
 
 #: File extensions :func:`read_point_cloud` reads (matched case-insensitively).
 SUPPORTED_SUFFIXES: tuple[str, ...] = (*_MESH_READERS, *_CLOUD_READERS)
+
+#: File extensions :func:`read_mesh` reads: PLY, OFF and numpy arrays here, OBJ and STL with
+#: trimesh (an optional dependency, imported only for them).
+MESH_SUFFIXES: tuple[str, ...] = (".ply", ".off", ".obj", ".stl", ".npy", ".npz")
+_TRIMESH_SUFFIXES = (".obj", ".stl")
 
 
 def read_point_cloud(
@@ -113,3 +119,102 @@ def _open(path: str | os.PathLike[str]) -> tuple[Path, bytes]:
             + ", ".join(SUPPORTED_SUFFIXES)
         )
     return read_checked(file)
+
+
+def read_mesh(path: str | os.PathLike[str]) -> Mesh:
+    """Read a mesh or point file's vertices and triangles, unsampled.
+
+    ``.ply`` and ``.off`` are read here (polygons fan-triangulated); ``.npy`` holds an
+    (N, 3) cloud and ``.npz`` ``vertices`` and optionally ``faces`` (the packaged format);
+    ``.obj`` and ``.stl`` are read with trimesh (imported only for them,
+    ``pip install pointclm[io]``), a scene being merged into one mesh.
+
+    Returns
+    -------
+    Mesh
+        Vertices (V, 3) float64, all finite; triangles (T, 3) int64 naming vertices, or
+        None for a point-only file (or one whose face list is empty).
+
+    Raises
+    ------
+    PathNotFoundError
+        If the file is missing (a FileNotFoundError and a ValueError).
+    ValueError
+        If the file is of an unknown type, unreadable or empty, its vertices are not (N, 3)
+        or not finite, or a face names no vertex; the message starts with the path.
+    ImportError
+        If trimesh is needed and not installed.
+    """
+    file = as_path(path)
+    suffix = file.suffix.lower()
+    if not file.is_file():
+        raise PathNotFoundError(f"{file}: no such file")
+    if suffix not in MESH_SUFFIXES:
+        raise ValueError(
+            f"{file}: unsupported file type {suffix!r} (use {', '.join(MESH_SUFFIXES)})"
+        )
+    try:
+        vertices, faces = _mesh_arrays(file, suffix)
+    except ImportError:
+        raise
+    except Exception as err:  # noqa: BLE001 - any parser failure becomes a ValueError
+        raise ValueError(f"{file}: cannot read it ({type(err).__name__}: {err})") from err
+    return _checked_mesh(file, vertices, faces)
+
+
+def _mesh_arrays(file: Path, suffix: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """The file's vertices and faces, by the reader its suffix names."""
+    if suffix in _TRIMESH_SUFFIXES:
+        return _trimesh_arrays(file)
+    _, raw = read_checked(file, "mesh file")
+    if suffix in (".ply", ".off"):
+        mesh = ply_mesh(raw) if suffix == ".ply" else off_mesh(raw)
+        return mesh.vertices, mesh.triangles
+    # pointclm's own .npy/.npz readers: no pickle, declared sizes checked before anything is
+    # allocated, only the members needed decompressed.
+    if suffix == ".npy":
+        return read_npy(raw), None
+    arrays, names = read_npz_members(raw, ("vertices", "faces"))
+    if "vertices" not in arrays:
+        raise ValueError(f"no 'vertices' array (arrays: {', '.join(names) or 'none'})")
+    return arrays["vertices"], arrays.get("faces")
+
+
+def _checked_mesh(file: Path, vertices: np.ndarray, faces: np.ndarray | None) -> Mesh:
+    verts = np.asarray(vertices, dtype=np.float64)
+    if verts.ndim != 2 or verts.shape[1] != 3 or len(verts) == 0:
+        raise ValueError(f"{file}: no 3D points in the file (vertex array shape {verts.shape})")
+    if not np.all(np.isfinite(verts)):
+        raise ValueError(f"{file}: vertices contain NaN or infinity")
+    if faces is not None:
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if len(faces) == 0:
+            faces = None
+        elif faces.min() < 0 or faces.max() >= len(verts):
+            raise ValueError(f"{file}: face indices out of range")
+    return Mesh(verts, faces)
+
+
+def _trimesh_arrays(file: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """The optional fallback for the formats this package does not parse (OBJ, STL)."""
+    try:
+        import trimesh
+    except ImportError as err:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            f"reading {file.suffix} files needs trimesh: pip install pointclm[io]  "
+            "(or pip install trimesh)"
+        ) from err
+    loaded = trimesh.load(str(file), process=False)
+    # A scene (e.g. an OBJ with several objects) is flattened with its transforms applied.
+    geoms = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
+    verts, faces, offset = [], [], 0
+    for g in geoms:
+        v = np.asarray(getattr(g, "vertices", np.empty((0, 3))), dtype=np.float64)
+        f = getattr(g, "faces", None)
+        if f is not None and len(f):
+            faces.append(np.asarray(f, dtype=np.int64) + offset)
+        verts.append(v.reshape(-1, 3))
+        offset += len(v)
+    if not verts:
+        return np.empty((0, 3)), None
+    return np.vstack(verts), (np.vstack(faces) if faces else None)
