@@ -34,6 +34,7 @@ import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -338,50 +339,139 @@ def _visible(points: np.ndarray, eye: np.ndarray, centre: np.ndarray, pixel: flo
 # --- scenes -------------------------------------------------------------------------------
 
 
-def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> RealisticScene:
-    """Build one seeded realistic scene (see the module documentation)."""
-    import time
+@dataclass(frozen=True)
+class _Model:
+    """The model's dense samples and the quantities every stage derives from them."""
 
-    from .. import preprocessing as pp
-    from .._core import nearest_neighbours
+    points: np.ndarray  # dense samples in the model's own frame
+    diameter: float  # bounding-box diagonal
+    voxel: float
+    up_rot: np.ndarray  # rotation taking the model's up axis to +z
+    base: np.ndarray  # upright footprint centre (x, y) and lowest z
+    radius: float  # upright footprint radius
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where things stand on the floor: instances first, then clutter."""
+
+    n_instances: int
+    clutter: list[tuple[np.ndarray, float]]  # upright, scaled clutter points and radius
+    radii: list[float]
+    centres: list[np.ndarray]
+
+
+@dataclass(frozen=True)
+class _Sensor:
+    eye: np.ndarray
+    look: np.ndarray
+    group: np.ndarray  # centre of the layout on the floor
+    extent: float  # the layout's radius around `group`
+    dist: float
+
+
+@dataclass(frozen=True)
+class _Scan:
+    """What the sensor saw, with each point's owner (instance k, -1 clutter, -2 floor)."""
+
+    cloud: np.ndarray
+    owner: np.ndarray
+    poses: np.ndarray
+    real: np.ndarray
+
+
+def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> RealisticScene:
+    """Build one seeded realistic scene (see the module documentation).
+
+    The stages draw from one generator in a fixed order (place, aim the sensor, sense);
+    reordering a draw changes every benchmark scene.
+    """
+    import time
 
     params = params or SceneParams()
     t_start = time.perf_counter()
     rng = np.random.default_rng(seed)
     data_dir = _resolve_dir(params)
     dd = str(data_dir) if data_dir is not None else None
+    model = _upright_model(params, dd)
+    layout = _place(rng, params, model, dd)
+    sensor = _aim_sensor(rng, params, model, layout)
+    scan = _sense(rng, params, model, layout, sensor, dd)
+    t_scene = time.perf_counter()
+    target, source, target_ids, matches, corr = _describe_and_match(
+        seed, params, model, scan, sensor
+    )
+    t_end = time.perf_counter()
+    labels = _inlier_labels(corr, target_ids[matches.target], scan.poses, params, model.voxel)
+    return RealisticScene(
+        correspondences=corr,
+        labels=labels,
+        poses=scan.poses,
+        source_points=source.points,
+        target_points=target.points,
+        target_ids=target_ids.astype(np.int64),
+        voxel_size=model.voxel,
+        diameter=model.diameter,
+        real_scan=scan.real,
+        model=params.model,
+        seed=seed,
+        timings={
+            "scene": t_scene - t_start,
+            **{f"target_{k}": v for k, v in target.timings.items()},
+            **{f"source_{k}": v for k, v in source.timings.items()},
+            "total": t_end - t_start,
+        },
+        viewpoint=sensor.eye,
+    )
+
+
+def _upright_model(params: SceneParams, dd: str | None) -> _Model:
+    """The model's samples, size, voxel, and its upright canonical placement U: up axis to
+    +z, footprint centred, resting on z = 0."""
     model_pts, model_up = dense_model(params.model, dd)
     lo, hi = model_pts.min(0), model_pts.max(0)
     diameter = float(np.linalg.norm(hi - lo))
-    voxel = diameter * params.voxel_fraction
-
-    # Upright canonical placement U: up axis to +z, footprint centred, resting on z = 0.
     up_rot = _up_rotation(model_up)
     upright = model_pts @ up_rot.T
     base = np.array([*(upright[:, :2].min(0) + upright[:, :2].max(0)) / 2, upright[:, 2].min()])
     radius = 0.5 * float(np.linalg.norm(upright[:, :2].max(0) - upright[:, :2].min(0)))
+    return _Model(model_pts, diameter, diameter * params.voxel_fraction, up_rot, base, radius)
 
+
+def _place(rng: np.random.Generator, params: SceneParams, model: _Model, dd: str | None) -> _Layout:
+    """Stage 1: how many instances and which clutter, and their footprints on the floor."""
     n_inst = int(rng.integers(params.instances[0], params.instances[1] + 1))
     clutter_pool = [m for m in params.clutter_models if m != params.model]
     if dd is None:
         clutter_pool = [m for m in clutter_pool if m in PROCEDURAL_SHAPES or m == "bunny"]
     n_clut = int(rng.integers(params.clutter[0], params.clutter[1] + 1)) if clutter_pool else 0
-
-    # Footprints: instances first, then clutter, packed by rejection in a square whose side
-    # grows with the count, allowing touching (centres 0.85 x the radii sum apart).
-    radii = [radius] * n_inst
+    radii = [model.radius] * n_inst
     clutter: list[tuple[np.ndarray, float]] = []
     for _ in range(n_clut):
         name = clutter_pool[int(rng.integers(len(clutter_pool)))]
-        pts, up = dense_model(name, dd)
-        pts = pts @ _up_rotation(up).T
-        ext = float(np.linalg.norm(pts.max(0) - pts.min(0)))
-        scale = diameter * rng.uniform(0.6, 1.4) / ext
-        pts = pts - np.array([*(pts[:, :2].min(0) + pts[:, :2].max(0)) / 2, pts[:, 2].min()])
-        pts = pts * scale
-        r = 0.5 * float(np.linalg.norm(pts[:, :2].max(0) - pts[:, :2].min(0)))
+        pts, r = _clutter_object(rng, name, dd, model.diameter)
         clutter.append((pts, r))
         radii.append(r)
+    return _Layout(n_inst, clutter, radii, _pack(rng, radii))
+
+
+def _clutter_object(
+    rng: np.random.Generator, name: str, dd: str | None, diameter: float
+) -> tuple[np.ndarray, float]:
+    """A clutter model upright on z = 0, footprint centred, scaled to 0.6-1.4 x the model's
+    size, with its footprint radius."""
+    pts, up = dense_model(name, dd)
+    pts = pts @ _up_rotation(up).T
+    ext = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+    scale = diameter * rng.uniform(0.6, 1.4) / ext
+    pts = pts - np.array([*(pts[:, :2].min(0) + pts[:, :2].max(0)) / 2, pts[:, 2].min()])
+    pts = pts * scale
+    return pts, 0.5 * float(np.linalg.norm(pts[:, :2].max(0) - pts[:, :2].min(0)))
+
+
+def _pack(rng: np.random.Generator, radii: list[float]) -> list[np.ndarray]:
+    """Footprint centres packed by rejection in a square whose side grows with the count,
+    allowing touching (centres 0.85 x the radii sum apart)."""
     side = 2.0 * np.sqrt(len(radii)) * max(radii)
     centres: list[np.ndarray] = []
     for r in radii:
@@ -394,87 +484,130 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
                 break
             side *= 1.01
         centres.append(c)
+    return centres
 
-    # Sensor: above the group at 25-60 degrees elevation, far enough to see all of it.
-    group = np.array([*np.mean(centres, axis=0), 0.0])
+
+def _aim_sensor(
+    rng: np.random.Generator, params: SceneParams, model: _Model, layout: _Layout
+) -> _Sensor:
+    """The sensor above the group at 25-60 degrees elevation, far enough to see all of it."""
+    group = np.array([*np.mean(layout.centres, axis=0), 0.0])
     extent = max(
         float(
-            np.max([np.linalg.norm(c - group[:2]) + r for c, r in zip(centres, radii, strict=True)])
+            np.max(
+                [
+                    np.linalg.norm(c - group[:2]) + r
+                    for c, r in zip(layout.centres, layout.radii, strict=True)
+                ]
+            )
         ),
-        radius,
+        model.radius,
     )
     az = rng.uniform(0, 2 * np.pi)
     el = np.deg2rad(rng.uniform(*params.elevation_deg))
-    dist = 2.5 * extent + diameter
+    dist = 2.5 * extent + model.diameter
     eye = group + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    look = group + np.array([0, 0, 0.3 * diameter])
+    look = group + np.array([0, 0, 0.3 * model.diameter])
+    return _Sensor(eye, look, group, extent, dist)
 
+
+def _sense(
+    rng: np.random.Generator,
+    params: SceneParams,
+    model: _Model,
+    layout: _Layout,
+    sensor: _Sensor,
+    dd: str | None,
+) -> _Scan:
+    """Stage 2: place instances, clutter and floor, keep what the sensor sees, add noise."""
     scans = None
     if params.model == "stanford/bunny" and dd is not None and params.real_scan_fraction > 0:
         scans = _bunny_scans(dd)
-
     parts: list[np.ndarray] = []
     ids: list[np.ndarray] = []
-    poses = np.zeros((n_inst, 4, 4))
-    real = np.zeros(n_inst, dtype=bool)
-    for k in range(n_inst):
-        tilt = _small_tilt(rng, params.max_tilt_deg)
-        use_scan = scans is not None and rng.random() < params.real_scan_fraction
-        if use_scan:
-            assert scans is not None
-            pts_model, view = scans[int(rng.integers(len(scans)))]
-            # Turn the instance so the scanner's direction points at our sensor (+-20 deg).
-            d = up_rot @ view
-            to_eye = eye[:2] - centres[k]
-            yaw = np.arctan2(to_eye[1], to_eye[0]) - np.arctan2(d[1], d[0])
-            yaw += np.deg2rad(rng.uniform(-20, 20))
-        else:
-            pts_model, yaw = model_pts, rng.uniform(0, 2 * np.pi)
-        rot = tilt @ _rot_z(yaw) @ up_rot
-        placed = model_pts @ rot.T
-        lift = -placed[:, 2].min()
-        shift = np.array([*centres[k], 0.0]) - (tilt @ _rot_z(yaw) @ np.array([*base[:2], 0.0]))
-        shift[2] = lift
-        poses[k] = _pose(rot, shift)
+    poses = np.zeros((layout.n_instances, 4, 4))
+    real = np.zeros(layout.n_instances, dtype=bool)
+    for k in range(layout.n_instances):
+        poses[k], pts_model, real[k] = _place_instance(
+            rng, params, model, layout.centres[k], sensor.eye, scans
+        )
         parts.append(_apply(poses[k], pts_model))
         ids.append(np.full(len(pts_model), k))
-        real[k] = use_scan
-    for (pts, _), c in zip(clutter, centres[n_inst:], strict=True):
+    for (pts, _), c in zip(layout.clutter, layout.centres[layout.n_instances :], strict=True):
         yaw = rng.uniform(0, 2 * np.pi)
         placed = pts @ (_small_tilt(rng, params.max_tilt_deg) @ _rot_z(yaw)).T
         placed[:, :2] += c
         placed[:, 2] -= placed[:, 2].min()
         parts.append(placed)
         ids.append(np.full(len(placed), -1))
-
-    # Floor: the patch under and around the objects (as left by cropping a scan to a table
-    # or a bin), sampled at a third of a voxel.
-    margin = 0.25 * diameter
-    flo = group[:2] - extent - margin
-    fhi = group[:2] + extent + margin
-    n_floor = int(np.prod((fhi - flo) / (voxel / 3)))
-    fxy = rng.uniform(flo, fhi, size=(n_floor, 2))
-    reach = np.zeros(n_floor, dtype=bool)
-    for c, r in zip(centres, radii, strict=True):
-        reach |= np.linalg.norm(fxy - c, axis=1) < r + margin
-    fxy = fxy[reach]
-    n_floor = len(fxy)
-    floor = np.column_stack([fxy, np.zeros(n_floor)])
+    floor = _floor(rng, model, layout, sensor)
     parts.append(floor)
-    ids.append(np.full(n_floor, -2))
-
+    ids.append(np.full(len(floor), -2))
     cloud = np.concatenate(parts)
     owner = np.concatenate(ids)
-    pixel = 0.7 * voxel / dist
-    seen = _visible(cloud, eye, look, pixel)
+    seen = _visible(cloud, sensor.eye, sensor.look, 0.7 * model.voxel / sensor.dist)
     cloud, owner = cloud[seen], owner[seen]
-    cloud = cloud + rng.normal(scale=params.noise_voxels * voxel, size=cloud.shape)
-    t_scene = time.perf_counter()
+    cloud = cloud + rng.normal(scale=params.noise_voxels * model.voxel, size=cloud.shape)
+    return _Scan(cloud, owner, poses, real)
 
-    target = pp.describe(cloud, voxel, towards=eye)
-    near, _ = nearest_neighbours(cloud, target.points)
-    target_ids = owner[near]
-    source = pp.describe(model_pts, voxel, away_from=model_pts.mean(0))
+
+def _place_instance(
+    rng: np.random.Generator,
+    params: SceneParams,
+    model: _Model,
+    centre: np.ndarray,
+    eye: np.ndarray,
+    scans: tuple[tuple[np.ndarray, np.ndarray], ...] | None,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """One instance's pose (tilted, turned, standing on the floor at `centre`), the points
+    it shows (the dense model, or a real range scan), and whether they are a real scan."""
+    tilt = _small_tilt(rng, params.max_tilt_deg)
+    use_scan = scans is not None and rng.random() < params.real_scan_fraction
+    if use_scan:
+        assert scans is not None
+        pts_model, view = scans[int(rng.integers(len(scans)))]
+        # Turn the instance so the scanner's direction points at our sensor (+-20 deg).
+        d = model.up_rot @ view
+        to_eye = eye[:2] - centre
+        yaw = np.arctan2(to_eye[1], to_eye[0]) - np.arctan2(d[1], d[0])
+        yaw += np.deg2rad(rng.uniform(-20, 20))
+    else:
+        pts_model, yaw = model.points, rng.uniform(0, 2 * np.pi)
+    rot = tilt @ _rot_z(yaw) @ model.up_rot
+    placed = model.points @ rot.T
+    lift = -placed[:, 2].min()
+    shift = np.array([*centre, 0.0]) - (tilt @ _rot_z(yaw) @ np.array([*model.base[:2], 0.0]))
+    shift[2] = lift
+    return _pose(rot, shift), pts_model, bool(use_scan)
+
+
+def _floor(rng: np.random.Generator, model: _Model, layout: _Layout, sensor: _Sensor) -> np.ndarray:
+    """The floor patch under and around the objects (as left by cropping a scan to a table
+    or a bin), sampled at a third of a voxel."""
+    margin = 0.25 * model.diameter
+    flo = sensor.group[:2] - sensor.extent - margin
+    fhi = sensor.group[:2] + sensor.extent + margin
+    n_floor = int(np.prod((fhi - flo) / (model.voxel / 3)))
+    fxy = rng.uniform(flo, fhi, size=(n_floor, 2))
+    reach = np.zeros(n_floor, dtype=bool)
+    for c, r in zip(layout.centres, layout.radii, strict=True):
+        reach |= np.linalg.norm(fxy - c, axis=1) < r + margin
+    fxy = fxy[reach]
+    return np.column_stack([fxy, np.zeros(len(fxy))])
+
+
+def _describe_and_match(
+    seed: int, params: SceneParams, model: _Model, scan: _Scan, sensor: _Sensor
+) -> tuple[Any, Any, np.ndarray, Any, np.ndarray]:
+    """Stages 3 and 4: FPFH of the scan (oriented towards the sensor) and of the complete
+    model (outwards), each downsampled scan point's owner, and the matched correspondences."""
+    from .. import preprocessing as pp
+    from .._core import nearest_neighbours
+
+    target = pp.describe(scan.cloud, model.voxel, towards=sensor.eye)
+    near, _ = nearest_neighbours(scan.cloud, target.points)
+    target_ids = scan.owner[near]
+    source = pp.describe(model.points, model.voxel, away_from=model.points.mean(0))
     matches = pp.match_features(
         source.descriptors,
         target.descriptors,
@@ -484,35 +617,20 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
         seed=seed,
     )
     corr = matches.correspondences(source.points, target.points)
-    t_end = time.perf_counter()
+    return target, source, target_ids, matches, corr
 
+
+def _inlier_labels(
+    corr: np.ndarray, owner_of: np.ndarray, poses: np.ndarray, params: SceneParams, voxel: float
+) -> np.ndarray:
+    """Instance k for a row whose scene point lies on k and whose model point k's true pose
+    maps within ``inlier_voxels`` voxels of it; -1 otherwise."""
     labels = np.full(len(corr), -1, dtype=np.int64)
-    owner_of = target_ids[matches.target]
-    for k in range(n_inst):
+    for k in range(len(poses)):
         mine = owner_of == k
         err = np.linalg.norm(_apply(poses[k], corr[mine, :3]) - corr[mine, 3:], axis=1)
         labels[np.flatnonzero(mine)[err < params.inlier_voxels * voxel]] = k
-
-    return RealisticScene(
-        correspondences=corr,
-        labels=labels,
-        poses=poses,
-        source_points=source.points,
-        target_points=target.points,
-        target_ids=target_ids.astype(np.int64),
-        voxel_size=voxel,
-        diameter=diameter,
-        real_scan=real,
-        model=params.model,
-        seed=seed,
-        timings={
-            "scene": t_scene - t_start,
-            **{f"target_{k}": v for k, v in target.timings.items()},
-            **{f"source_{k}": v for k, v in source.timings.items()},
-            "total": t_end - t_start,
-        },
-        viewpoint=eye,
-    )
+    return labels
 
 
 def make_realistic_scenes(

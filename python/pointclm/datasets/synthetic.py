@@ -227,39 +227,81 @@ def make_scene(
         Correspondences, labels, the 5 to 10 poses (in slot order) and the source.
     """
     seed = _check_seed(seed)
+    _check_protocol_args(n_outlier_blocks, n_keep)
+    cloud, name, rng = _cloud_and_rng(seed, shape, SHAPE_POINTS, data_dir, shape_name, normalize)
+    source = cloud[:BLOCK].copy()
+    # One generator for the whole scene, in this order: slots, outliers, shuffle.
+    rot, trans, real, targets = _protocol_slots(rng, source, noise_sigma, noise_clip)
+    corr = _shuffled(rng, _protocol_rows(rng, source, targets, n_outlier_blocks), n_keep)
+    poses = _poses(rot[real], trans[real])
+    labels = label_correspondences(corr, poses, label_threshold)
+    return SyntheticScene(corr, labels, poses, source, name, seed)
+
+
+def _check_protocol_args(n_outlier_blocks: int, n_keep: int | None) -> None:
     if n_outlier_blocks < 0:
         raise ValueError(f"n_outlier_blocks must be >= 0, got {n_outlier_blocks}")
     if n_keep is not None and n_keep < 1:
         raise ValueError(f"n_keep must be positive or None, got {n_keep}")
+
+
+def _cloud_and_rng(
+    seed: int,
+    shape: ShapeArg,
+    n_points: int,
+    data_dir: str | os.PathLike[str] | None,
+    shape_name: str | None,
+    normalize: bool = True,
+) -> tuple[np.ndarray, str, np.random.Generator]:
+    """The shape's cloud and name, and the scene's generator: two independent streams
+    spawned from the seed, so the scene's draws do not depend on how the shape was drawn."""
     shape_seq, scene_seq = np.random.SeedSequence(seed).spawn(2)
     cloud, name = _shape_cloud(
-        shape, SHAPE_POINTS, np.random.default_rng(shape_seq), data_dir, shape_name, normalize
+        shape, n_points, np.random.default_rng(shape_seq), data_dir, shape_name, normalize
     )
-    source = cloud[:BLOCK].copy()
-    rng = np.random.default_rng(scene_seq)
+    return cloud, name, np.random.default_rng(scene_seq)
 
+
+def _protocol_slots(
+    rng: np.random.Generator, source: np.ndarray, noise_sigma: float, noise_clip: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The protocol's 10 slots: a pose for each, 5 to 10 of them real instances (noisy
+    transformed sources), the others blocks of uniform outliers.
+
+    Returns the rotations and translations of all slots, the real slots (sorted) and the
+    (N_SLOTS, BLOCK, 3) target blocks.
+    """
     noise = np.clip(rng.normal(0.0, noise_sigma, (N_SLOTS, BLOCK, 3)), -noise_clip, noise_clip)
     rot = _rotations_xyz(rng.uniform(0.0, 2.0 * np.pi, (N_SLOTS, 3)))
     trans = rng.uniform(0.0, TRANSLATION_RANGE, (N_SLOTS, 3))
     n_real = int(rng.integers(5, N_SLOTS + 1))
     real = np.sort(rng.choice(N_SLOTS, size=n_real, replace=False))
     dropped = np.setdiff1d(np.arange(N_SLOTS), real)
-
     targets = np.einsum("kij,knj->kni", rot, source[None] + noise) + trans[:, None]
     targets[dropped] = rng.uniform(0.0, OUTLIER_RANGE, (len(dropped), BLOCK, 3))
-    outliers = rng.uniform(0.0, OUTLIER_RANGE, (n_outlier_blocks, BLOCK, 3))
+    return rot, trans, real, targets
 
-    n_blocks = N_SLOTS + n_outlier_blocks
-    corr = np.hstack(
-        [np.tile(source, (n_blocks, 1)), np.concatenate([targets, outliers]).reshape(-1, 3)]
+
+def _protocol_rows(
+    rng: np.random.Generator, source: np.ndarray, targets: np.ndarray, n_outlier_blocks: int
+) -> np.ndarray:
+    """Every block's rows unshuffled: the source against each slot's targets, then against
+    ``n_outlier_blocks`` blocks of uniform outliers (drawn here)."""
+    outliers = rng.uniform(0.0, OUTLIER_RANGE, (n_outlier_blocks, BLOCK, 3))
+    return np.hstack(
+        [
+            np.tile(source, (N_SLOTS + n_outlier_blocks, 1)),
+            np.concatenate([targets, outliers]).reshape(-1, 3),
+        ]
     )
+
+
+def _shuffled(rng: np.random.Generator, corr: np.ndarray, n_keep: int | None) -> np.ndarray:
+    """The rows in random order (so no row's position tells its label), the first n_keep."""
     corr = corr[rng.permutation(len(corr))]
     if n_keep is not None:
         corr = corr[:n_keep]
-    corr = np.ascontiguousarray(corr)
-    poses = _poses(rot[real], trans[real])
-    labels = label_correspondences(corr, poses, label_threshold)
-    return SyntheticScene(corr, labels, poses, source, name, seed)
+    return np.ascontiguousarray(corr)
 
 
 def make_scenes(
@@ -343,23 +385,47 @@ def make_planted_scene(
     SyntheticScene
     """
     seed = _check_seed(seed)
+    n, n_in = _planted_counts(n_correspondences, n_instances, inlier_fraction)
+    n_source = max(BLOCK, n_in)
+    n_points = max(SHAPE_POINTS, n_source)
+    cloud, name, rng = _cloud_and_rng(seed, shape, n_points, data_dir, shape_name)
+    source = cloud[:n_source].copy()
+    rot, trans, corr = _planted_rows(rng, source, n, n_instances, n_in, noise_sigma, noise_clip)
+    corr = _shuffled(rng, corr, None)
+    poses = _poses(rot, trans)
+    labels = label_correspondences(corr, poses, label_threshold)
+    return SyntheticScene(corr, labels, poses, source, name, seed)
+
+
+def _planted_counts(
+    n_correspondences: int, n_instances: int, inlier_fraction: float
+) -> tuple[int, int]:
+    """N and the inliers per instance, checked to fit."""
     n = int(n_correspondences)
     n_in = int(round(inlier_fraction * n))
     if n < 1 or n_instances < 1 or n_in < 3:
         raise ValueError("need N >= 1, n_instances >= 1 and at least 3 inliers per instance")
     if n_instances * n_in > n:
         raise ValueError(f"{n_instances} x {n_in} inliers do not fit in {n} rows")
-    n_source = max(BLOCK, n_in)
-    shape_seq, scene_seq = np.random.SeedSequence(seed).spawn(2)
-    cloud, name = _shape_cloud(
-        shape, max(SHAPE_POINTS, n_source), np.random.default_rng(shape_seq), data_dir, shape_name
-    )
-    source = cloud[:n_source].copy()
-    rng = np.random.default_rng(scene_seq)
-    scale = (n / 1000.0) ** (1.0 / 3.0)
+    return n, n_in
 
+
+def _planted_rows(
+    rng: np.random.Generator,
+    source: np.ndarray,
+    n: int,
+    n_instances: int,
+    n_in: int,
+    noise_sigma: float,
+    noise_clip: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The instances' rotations and translations, and the N rows unshuffled: each
+    instance's n_in inliers, then outliers (random source point, uniform target), in a
+    volume that grows with N (see :func:`make_planted_scene`)."""
+    scale = (n / 1000.0) ** (1.0 / 3.0)
     rot = _rotations_xyz(rng.uniform(0.0, 2.0 * np.pi, (n_instances, 3)))
     trans = rng.uniform(0.0, TRANSLATION_RANGE * scale, (n_instances, 3))
+    n_source = len(source)
     idx = np.stack([rng.choice(n_source, size=n_in, replace=False) for _ in range(n_instances)])
     x_in = source[idx]  # (M, n_in, 3)
     noise = np.clip(rng.normal(0.0, noise_sigma, x_in.shape), -noise_clip, noise_clip)
@@ -367,11 +433,7 @@ def make_planted_scene(
     n_out = n - n_instances * n_in
     x_out = source[rng.integers(0, n_source, n_out)]
     y_out = rng.uniform(0.0, OUTLIER_RANGE * scale, (n_out, 3))
-
     corr = np.hstack(
         [np.concatenate([x_in.reshape(-1, 3), x_out]), np.concatenate([y_in.reshape(-1, 3), y_out])]
     )
-    corr = np.ascontiguousarray(corr[rng.permutation(n)])
-    poses = _poses(rot, trans)
-    labels = label_correspondences(corr, poses, label_threshold)
-    return SyntheticScene(corr, labels, poses, source, name, seed)
+    return rot, trans, corr
