@@ -109,7 +109,6 @@ def load_checkpoint(
         (which is never unpickled).
     """
     import torch
-    from safetensors.torch import load_file
 
     folder = Path(folder)
     json_path = folder / CHECKPOINT_JSON
@@ -122,16 +121,39 @@ def load_checkpoint(
             )
         return None
     meta = _read_meta(json_path)
+    tensors = _verified_tensors(folder, json_path, meta)
+    model_state = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
+    optimizer_state = _optimizer_state(meta, tensors, device)
+    rng = tensors.get("rng.torch")
+    try:
+        model.load_state_dict({k: v.to(device) for k, v in model_state.items()}, strict=True)
+        optimizer.load_state_dict(optimizer_state)
+        if rng is None:
+            raise ValueError("no rng.torch tensor")
+        torch.set_rng_state(rng.to(torch.uint8))
+    except (RuntimeError, ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{json_path}: the checkpoint does not fit this run ({e})") from None
+    return {"iteration": meta["iteration"], "elapsed": meta["elapsed"], "best": meta["best"]}
+
+
+def _verified_tensors(folder: Path, json_path: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """The checkpoint's tensors, read only from the file its JSON names and hashes."""
+    from safetensors.torch import load_file
+
     tensor_path = folder / meta["tensors"]
     if not tensor_path.is_file():
         raise ValueError(f"{json_path}: its tensor file {tensor_path.name} is missing")
     if _sha256(tensor_path) != meta["tensors_sha256"]:
         raise ValueError(f"{json_path}: {tensor_path.name} is not the file it was saved with")
     try:
-        tensors = load_file(str(tensor_path), device="cpu")
+        return dict(load_file(str(tensor_path), device="cpu"))
     except Exception as e:  # safetensors raises its own error type on a corrupt file
         raise ValueError(f"{tensor_path}: unreadable tensors ({e})") from None
-    model_state = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
+
+
+def _optimizer_state(meta: dict[str, Any], tensors: dict[str, Any], device: str) -> dict[str, Any]:
+    """The optimizer's state dict rebuilt from the JSON (plain values, param groups) and the
+    ``optimizer.<param>.<name>`` tensors."""
     state: dict[int, dict[str, Any]] = {}
     for pid, plain in meta["optimizer"]["state"].items():
         state[int(pid)] = dict(plain)
@@ -142,17 +164,8 @@ def load_checkpoint(
     groups = [dict(g) for g in meta["optimizer"]["param_groups"]]
     for g in groups:
         if isinstance(g.get("betas"), list):
-            g["betas"] = tuple(g["betas"])
-    rng = tensors.get("rng.torch")
-    try:
-        model.load_state_dict({k: v.to(device) for k, v in model_state.items()}, strict=True)
-        optimizer.load_state_dict({"state": state, "param_groups": groups})
-        if rng is None:
-            raise ValueError("no rng.torch tensor")
-        torch.set_rng_state(rng.to(torch.uint8))
-    except (RuntimeError, ValueError, KeyError, TypeError) as e:
-        raise ValueError(f"{json_path}: the checkpoint does not fit this run ({e})") from None
-    return {"iteration": meta["iteration"], "elapsed": meta["elapsed"], "best": meta["best"]}
+            g["betas"] = tuple(g["betas"])  # JSON has no tuples; Adam compares them
+    return {"state": state, "param_groups": groups}
 
 
 def _read_meta(path: Path) -> dict[str, Any]:

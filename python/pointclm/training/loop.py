@@ -203,9 +203,50 @@ def train(
     import torch
     from tqdm import tqdm
 
-    from ..model import EmbeddingConfig, SCNonlocal, load_model, save_model
-
     out = Path(out_dir)
+    # The stages run in this order because each one draws from torch's RNG or restores it.
+    bank, model = _setup(cfg, out, device)
+    scenes, val_real = _realistic_banks(cfg, out, progress)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    start, best, elapsed = _resume(out, model, opt, device) if resume else (0, None, 0.0)
+    sched = _cosine_schedule(cfg, opt, start)
+    validator = _Validator(cfg, validation_scenes(cfg, bank), val_real, device)
+    loader = _loader(cfg, bank, scenes, start)
+    log = (out / "log.jsonl").open("a")
+    t0 = time.perf_counter() - elapsed
+    bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it", disable=not progress)
+    model.train()
+    it = start
+    for it, groups in enumerate(loader, start=start + 1):
+        row = _step(model, opt, sched, groups, cfg, device, it)
+        bar.update(1)
+        postfix = {"loss": f"{row['loss']:.4f}"}
+        if it % cfg.val_every == 0 or it == cfg.iterations:
+            key = validator(model, row, postfix)
+            if best is None or key >= tuple(best["key"]):
+                best = {"key": list(key), "iteration": it, "metrics": row["val"]}
+                _save_best(model, out, cfg, row, device, time.perf_counter() - t0)
+        bar.set_postfix(postfix)
+        log.write(json.dumps(row) + "\n")
+        if _checkpoint(out, model, opt, cfg, it, best, t0, max_minutes):
+            break  # out of time: a resumed run continues from this checkpoint
+    bar.close()
+    log.close()
+    return {
+        "iteration": it,
+        "finished": it >= cfg.iterations,
+        "best": best,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank, Any]:
+    """The run folder with its config and shape bank, torch seeded, and the network
+    (initialised from the seed, or from ``cfg.init_weights``)."""
+    import torch
+
+    from ..model import EmbeddingConfig, SCNonlocal, load_model
+
     out.mkdir(parents=True, exist_ok=True)
     cfg.save(out / "train_config.json")
     torch.manual_seed(cfg.seed)
@@ -225,51 +266,70 @@ def train(
                 f"asks for {model.config}"
             )
         model.load_state_dict(init.state_dict())
-    scenes = val_real = None
-    if cfg.realistic_fraction > 0:
-        scenes = _scene_bank(
-            cfg.realistic_bank,
-            out,
-            "scene_bank.npz",
-            lambda: SceneBank.build(
-                cfg.realistic_models,
-                cfg.realistic_scenes_per_model,
-                cfg.seed,
-                cfg.data_dir,
-                progress=progress,
-            ),
-        )
-        val_real = _scene_bank(
-            cfg.val_realistic_bank,
-            out,
-            "val_scene_bank.npz",
-            lambda: SceneBank.build(
-                cfg.val_shapes,
-                cfg.val_realistic_scenes_per_model,
-                cfg.seed + 1,
-                cfg.data_dir,
-                progress=progress,
-            ),
-        )
-    val_config = Config(**cfg.val_config)
-    val_real_config = Config(**cfg.val_realistic_config)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    start, best, elapsed = 0, None, 0.0
-    if resume:
-        # safetensors + JSON: nothing in a run folder is unpickled (training/checkpoint.py)
-        restored = load_checkpoint(out, model, opt, device)
-        if restored is not None:
-            start, best, elapsed = restored["iteration"], restored["best"], restored["elapsed"]
-    # Cosine decay computed from the iteration, so a resumed run may change the total.
+    return bank, model
+
+
+def _realistic_banks(
+    cfg: TrainConfig, out: Path, progress: bool
+) -> tuple[SceneBank | None, SceneBank | None]:
+    """The realistic training and validation banks (None, None without realistic data)."""
+    if cfg.realistic_fraction <= 0:
+        return None, None
+    scenes = _scene_bank(
+        cfg.realistic_bank,
+        out,
+        "scene_bank.npz",
+        lambda: SceneBank.build(
+            cfg.realistic_models,
+            cfg.realistic_scenes_per_model,
+            cfg.seed,
+            cfg.data_dir,
+            progress=progress,
+        ),
+    )
+    val_real = _scene_bank(
+        cfg.val_realistic_bank,
+        out,
+        "val_scene_bank.npz",
+        lambda: SceneBank.build(
+            cfg.val_shapes,
+            cfg.val_realistic_scenes_per_model,
+            cfg.seed + 1,
+            cfg.data_dir,
+            progress=progress,
+        ),
+    )
+    return scenes, val_real
+
+
+def _resume(out: Path, model: Any, opt: Any, device: str) -> tuple[int, Any, float]:
+    """Iteration, best and elapsed seconds of the folder's checkpoint, with model, optimizer
+    and torch's RNG restored; a fresh start when there is none."""
+    # safetensors + JSON: nothing in a run folder is unpickled (training/checkpoint.py)
+    restored = load_checkpoint(out, model, opt, device)
+    if restored is None:
+        return 0, None, 0.0
+    return restored["iteration"], restored["best"], restored["elapsed"]
+
+
+def _cosine_schedule(cfg: TrainConfig, opt: Any, start: int) -> Any:
+    """Cosine decay computed from the iteration, so a resumed run may change the total."""
+    import torch
+
     for group in opt.param_groups:
         group.setdefault("initial_lr", cfg.lr)
-    sched = torch.optim.lr_scheduler.LambdaLR(
+    return torch.optim.lr_scheduler.LambdaLR(
         opt,
         lambda i: 0.5 * (1 + math.cos(math.pi * min(i, cfg.iterations) / cfg.iterations)),
         last_epoch=start - 1,
     )
-    val_scenes = validation_scenes(cfg, bank)
-    loader: Any = torch.utils.data.DataLoader(
+
+
+def _loader(cfg: TrainConfig, bank: ShapeBank, scenes: SceneBank | None, start: int) -> Any:
+    """The batches of iterations ``start + 1 ...`` in order (seeded by iteration)."""
+    import torch
+
+    return torch.utils.data.DataLoader(
         # any object with __len__/__getitem__ serves as a map-style dataset
         torch.utils.data.Subset(
             cast(Any, _Batches(cfg, bank, scenes)), range(start, cfg.iterations)
@@ -280,69 +340,93 @@ def train(
         multiprocessing_context="spawn" if cfg.num_workers > 0 else None,
         persistent_workers=False,
     )
-    log = (out / "log.jsonl").open("a")
-    t0 = time.perf_counter() - elapsed
-    bar = tqdm(total=cfg.iterations, initial=start, desc="train", unit="it", disable=not progress)
-    model.train()
-    it = start
-    for it, groups in enumerate(loader, start=start + 1):
-        gen = torch.Generator(device=device).manual_seed(_seed_for(cfg.seed, 4, it) % 2**63)
-        loss, stats = _batch_loss(model, groups, cfg, device, gen)
-        opt.zero_grad(set_to_none=True)
-        if loss.requires_grad:  # a batch with no inlier pair at all has nothing to learn
-            loss.backward()
-            opt.step()
-        sched.step()
-        row: dict[str, Any] = {
-            "iteration": it,
-            "loss": float(loss.detach()),
-            **{k: float(v) for k, v in stats.items()},
-        }
-        bar.update(1)
-        postfix = {"loss": f"{float(loss.detach()):.4f}"}
-        if it % cfg.val_every == 0 or it == cfg.iterations:
-            metrics = validate(model, val_scenes, device, val_config)
-            row["val"] = metrics
-            key = (metrics["mean_f1"], metrics["strict_f1"])
-            if val_real is not None:
-                real = validate_realistic(model, val_real, device, val_real_config)
-                row["val_realistic"] = real
-                postfix["val_real_MF"] = f"{100 * real['mean_f1']:.2f}"
-                # both benchmarks count alike: the synthetic one must not be lost for the other
-                key = (
-                    (metrics["mean_f1"] + real["mean_f1"]) / 2,
-                    (metrics["strict_f1"] + real["strict_f1"]) / 2,
-                )
-            if best is None or key >= tuple(best["key"]):
-                best = {"key": list(key), "iteration": it, "metrics": metrics}
-                save_model(
-                    model,
-                    out / "model.safetensors",
-                    extra={
-                        "iteration": it,
-                        "validation": metrics,
-                        **({"validation_realistic": row["val_realistic"]} if val_real else {}),
-                        "train_config": cfg.to_dict(),
-                        "environment": _environment(device),
-                        "train_seconds": time.perf_counter() - t0,
-                    },
-                )
-            postfix["val_MF"] = f"{100 * metrics['mean_f1']:.2f}"
-        bar.set_postfix(postfix)
-        log.write(json.dumps(row) + "\n")
-        done = it == cfg.iterations
-        out_of_time = max_minutes is not None and (time.perf_counter() - t0) > 60 * max_minutes
-        if it % cfg.checkpoint_every == 0 or done or out_of_time:
-            save_checkpoint(
-                out, model, opt, iteration=it, best=best, elapsed=time.perf_counter() - t0
-            )
-        if out_of_time and not done:
-            break
-    bar.close()
-    log.close()
+
+
+def _step(
+    model: Any, opt: Any, sched: Any, groups: list[Any], cfg: TrainConfig, device: str, it: int
+) -> dict[str, Any]:
+    """One optimisation step on a batch; its log row."""
+    import torch
+
+    gen = torch.Generator(device=device).manual_seed(_seed_for(cfg.seed, 4, it) % 2**63)
+    loss, stats = _batch_loss(model, groups, cfg, device, gen)
+    opt.zero_grad(set_to_none=True)
+    if loss.requires_grad:  # a batch with no inlier pair at all has nothing to learn
+        loss.backward()
+        opt.step()
+    sched.step()
     return {
         "iteration": it,
-        "finished": it >= cfg.iterations,
-        "best": best,
-        "seconds": time.perf_counter() - t0,
+        "loss": float(loss.detach()),
+        **{k: float(v) for k, v in stats.items()},
     }
+
+
+class _Validator:
+    """Periodic validation: the synthetic scenes, and the realistic bank when there is one."""
+
+    def __init__(
+        self, cfg: TrainConfig, scenes: list[Any], real: SceneBank | None, device: str
+    ) -> None:
+        self.scenes, self.real, self.device = scenes, real, device
+        self.config = Config(**cfg.val_config)
+        self.real_config = Config(**cfg.val_realistic_config)
+
+    def __call__(
+        self, model: Any, row: dict[str, Any], postfix: dict[str, str]
+    ) -> tuple[float, float]:
+        """Validate, record the metrics in the log row and progress bar, and return the
+        key the best weights are chosen by."""
+        metrics = validate(model, self.scenes, self.device, self.config)
+        row["val"] = metrics
+        key = (metrics["mean_f1"], metrics["strict_f1"])
+        if self.real is not None:
+            real = validate_realistic(model, self.real, self.device, self.real_config)
+            row["val_realistic"] = real
+            postfix["val_real_MF"] = f"{100 * real['mean_f1']:.2f}"
+            # both benchmarks count alike: the synthetic one must not be lost for the other
+            key = (
+                (metrics["mean_f1"] + real["mean_f1"]) / 2,
+                (metrics["strict_f1"] + real["strict_f1"]) / 2,
+            )
+        postfix["val_MF"] = f"{100 * metrics['mean_f1']:.2f}"
+        return key
+
+
+def _checkpoint(
+    out: Path,
+    model: Any,
+    opt: Any,
+    cfg: TrainConfig,
+    it: int,
+    best: Any,
+    t0: float,
+    max_minutes: float | None,
+) -> bool:
+    """Checkpoint every ``checkpoint_every`` iterations, at the end, and when the time is
+    spent; True when the run must stop early."""
+    done = it == cfg.iterations
+    out_of_time = max_minutes is not None and (time.perf_counter() - t0) > 60 * max_minutes
+    if it % cfg.checkpoint_every == 0 or done or out_of_time:
+        save_checkpoint(out, model, opt, iteration=it, best=best, elapsed=time.perf_counter() - t0)
+    return out_of_time and not done
+
+
+def _save_best(
+    model: Any, out: Path, cfg: TrainConfig, row: dict[str, Any], device: str, seconds: float
+) -> None:
+    """The best weights so far, with what they scored and how they were trained."""
+    from ..model import save_model
+
+    save_model(
+        model,
+        out / "model.safetensors",
+        extra={
+            "iteration": row["iteration"],
+            "validation": row["val"],
+            **({"validation_realistic": row["val_realistic"]} if "val_realistic" in row else {}),
+            "train_config": cfg.to_dict(),
+            "environment": _environment(device),
+            "train_seconds": seconds,
+        },
+    )
