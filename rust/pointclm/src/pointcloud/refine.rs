@@ -191,17 +191,9 @@ pub fn refine_poses(
     let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
         .map(|pose| {
-            let refined = icp(source, target, &index, *pose, params, |p, radius| {
-                let loose = judge(source, &index, depth.as_ref(), p, radius);
-                could_pass(&loose, depth.is_some(), params)
-            });
-            match refined {
-                Some(refined) => {
-                    let judged = judge(source, &index, depth.as_ref(), &refined, params.fit_radius);
-                    (refined, judged)
-                }
-                None => (*pose, Judged::rejected()),
-            }
+            let refined = icp(source, target, &index, *pose, params);
+            let judged = judge(source, &index, depth.as_ref(), &refined, params.fit_radius);
+            (refined, judged)
         })
         .collect();
 
@@ -212,7 +204,14 @@ pub fn refine_poses(
             params.min_fitness.max(params.min_relative_fitness * best)
         }
     };
-    let passes = |j: &Judged| could_pass(j, depth.is_some(), params) && j.fitness >= floor;
+    let passes = |j: &Judged| match depth {
+        Some(_) => {
+            j.seen >= params.min_seen
+                && j.visible_fitness >= params.min_visible_fitness
+                && j.contradiction <= params.max_contradiction
+        }
+        None => j.fitness >= floor,
+    };
     let mut order: Vec<usize> = (0..fitted.len()).collect();
     order.sort_by(|&a, &b| {
         fitted[b]
@@ -284,21 +283,6 @@ struct Judged {
     targets: Vec<usize>,
 }
 
-impl Judged {
-    /// A pose dropped before its final judgement: it passes no rule and claims nothing.
-    fn rejected() -> Self {
-        Self {
-            fitness: 0.0,
-            visible_fitness: 0.0,
-            contradiction: 1.0,
-            seen: 0.0,
-            confidence: 0.0,
-            rmse: 0.0,
-            targets: Vec::new(),
-        }
-    }
-}
-
 fn judge(
     source: &[[f64; 3]],
     index: &PointIndex,
@@ -306,19 +290,17 @@ fn judge(
     pose: &RigidTransform,
     radius: f64,
 ) -> Judged {
-    let r_sq = radius * radius;
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
     let (mut sum, mut targets) = (0.0, Vec::new());
     let explained: Vec<bool> = posed
         .iter()
-        .map(|q| {
-            let (j, d_sq) = index.nearest(q);
-            let hit = d_sq < r_sq;
-            if hit {
+        .map(|q| match index.nearest_within(q, radius) {
+            Some((j, d_sq)) => {
                 sum += d_sq;
                 targets.push(j);
+                true
             }
-            hit
+            None => false,
         })
         .collect();
     let hits = targets.len();
@@ -374,92 +356,43 @@ fn judge(
     }
 }
 
-/// Whether a pose judged at a radius at least `fit_radius` could pass the acceptance rules
-/// that do not depend on the other poses. A looser radius explains at least as many model
-/// points (and so also leaves fewer to contradict), so a pose failing here fails at
-/// `fit_radius` too.
-fn could_pass(j: &Judged, by_visibility: bool, params: &RefineParams) -> bool {
-    if by_visibility {
-        j.seen >= params.min_seen
-            && j.visible_fitness >= params.min_visible_fitness
-            && j.contradiction <= params.max_contradiction
-    } else {
-        j.fitness >= params.min_fitness
-    }
-}
-
 /// Point-to-point ICP over shrinking radii; a step that cannot be fitted (fewer than 3 model
 /// points near the scan, or all on a line) keeps the pose it has.
-///
-/// After the first (coarsest) stage the pose is screened by `promising(pose, radius)`: most
-/// candidate poses of a cluttered scan are wrong, and a pose that fails the acceptance rules
-/// even at the coarse radius is dropped (`None`) rather than refined further, which is where
-/// ICP spends most of its time (wrong poses never converge). Only a later stage moving the
-/// pose onto a copy could rescue it, and the coarse stage already had the widest reach.
 fn icp(
     source: &[[f64; 3]],
     target: &[[f64; 3]],
     index: &PointIndex,
     mut pose: RigidTransform,
     params: &RefineParams,
-    promising: impl Fn(&RigidTransform, f64) -> bool,
-) -> Option<RigidTransform> {
+) -> RigidTransform {
     // How far a rotation change can move a model point: rotations turn about the origin.
     let reach = source
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .fold(0.0, f64::max);
-    for (stage, &radius) in params.radii.iter().enumerate() {
-        pose = icp_stage(
-            source,
-            target,
-            index,
-            pose,
-            radius,
-            params.iterations,
-            reach,
-        );
-        let last = stage + 1 == params.radii.len();
-        if stage == 0 && !last && radius >= params.fit_radius && !promising(&pose, radius) {
-            return None;
-        }
-    }
-    Some(pose)
-}
-
-/// Up to `iterations` point-to-point steps with the model points within `radius` of the scan.
-fn icp_stage(
-    source: &[[f64; 3]],
-    target: &[[f64; 3]],
-    index: &PointIndex,
-    mut pose: RigidTransform,
-    radius: f64,
-    iterations: usize,
-    reach: f64,
-) -> RigidTransform {
-    let r_sq = radius * radius;
-    for _ in 0..iterations {
-        let (mut from, mut to) = (Vec::new(), Vec::new());
-        for p in source {
-            let (j, d_sq) = index.nearest(&pose.apply(*p));
-            if d_sq < r_sq {
-                from.push(*p);
-                to.push(target[j]);
+    for &radius in &params.radii {
+        for _ in 0..params.iterations {
+            let (mut from, mut to) = (Vec::new(), Vec::new());
+            for p in source {
+                if let Some((j, _)) = index.nearest_within(&pose.apply(*p), radius) {
+                    from.push(*p);
+                    to.push(target[j]);
+                }
             }
-        }
-        let Ok(pairs) = Correspondences::new(&from, &to) else {
-            break;
-        };
-        let all: Vec<usize> = (0..pairs.len()).collect();
-        let Some(next) = kabsch(&pairs, &all) else {
-            break;
-        };
-        let moved = (next.rotation - pose.rotation).amax() * reach
-            + (next.translation - pose.translation).amax();
-        pose = next;
-        // Converged: the last step moved no model point by more than a sliver of the radius.
-        if moved < 1e-4 * radius {
-            break;
+            let Ok(pairs) = Correspondences::new(&from, &to) else {
+                break;
+            };
+            let all: Vec<usize> = (0..pairs.len()).collect();
+            let Some(next) = kabsch(&pairs, &all) else {
+                break;
+            };
+            let moved = (next.rotation - pose.rotation).amax() * reach
+                + (next.translation - pose.translation).amax();
+            pose = next;
+            // Converged: the last step moved no model point by more than a sliver of the radius.
+            if moved < 1e-4 * radius {
+                break;
+            }
         }
     }
     pose

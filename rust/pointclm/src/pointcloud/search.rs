@@ -47,6 +47,18 @@ impl PointIndex {
             .collect()
     }
 
+    /// The nearest indexed point to `query` closer than `radius`: `(index, squared
+    /// distance)`, or `None`. Faster than [`Self::nearest`] for far queries: the search
+    /// stops at the radius instead of looking for the nearest point however far.
+    pub fn nearest_within(&self, query: &[f64; 3], radius: f64) -> Option<(usize, f64)> {
+        let r_sq = radius * radius;
+        self.tree
+            .nearest_n_within::<SquaredEuclidean>(query, r_sq, NonZero::<usize>::MIN, true)
+            .into_iter()
+            .map(|n| (n.item as usize, n.distance))
+            .find(|&(_, d)| d < r_sq)
+    }
+
     /// The nearest indexed point to `query`: `(index, squared distance)`.
     pub fn nearest(&self, query: &[f64; 3]) -> (usize, f64) {
         let n = self.tree.nearest_one::<SquaredEuclidean>(query);

@@ -66,3 +66,27 @@ fn neighbourhoods_agree_with_single_queries() {
         Err(Error::TooFewPoints { .. })
     ));
 }
+
+#[test]
+fn nearest_within_is_the_nearest_point_closer_than_the_radius() {
+    let pts = grid();
+    let index = PointIndex::new(&pts).unwrap();
+    for q in [
+        [0.31, 0.47, 0.05],
+        [0.5, 0.5, 0.5],
+        [3.0, 3.0, 3.0],
+        [-0.2, 0.1, 0.0],
+    ] {
+        let (j, d2) = index.nearest(&q);
+        for radius in [0.01, 0.1, 0.3, 10.0] {
+            let within = index.nearest_within(&q, radius);
+            if d2 < radius * radius {
+                let (k, e2) = within.expect("a point lies within the radius");
+                assert_eq!(e2, d2);
+                assert_eq!(pts[k], pts[j]);
+            } else {
+                assert_eq!(within, None);
+            }
+        }
+    }
+}
