@@ -69,27 +69,7 @@ def evaluate(
     scores, seconds = [], []
     for scene in it:
         t0 = time.perf_counter()
-        voxel = getattr(scene, "voxel_size", None)
-        refined = refine and hasattr(scene, "target_points")
-        if voxel is None:
-            result = register(
-                scene.correspondences,
-                config=config,
-                seed=seed,
-                num_threads=num_threads,
-                model=model,
-            )
-        else:
-            result = _register_scaled(
-                scene.correspondences, voxel, config, seed, num_threads, model, refined
-            )
-        poses = np.asarray(result.transformations).reshape(-1, 4, 4)
-        if voxel is not None and refined:
-            from .refinement import refine_poses
-
-            poses = refine_poses(
-                scene.source_points, scene.target_points, poses, voxel, num_threads=num_threads
-            ).transformations
+        poses = _found_poses(scene, config, seed, num_threads, model, refine)
         seconds.append(time.perf_counter() - t0)
         scores.append(
             score_scene(
@@ -102,6 +82,36 @@ def evaluate(
     if not scores:
         raise ValueError("no scenes to evaluate")
     return Evaluation(summarize(scores), scores, np.asarray(seconds))
+
+
+def _found_poses(
+    scene: Any,
+    config: Config | None,
+    seed: int,
+    num_threads: int | None,
+    model: Any,
+    refine: bool,
+) -> np.ndarray:
+    """The (M, 4, 4) poses registration finds in one scene: in synthetic units, or in the
+    scene's real units and refined on its clouds when it carries them."""
+    voxel = getattr(scene, "voxel_size", None)
+    refined = refine and hasattr(scene, "target_points")
+    if voxel is None:
+        result = register(
+            scene.correspondences, config=config, seed=seed, num_threads=num_threads, model=model
+        )
+    else:
+        result = _register_scaled(
+            scene.correspondences, voxel, config, seed, num_threads, model, refined
+        )
+    poses = np.asarray(result.transformations).reshape(-1, 4, 4)
+    if voxel is not None and refined:
+        from .refinement import refine_poses
+
+        poses = refine_poses(
+            scene.source_points, scene.target_points, poses, voxel, num_threads=num_threads
+        ).transformations
+    return poses
 
 
 def _register_scaled(

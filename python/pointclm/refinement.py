@@ -6,11 +6,25 @@ both: ICP pulls each pose onto its copy, and the share of the model the scan the
 (Open3D's ``fitness``) rejects poses over clutter and duplicates of one copy. With the
 sensor's position, each pose is judged instead by what the sensor could see of the model at
 that pose, so that copies hidden in part by others are kept (``benchmarks/verification.py``).
+
+Acceptance rules of :func:`refine_poses`
+----------------------------------------
+With a viewpoint (the position of the sensor that took the scan, one view), each pose is
+judged by what the sensor could see of the model at that pose: the posed model points not
+hidden by the model itself or by the scan. A pose is kept when the scan explains at least
+`min_visible_fitness` of them, at most `max_contradiction` of them lie where the sensor saw
+through to something behind, and they are at least `min_seen` of the model. A partly hidden
+copy is thus judged on its visible part. Without a viewpoint, or when more than 12 % of the
+scan lies 5 voxels behind other scan points seen from it (a merged or wrongly placed scan),
+the fallback is the share of the model explained: at least `min_fitness`, and at least
+`min_relative_fitness` times the best pose's (``RefinedPoses.by_visibility`` says which rule
+judged). A pose is a duplicate when more than `max_shared` of the scan points it explains are
+explained by a surer pose.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -108,29 +122,62 @@ def refine_poses(
         Sets the lengths: ICP at 3, 2 and 1.5 voxels, a model point explained within 1.5,
         depth cells of 1.5 voxels and one surface within 3 voxels along a ray.
     viewpoint : (3,) array_like, optional
-        The position of the sensor that took `target_points` (one view). Each pose is then
-        judged by what the sensor could see of the model at that pose: the posed model
-        points not hidden by the model itself or by the scan. A pose is kept when the scan
-        explains at least `min_visible_fitness` of them, at most `max_contradiction` of them
-        lie where the sensor saw through to something behind, and they are at least
-        `min_seen` of the model. A partly hidden copy is thus judged on its visible part.
-        Without a viewpoint, or when more than 12 % of the scan lies 5 voxels behind other scan
-        points seen from it (a merged or wrongly placed scan), the fallback is the share of
-        the model explained: at least `min_fitness`, and at least `min_relative_fitness`
-        times the best pose's (``RefinedPoses.by_visibility`` says which rule judged).
+        The position of the sensor that took `target_points` (one view): poses are then
+        judged by what it could see of them (the module's acceptance rules).
     icp : bool
         False: verification only, the poses are kept as given.
     min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness :
         float in [0, 1]
-        The acceptance rules above; all 0 (and `max_contradiction` 1): nothing is rejected
-        but duplicates.
+        The acceptance rules (module documentation); all 0 (and `max_contradiction` 1):
+        nothing is rejected but duplicates.
     max_shared : float in [0, 1]
-        A pose is a duplicate when more than this share of the scan points it explains are
-        explained by a surer pose; 1 keeps duplicates.
+        The share of a pose's explained scan points a surer pose may also explain before it
+        is a duplicate; 1 keeps duplicates.
     """
     src = pp.as_points(source_points, "source_points")
     tgt = pp.as_points(target_points, "target_points")
     voxel = pp.as_positive(voxel_size, "voxel_size")
+    poses, eye = _as_poses(transformations), _as_viewpoint(viewpoint)
+    rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
+    flag = pp.as_flag(icp, "icp")
+    return _refine(src, tgt, poses, voxel, flag, eye, (*rules, max_shared), num_threads)
+
+
+#: The rules' names, in the order the core takes them.
+_RULES = (
+    "min_visible_fitness",
+    "max_contradiction",
+    "min_seen",
+    "min_fitness",
+    "min_relative_fitness",
+    "max_shared",
+)
+
+
+def _refine(
+    src: np.ndarray,
+    tgt: np.ndarray,
+    poses: np.ndarray,
+    voxel: float,
+    icp: bool,
+    eye: tuple[float, float, float] | None,
+    rules: tuple[float, ...],
+    num_threads: int | None,
+) -> RefinedPoses:
+    """The core's refinement and verification, its columns named."""
+    numbers: Any = [_number(value, name) for value, name in zip(rules, _RULES, strict=True)]
+    core: Any = _core  # the rules pass as one list, which the stub cannot count
+    mats, columns, origin, by_visibility = core.refine_poses(
+        src, tgt, poses, voxel, icp, eye, *numbers, num_threads=as_threads(num_threads)
+    )
+    confidence, fitness, visible, contradiction, seen, rmse = columns
+    return RefinedPoses(
+        mats, fitness, rmse, origin, confidence, visible, contradiction, seen, bool(by_visibility)
+    )
+
+
+def _as_poses(transformations: ArrayLike) -> np.ndarray:
+    """(K, 4, 4) float64, C-contiguous; an empty input is no pose."""
     try:
         poses = np.asarray(transformations, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
@@ -142,34 +189,16 @@ def refine_poses(
             poses = np.zeros((0, 4, 4))
         else:
             raise ValueError(f"transformations must have shape (K, 4, 4), got {poses.shape}")
-    eye = None
-    if viewpoint is not None:
-        v = np.asarray(viewpoint, dtype=np.float64)
-        if v.shape != (3,) or not np.isfinite(v).all():
-            raise ValueError(f"viewpoint must be 3 finite numbers, got {viewpoint!r}")
-        eye = (float(v[0]), float(v[1]), float(v[2]))
-    mats, columns, origin, by_visibility = cast(
-        Any,
-        _core.refine_poses(
-            src,
-            tgt,
-            np.ascontiguousarray(poses),
-            voxel,
-            pp.as_flag(icp, "icp"),
-            eye,
-            _number(min_visible_fitness, "min_visible_fitness"),
-            _number(max_contradiction, "max_contradiction"),
-            _number(min_seen, "min_seen"),
-            _number(min_fitness, "min_fitness"),
-            _number(min_relative_fitness, "min_relative_fitness"),
-            _number(max_shared, "max_shared"),
-            num_threads=as_threads(num_threads),
-        ),
-    )
-    confidence, fitness, visible, contradiction, seen, rmse = columns
-    return RefinedPoses(
-        mats, fitness, rmse, origin, confidence, visible, contradiction, seen, bool(by_visibility)
-    )
+    return np.ascontiguousarray(poses)
+
+
+def _as_viewpoint(viewpoint: ArrayLike | None) -> tuple[float, float, float] | None:
+    if viewpoint is None:
+        return None
+    v = np.asarray(viewpoint, dtype=np.float64)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise ValueError(f"viewpoint must be 3 finite numbers, got {viewpoint!r}")
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 def _number(value: float, name: str) -> float:

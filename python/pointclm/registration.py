@@ -172,16 +172,7 @@ def register(
         ``inlier_rmse``, ``correspondence_set``), ``transformations`` (M, 4, 4) and
         ``labels`` (N,): -1 for outliers, k for instance k.
     """
-    if target is not None:
-        corr, used = as_correspondences(correspondences, target)
-        if not used:
-            raise InputError(
-                "target= goes with (N, 3) source points; with (N, 6) correspondences leave it out"
-            )
-    else:
-        corr, used = as_correspondences(correspondences, features)
-        if used:
-            features = None
+    corr, features = _rows_and_features(correspondences, features, target)
     feats = as_features(features, len(corr))
     network = None
     backend = check_backend(backend, model, device)
@@ -199,6 +190,22 @@ def register(
         num_threads=as_threads(num_threads),
         network=network,
     )
+
+
+def _rows_and_features(
+    correspondences: ArrayLike, features: ArrayLike | None, target: ArrayLike | None
+) -> tuple[np.ndarray, ArrayLike | None]:
+    """The (N, 6) rows, and the features left once a positional target is taken out of them
+    (``register(source, target)`` passes the target where the features go)."""
+    if target is not None:
+        corr, used = as_correspondences(correspondences, target)
+        if not used:
+            raise InputError(
+                "target= goes with (N, 3) source points; with (N, 6) correspondences leave it out"
+            )
+        return corr, features
+    corr, used = as_correspondences(correspondences, features)
+    return corr, (None if used else features)
 
 
 def _embedding(
