@@ -47,44 +47,54 @@ def lzf_decompress(data: bytes | bytearray | memoryview, out_size: int) -> bytes
             f"(at most {LZF_MAX_EXPANSION}x)"
         )
     out = bytearray(out_size)
-    ip = 0
-    op = 0
     try:
-        while ip < n_in:
-            ctrl = src[ip]
-            ip += 1
-            if ctrl < 32:
-                # Literal run of ctrl + 1 bytes.
-                length = ctrl + 1
-                if ip + length > n_in:
-                    raise ValueError("LZF data is truncated (literal run past the end)")
-                if op + length > out_size:
-                    raise ValueError("LZF data decompresses to more than the stated size")
-                out[op : op + length] = src[ip : ip + length]
-                ip += length
-                op += length
-                continue
-            # Back-reference: 3-bit length (7 = extended by the next byte), 13-bit offset.
-            length = ctrl >> 5
-            if length == 7:
-                length += src[ip]
-                ip += 1
-            ref = op - ((ctrl & 0x1F) << 8) - src[ip] - 1
-            ip += 1
-            length += 2
-            if ref < 0:
-                raise ValueError("LZF data is corrupt (back-reference before the start)")
-            if op + length > out_size:
-                raise ValueError("LZF data decompresses to more than the stated size")
-            dist = op - ref
-            if dist >= length:
-                out[op : op + length] = out[ref : ref + length]
-            else:
-                pattern = bytes(out[ref:op])
-                out[op : op + length] = (pattern * (length // dist + 1))[:length]
-            op += length
+        op = _decode(src, out)
     except IndexError:
         raise ValueError("LZF data is truncated (ends inside a back-reference)") from None
     if op != out_size:
         raise ValueError(f"LZF data decompresses to {op} bytes, the header says {out_size}")
     return bytes(out)
+
+
+def _decode(src: bytes, out: bytearray) -> int:
+    """Decode the tokens of `src` into `out` (its length the stated size); the bytes written.
+
+    One loop, no call per token: this is the hot path of a compressed PCD file.
+    """
+    n_in, out_size = len(src), len(out)
+    ip = 0
+    op = 0
+    while ip < n_in:
+        ctrl = src[ip]
+        ip += 1
+        if ctrl < 32:
+            # Literal run of ctrl + 1 bytes.
+            length = ctrl + 1
+            if ip + length > n_in:
+                raise ValueError("LZF data is truncated (literal run past the end)")
+            if op + length > out_size:
+                raise ValueError("LZF data decompresses to more than the stated size")
+            out[op : op + length] = src[ip : ip + length]
+            ip += length
+            op += length
+            continue
+        # Back-reference: 3-bit length (7 = extended by the next byte), 13-bit offset.
+        length = ctrl >> 5
+        if length == 7:
+            length += src[ip]
+            ip += 1
+        ref = op - ((ctrl & 0x1F) << 8) - src[ip] - 1
+        ip += 1
+        length += 2
+        if ref < 0:
+            raise ValueError("LZF data is corrupt (back-reference before the start)")
+        if op + length > out_size:
+            raise ValueError("LZF data decompresses to more than the stated size")
+        dist = op - ref
+        if dist >= length:
+            out[op : op + length] = out[ref : ref + length]
+        else:
+            pattern = bytes(out[ref:op])
+            out[op : op + length] = (pattern * (length // dist + 1))[:length]
+        op += length
+    return op

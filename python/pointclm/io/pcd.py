@@ -54,6 +54,29 @@ class _Header:
 
 def _parse_header(raw: bytes) -> _Header:
     """Read the header lines up to and including ``DATA``."""
+    entries, pos = _header_entries(raw)
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH"):
+        if key not in entries:
+            raise ValueError(f"PCD header has no {key} line")
+    columns = _field_columns(entries)
+    width = _header_int(entries, "WIDTH")
+    height = _header_int(entries, "HEIGHT") if "HEIGHT" in entries else 1
+    n_points = _header_int(entries, "POINTS") if "POINTS" in entries else width * height
+    fields = _header_fields(columns, len(raw))
+    if n_points < 0 or width < 0 or height < 0:
+        raise ValueError("malformed PCD header (negative WIDTH, HEIGHT or POINTS)")
+    data = entries["DATA"][0].lower() if entries["DATA"] else ""
+    return _Header(tuple(fields), n_points, data, pos, tuple(entries.get("VIEWPOINT", ())))
+
+
+#: The header's keywords (any other line means this is not a PCD file).
+_HEADER_KEYS = frozenset(
+    ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+)
+
+
+def _header_entries(raw: bytes) -> tuple[dict[str, list[str]], int]:
+    """Each header keyword's words, up to the ``DATA`` line, and the offset after it."""
     entries: dict[str, list[str]] = {}
     pos = 0
     for _ in range(_MAX_HEADER_LINES):
@@ -69,28 +92,16 @@ def _parse_header(raw: bytes) -> _Header:
             continue
         key, *values = line.split()
         key = key.upper()
-        if key not in {
-            "VERSION",
-            "FIELDS",
-            "SIZE",
-            "TYPE",
-            "COUNT",
-            "WIDTH",
-            "HEIGHT",
-            "VIEWPOINT",
-            "POINTS",
-            "DATA",
-        }:
+        if key not in _HEADER_KEYS:
             raise ValueError(f"not a PCD file (unexpected header line {line[:60]!r})")
         entries[key] = values
         if key == "DATA":
-            break
-    else:
-        raise ValueError(f"PCD header has no DATA line in its first {_MAX_HEADER_LINES} lines")
+            return entries, pos
+    raise ValueError(f"PCD header has no DATA line in its first {_MAX_HEADER_LINES} lines")
 
-    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH"):
-        if key not in entries:
-            raise ValueError(f"PCD header has no {key} line")
+
+def _field_columns(entries: dict[str, list[str]]) -> list[tuple[str, str, str, str]]:
+    """Per field: the words of its FIELDS, SIZE, TYPE and COUNT lines (COUNT 1 if absent)."""
     names = entries["FIELDS"]
     sizes = entries["SIZE"]
     types = entries["TYPE"]
@@ -100,29 +111,28 @@ def _parse_header(raw: bytes) -> _Header:
             "PCD header's FIELDS, SIZE, TYPE and COUNT lines have different lengths "
             f"({len(names)}, {len(sizes)}, {len(types)}, {len(counts)})"
         )
-    width = _header_int(entries, "WIDTH")
-    height = _header_int(entries, "HEIGHT") if "HEIGHT" in entries else 1
-    n_points = _header_int(entries, "POINTS") if "POINTS" in entries else width * height
+    return list(zip(names, sizes, types, counts, strict=True))
+
+
+def _header_fields(columns: list[tuple[str, str, str, str]], file_size: int) -> list[_Field]:
+    """The fields typed, each checked against the file's size."""
     fields = []
-    for name, size, kind, count in zip(names, sizes, types, counts, strict=True):
+    for name, size, kind, count in columns:
         char = _TYPE_CHARS.get((kind.upper(), _as_int(size, f"SIZE of field {name!r}")))
         if char is None:
             raise ValueError(f"PCD field {name!r} has unsupported TYPE {kind} SIZE {size}")
         n = _as_int(count, f"COUNT of field {name!r}")
         if n < 1:
             raise ValueError(f"malformed PCD header: COUNT of field {name!r} is {n}, need >= 1")
-        if n * int(size) > len(raw):
+        if n * int(size) > file_size:
             # No point can be longer than the whole file (and numpy could not even describe
             # a record that size): a lying COUNT is refused before any allocation.
             raise ValueError(
                 f"malformed PCD header: field {name!r} has COUNT {n} ({n * int(size)} bytes "
-                f"per point), more than the file's {len(raw)} bytes"
+                f"per point), more than the file's {file_size} bytes"
             )
         fields.append(_Field(name, np.dtype("<" + char), n))
-    if n_points < 0 or width < 0 or height < 0:
-        raise ValueError("malformed PCD header (negative WIDTH, HEIGHT or POINTS)")
-    data = entries["DATA"][0].lower() if entries["DATA"] else ""
-    return _Header(tuple(fields), n_points, data, pos, tuple(entries.get("VIEWPOINT", ())))
+    return fields
 
 
 def _header_int(entries: dict[str, list[str]], key: str) -> int:
