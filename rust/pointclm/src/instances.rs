@@ -21,27 +21,52 @@ pub struct Instance {
     pub fitness: f64,
 }
 
+/// A pose with the correspondences it explains, before labelling.
+type Candidate = (RigidTransform, Vec<usize>);
+
 /// Turns cluster fits into instances and a label per correspondence (`-1` = outlier,
 /// `k` = `instances[k]`); instances are sorted by inlier count, largest first. With
 /// `config.max_nfa`, poses that `null` does not find significant are dropped first (`null`
 /// must then be the scene's [`NullModel`] at `config.inlier_threshold`).
+///
+/// Stages: rescore each fit over all correspondences, merge duplicate placements, drop
+/// insignificant poses, assign each correspondence to its best pose (dropping poses left too
+/// small), refit each kept pose on its own correspondences, renumber largest first.
 pub fn finalize(
     c: &Correspondences,
     fits: &[RansacFit],
     config: &Config,
     null: Option<&NullModel>,
 ) -> (Vec<Instance>, Vec<i64>) {
-    let n = c.len();
-    let all: Vec<usize> = (0..n).collect();
     let thr_sq = config.inlier_threshold * config.inlier_threshold;
+    let candidates = rescore(c, fits, config.refine, thr_sq);
+    let mut poses = if config.merge_duplicates {
+        merge_duplicates(c, candidates, config.inlier_threshold)
+    } else {
+        candidates
+    };
+    if let (Some(max_nfa), Some(null)) = (config.max_nfa, null) {
+        // Before labelling, so that an unsupported pose cannot take inliers from a real one.
+        let bound = max_nfa.log10();
+        poses.retain(|(pose, _)| null.log10_nfa(c, pose, fits.len()) <= bound);
+    }
+    let labels = assign_dropping_small(c, &mut poses, thr_sq, config.min_cluster_size);
+    let instances = refit_instances(c, &poses, &labels, config);
+    let (instances, labels) = relabel_refit(instances, c.len());
+    renumber_largest_first(instances, labels)
+}
 
-    // Inliers over the whole input: pruning or clustering may have missed some.
-    let mut candidates: Vec<(RigidTransform, Vec<usize>)> = fits
+/// Each fit's inliers over the whole input (pruning or clustering may have missed some),
+/// with one least-squares refit kept when `refine` and it does not lose inliers; sorted by
+/// inlier count, largest first (stable, so equal counts keep the fits' order).
+fn rescore(c: &Correspondences, fits: &[RansacFit], refine: bool, thr_sq: f64) -> Vec<Candidate> {
+    let all: Vec<usize> = (0..c.len()).collect();
+    let mut candidates: Vec<Candidate> = fits
         .iter()
         .map(|f| {
             let mut pose = f.pose;
             let mut inl = inliers_of(c, &all, &pose, thr_sq);
-            if config.refine {
+            if refine {
                 if let Some(p) = kabsch(c, &inl) {
                     let next = inliers_of(c, &all, &p, thr_sq);
                     if next.len() >= inl.len() {
@@ -53,44 +78,66 @@ pub fn finalize(
         })
         .collect();
     candidates.sort_by_key(|(_, inl)| std::cmp::Reverse(inl.len()));
+    candidates
+}
 
-    let mut poses: Vec<(RigidTransform, Vec<usize>)> = Vec::new();
+/// Keeps each candidate unless an earlier kept one puts the source at the same place
+/// ([`same_placement`]); candidates come largest first, so the best-supported pose of a copy
+/// is the one kept.
+fn merge_duplicates(
+    c: &Correspondences,
+    candidates: Vec<Candidate>,
+    threshold: f64,
+) -> Vec<Candidate> {
+    let mut kept: Vec<Candidate> = Vec::new();
     for cand in candidates {
-        let duplicate = config.merge_duplicates
-            && poses
-                .iter()
-                .any(|kept| same_placement(c, kept, &cand, config.inlier_threshold));
-        if !duplicate {
-            poses.push(cand);
+        if !kept.iter().any(|k| same_placement(c, k, &cand, threshold)) {
+            kept.push(cand);
         }
     }
-    if let (Some(max_nfa), Some(null)) = (config.max_nfa, null) {
-        // Before labelling, so that an unsupported pose cannot take inliers from a real one.
-        let bound = max_nfa.log10();
-        poses.retain(|(pose, _)| null.log10_nfa(c, pose, fits.len()) <= bound);
-    }
+    kept
+}
 
-    // Each correspondence goes to its best-fitting pose; poses left with too few are dropped
-    // (weakest first) and their correspondences reassigned.
-    let mut labels;
+/// Labels each correspondence with its best-fitting pose; while some pose gets fewer than
+/// `min_size`, the weakest (fewest, and the later one on ties) is removed from `poses` and
+/// the labelling redone, so its correspondences go to the poses that remain.
+fn assign_dropping_small(
+    c: &Correspondences,
+    poses: &mut Vec<Candidate>,
+    thr_sq: f64,
+    min_size: usize,
+) -> Vec<i64> {
     loop {
-        labels = assign(c, &poses, thr_sq);
+        let labels = assign(c, poses, thr_sq);
         let mut sizes = vec![0usize; poses.len()];
         for &l in labels.iter().filter(|&&l| l >= 0) {
             sizes[l as usize] += 1;
         }
         let weakest = (0..poses.len())
-            .filter(|&k| sizes[k] < config.min_cluster_size)
+            .filter(|&k| sizes[k] < min_size)
             .min_by_key(|&k| (sizes[k], std::cmp::Reverse(k)));
         match weakest {
             Some(k) => {
                 poses.remove(k);
             }
-            None => break,
+            None => return labels,
         }
     }
+}
 
-    let mut instances: Vec<Instance> = poses
+/// One instance per pose, in `poses` order: with `config.refine`, the pose refit on the
+/// correspondences labelled with it (least squares, then one robust step); its inliers are
+/// those labels still within the threshold of the returned pose (Open3D's convention for
+/// correspondence_set).
+fn refit_instances(
+    c: &Correspondences,
+    poses: &[Candidate],
+    labels: &[i64],
+    config: &Config,
+) -> Vec<Instance> {
+    let n = c.len();
+    let thr_sq = config.inlier_threshold * config.inlier_threshold;
+    poses
         .iter()
         .enumerate()
         .map(|(k, (pose, _))| {
@@ -102,7 +149,7 @@ pub fn finalize(
                 *pose
             };
             // The refit moves the pose: keep only what is still an inlier of the pose we
-            // return (Open3D's convention for correspondence_set).
+            // return.
             inliers.retain(|&i| pose.residual_sq(c.source(i), c.target(i)) < thr_sq);
             let sq: f64 = inliers
                 .iter()
@@ -115,20 +162,29 @@ pub fn finalize(
                 inliers,
             }
         })
-        .collect();
-    // Rows the refit pushed out become outliers. Sizes were checked before the refit, so
-    // only an instance whose pose no longer explains 3 rows is dropped here.
-    for l in labels.iter_mut() {
-        *l = -1;
-    }
+        .collect()
+}
+
+/// Labels (over `n` correspondences) from the refit instances' inliers: rows the refit pushed
+/// out become outliers. Sizes were checked before the refit, so only an instance whose pose
+/// no longer explains 3 rows is dropped here.
+fn relabel_refit(mut instances: Vec<Instance>, n: usize) -> (Vec<Instance>, Vec<i64>) {
+    let mut labels = vec![-1i64; n];
     instances.retain(|inst| inst.inliers.len() >= 3);
     for (k, inst) in instances.iter().enumerate() {
         for &i in &inst.inliers {
             labels[i] = k as i64;
         }
     }
+    (instances, labels)
+}
 
-    // Largest first, labels renumbered to match.
+/// Sorts instances by inlier count, largest first (ties keep their order), and renumbers the
+/// labels to match.
+fn renumber_largest_first(
+    mut instances: Vec<Instance>,
+    mut labels: Vec<i64>,
+) -> (Vec<Instance>, Vec<i64>) {
     let mut order: Vec<usize> = (0..instances.len()).collect();
     order.sort_by_key(|&k| (std::cmp::Reverse(instances[k].inliers.len()), k));
     let mut new_label = vec![0i64; order.len()];
@@ -171,7 +227,9 @@ fn robust_refit(
     kabsch_weighted(c, &members, &weights)
 }
 
-fn assign(c: &Correspondences, poses: &[(RigidTransform, Vec<usize>)], thr_sq: f64) -> Vec<i64> {
+/// The index of the pose with the smallest residual below `thr_sq` for each correspondence
+/// (the first on ties), `-1` where none.
+fn assign(c: &Correspondences, poses: &[Candidate], thr_sq: f64) -> Vec<i64> {
     (0..c.len())
         .map(|i| {
             let (x, y) = (c.source(i), c.target(i));
@@ -190,12 +248,7 @@ fn assign(c: &Correspondences, poses: &[(RigidTransform, Vec<usize>)], thr_sq: f
 /// Two poses describe the same copy when they put the source points that either explains at
 /// (nearly) the same place: RMS displacement below the inlier threshold. This also merges
 /// the several poses a symmetric object admits at one spot.
-fn same_placement(
-    c: &Correspondences,
-    a: &(RigidTransform, Vec<usize>),
-    b: &(RigidTransform, Vec<usize>),
-    threshold: f64,
-) -> bool {
+fn same_placement(c: &Correspondences, a: &Candidate, b: &Candidate, threshold: f64) -> bool {
     let pts = a.1.iter().chain(&b.1);
     let (mut sum, mut count) = (0.0, 0usize);
     for &i in pts {
@@ -206,3 +259,7 @@ fn same_placement(
     }
     count > 0 && (sum / count as f64).sqrt() < threshold
 }
+
+#[cfg(test)]
+#[path = "tests/instances.rs"]
+mod tests;
