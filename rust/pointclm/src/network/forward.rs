@@ -12,7 +12,7 @@ use faer::MatRef;
 use rayon::prelude::*;
 
 use super::layers::{attention_rows, AttentionScratch, Geometry};
-use super::Network;
+use super::{Block, Network};
 use crate::correspondences::{Correspondences, Features};
 use crate::error::{checked_elements, try_filled, Error, Result};
 
@@ -30,6 +30,9 @@ struct Scratch {
     update: Vec<f32>,
 }
 
+/// The embedding of every correspondence: the lift, then per block sweep (A) pointcn and
+/// q/k/v ([`pointcn_and_qkv`]) and sweep (B) attention, message MLP and residual
+/// ([`non_local`]), then rows scaled to unit length.
 pub(crate) fn embed(
     net: &Network,
     c: &Correspondences,
@@ -55,15 +58,7 @@ pub(crate) fn embed(
         0.0f32,
     )?;
     let aw = 4 * w;
-    // One scratch per thread of the pool, reused by every block that thread runs: a fresh
-    // one per rayon task would allocate (and the kernel zero) the logits again in every
-    // sweep.
-    let threads = if parallel {
-        rayon::current_num_threads()
-    } else {
-        1
-    };
-    let scratch: Vec<Mutex<Scratch>> = (0..threads).map(|_| Mutex::default()).collect();
+    let scratch = thread_scratch(parallel);
     let for_blocks =
         |buf: &mut [f32], chunk: usize, f: &(dyn Fn(usize, &mut [f32], &mut Scratch) + Sync)| {
             for_blocks(parallel, buf, chunk, &scratch, f)
@@ -76,58 +71,105 @@ pub(crate) fn embed(
     for layer in &net.blocks {
         crate::cancel::check()?;
         for_blocks(&mut act, block_rows * aw, &|k, out, s| {
-            let x = block(&feat, w, k, block_rows);
-            let count = x.len() / w;
-            s.pointcn.resize(count * w, 0.0);
-            layer
-                .pointcn
-                .apply(count, (x, w), (&mut s.pointcn, w), true);
-            layer
-                .qkv
-                .apply(count, (&s.pointcn, w), (&mut out[w..], aw), false);
-            for (dst, src) in out.chunks_exact_mut(aw).zip(s.pointcn.chunks_exact(w)) {
-                dst[..w].copy_from_slice(src);
-            }
+            pointcn_and_qkv(layer, block(&feat, w, k, block_rows), w, out, s);
         });
         let keys = MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, aw);
         let values = MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, aw);
+        let all = AllRows {
+            keys,
+            values,
+            geometry: &geometry,
+            scale,
+        };
         for_blocks(&mut feat, block_rows * w, &|k, out, s| {
             let first = k * block_rows;
-            let count = out.len() / w;
-            let rows = &act[first * aw..(first + count) * aw];
-            let queries = MatRef::from_row_major_slice_with_stride(&rows[w..], count, w, aw);
-            s.message.resize(count * w, 0.0);
-            attention_rows(
-                queries,
-                keys,
-                values,
-                &geometry,
-                first,
-                scale,
-                &mut s.attention,
-                &mut s.message,
-            );
-            let [m0, m1, m2] = &layer.message;
-            let [h0, h1] = &mut s.hidden;
-            h0.resize(count * m0.outputs(), 0.0);
-            h1.resize(count * m1.outputs(), 0.0);
-            s.update.resize(count * w, 0.0);
-            m0.apply(count, (&s.message, w), (h0, m0.outputs()), true);
-            m1.apply(count, (h0, m0.outputs()), (h1, m1.outputs()), true);
-            m2.apply(count, (h1, m1.outputs()), (&mut s.update, w), false);
-            // the residual adds the pointcn output, the input of the non-local block
-            for ((o, pc), u) in out
-                .chunks_exact_mut(w)
-                .zip(rows.chunks_exact(aw))
-                .zip(s.update.chunks_exact(w))
-            {
-                for ((o, &p), &u) in o.iter_mut().zip(&pc[..w]).zip(u) {
-                    *o = p + u;
-                }
-            }
+            let rows = &act[first * aw..(first + out.len() / w) * aw];
+            non_local(layer, &all, first, rows, out, s);
         });
     }
     normalised(&feat, w)
+}
+
+/// One scratch per thread of the pool, reused by every block that thread runs: a fresh one
+/// per rayon task would allocate (and the kernel zero) the logits again in every sweep.
+fn thread_scratch(parallel: bool) -> Vec<Mutex<Scratch>> {
+    let threads = if parallel {
+        rayon::current_num_threads()
+    } else {
+        1
+    };
+    (0..threads).map(|_| Mutex::default()).collect()
+}
+
+/// Sweep (A) of one block of rows `x` (`w` columns): `out` gets, per row, the pointcn output
+/// followed by q, k and v (`4w` columns).
+fn pointcn_and_qkv(layer: &Block, x: &[f32], w: usize, out: &mut [f32], s: &mut Scratch) {
+    let aw = 4 * w;
+    let count = x.len() / w;
+    s.pointcn.resize(count * w, 0.0);
+    layer
+        .pointcn
+        .apply(count, (x, w), (&mut s.pointcn, w), true);
+    layer
+        .qkv
+        .apply(count, (&s.pointcn, w), (&mut out[w..], aw), false);
+    for (dst, src) in out.chunks_exact_mut(aw).zip(s.pointcn.chunks_exact(w)) {
+        dst[..w].copy_from_slice(src);
+    }
+}
+
+/// What sweep (B) of a layer reads for every block: the keys and values of all rows, the
+/// geometry of the correspondences and the attention's logit scale.
+struct AllRows<'a> {
+    keys: MatRef<'a, f32>,
+    values: MatRef<'a, f32>,
+    geometry: &'a Geometry,
+    scale: f32,
+}
+
+/// Sweep (B) of the block of rows starting at row `first`: `rows` are its sweep (A) outputs
+/// (`4w` columns); `out` (`w` columns) becomes pointcn output + message MLP(attention).
+fn non_local(
+    layer: &Block,
+    all: &AllRows,
+    first: usize,
+    rows: &[f32],
+    out: &mut [f32],
+    s: &mut Scratch,
+) {
+    let w = all.keys.ncols();
+    let aw = 4 * w;
+    let count = out.len() / w;
+    let queries = MatRef::from_row_major_slice_with_stride(&rows[w..], count, w, aw);
+    s.message.resize(count * w, 0.0);
+    attention_rows(
+        queries,
+        all.keys,
+        all.values,
+        all.geometry,
+        first,
+        all.scale,
+        &mut s.attention,
+        &mut s.message,
+    );
+    let [m0, m1, m2] = &layer.message;
+    let [h0, h1] = &mut s.hidden;
+    h0.resize(count * m0.outputs(), 0.0);
+    h1.resize(count * m1.outputs(), 0.0);
+    s.update.resize(count * w, 0.0);
+    m0.apply(count, (&s.message, w), (h0, m0.outputs()), true);
+    m1.apply(count, (h0, m0.outputs()), (h1, m1.outputs()), true);
+    m2.apply(count, (h1, m1.outputs()), (&mut s.update, w), false);
+    // the residual adds the pointcn output, the input of the non-local block
+    for ((o, pc), u) in out
+        .chunks_exact_mut(w)
+        .zip(rows.chunks_exact(aw))
+        .zip(s.update.chunks_exact(w))
+    {
+        for ((o, &p), &u) in o.iter_mut().zip(&pc[..w]).zip(u) {
+            *o = p + u;
+        }
+    }
 }
 
 /// Rows of block `k` of a row-major matrix with `cols` columns.

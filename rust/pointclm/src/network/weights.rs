@@ -71,21 +71,14 @@ fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// The network in `bytes` (a safetensors file) as `meta` (its JSON) declares it; `name` is the
+/// path that errors report.
 pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network> {
     let malformed = |reason: String| Error::WeightsMalformed {
         path: name.to_string(),
         reason,
     };
-    let meta: Value = serde_json::from_str(meta)
-        .map_err(|e| malformed(format!("metadata is not valid JSON: {e}")))?;
-    let architecture = meta
-        .get("architecture")
-        .ok_or_else(|| malformed("metadata has no \"architecture\"".into()))
-        .and_then(|a| architecture(a).map_err(malformed))?;
-    let recommended = match meta.get("recommended_config") {
-        None | Some(Value::Null) => Config::default(),
-        Some(v) => config(v).map_err(|e| malformed(format!("recommended_config: {e}")))?,
-    };
+    let (architecture, recommended) = metadata(meta).map_err(malformed)?;
     let st = SafeTensors::deserialize(bytes)
         .map_err(|e| malformed(format!("not a safetensors file: {e}")))?;
     check_capacity(&architecture, &st, bytes.len()).map_err(malformed)?;
@@ -95,34 +88,10 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
         used: BTreeSet::new(),
     };
     let w = architecture.width;
-    let h = w / 2;
     let lift = r.conv("lift", w, 6, None)?;
     let mut blocks = Vec::with_capacity(architecture.depth);
     for b in 0..architecture.depth {
-        let pc = format!("pointcn.{b}");
-        let nl = format!("nonlocal_blocks.{b}");
-        let pointcn = r.conv(&format!("{pc}.0"), w, w, Some(&format!("{pc}.1")))?;
-        let qkv = r.qkv(&nl, w)?;
-        let message = [
-            r.conv(
-                &format!("{nl}.message.0"),
-                h,
-                w,
-                Some(&format!("{nl}.message.1")),
-            )?,
-            r.conv(
-                &format!("{nl}.message.3"),
-                h,
-                h,
-                Some(&format!("{nl}.message.4")),
-            )?,
-            r.conv(&format!("{nl}.message.6"), w, h, None)?,
-        ];
-        blocks.push(Block {
-            pointcn,
-            qkv,
-            message,
-        });
+        blocks.push(r.block(b, w)?);
     }
     // BatchNorm's step counter is training state; anything else left over means the file
     // holds a different network than its metadata says (torch's strict loading refuses it).
@@ -142,6 +111,22 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
         lift,
         blocks,
     })
+}
+
+/// The architecture and the recommended config (the default when absent or null) that the
+/// metadata JSON declares; the error is the reason it is malformed.
+fn metadata(meta: &str) -> std::result::Result<(Architecture, Config), String> {
+    let meta: Value =
+        serde_json::from_str(meta).map_err(|e| format!("metadata is not valid JSON: {e}"))?;
+    let architecture = meta
+        .get("architecture")
+        .ok_or_else(|| "metadata has no \"architecture\"".to_string())
+        .and_then(architecture)?;
+    let recommended = match meta.get("recommended_config") {
+        None | Some(Value::Null) => Config::default(),
+        Some(v) => config(v).map_err(|e| format!("recommended_config: {e}"))?,
+    };
+    Ok((architecture, recommended))
 }
 
 /// Refuses an architecture that the file cannot hold before anything is allocated for it: a
@@ -248,6 +233,36 @@ impl Reader<'_, '_> {
             return Err(self.malformed(format!("{bn}.running_var has negative values")));
         }
         Ok(norm)
+    }
+
+    /// Block `b` (`w` channels; the message MLP narrows to `w / 2`): the torch module names
+    /// `pointcn.{b}` and `nonlocal_blocks.{b}`, in the order the network reads them.
+    fn block(&mut self, b: usize, w: usize) -> Result<Block> {
+        let h = w / 2;
+        let pc = format!("pointcn.{b}");
+        let nl = format!("nonlocal_blocks.{b}");
+        let pointcn = self.conv(&format!("{pc}.0"), w, w, Some(&format!("{pc}.1")))?;
+        let qkv = self.qkv(&nl, w)?;
+        let message = [
+            self.conv(
+                &format!("{nl}.message.0"),
+                h,
+                w,
+                Some(&format!("{nl}.message.1")),
+            )?,
+            self.conv(
+                &format!("{nl}.message.3"),
+                h,
+                h,
+                Some(&format!("{nl}.message.4")),
+            )?,
+            self.conv(&format!("{nl}.message.6"), w, h, None)?,
+        ];
+        Ok(Block {
+            pointcn,
+            qkv,
+            message,
+        })
     }
 
     /// The q, k and v convolutions of a non-local block stacked into one `w -> 3w` product.
