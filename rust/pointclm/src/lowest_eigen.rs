@@ -69,12 +69,7 @@ pub fn lowest_eigenpairs(
         return None;
     }
     let single = Mat::<f32>::from_fn(n, n, |i, j| m[(i, j)] as f32);
-    // The largest absolute column sum (the 1-norm, equal to the infinity norm of a symmetric
-    // matrix) bounds the spectral norm, so the tolerances scale with the matrix.
-    let norm = (0..n)
-        .map(|j| m.col(j).iter().map(|v| v.abs()).sum::<f64>())
-        .fold(0.0f64, f64::max)
-        .max(f64::MIN_POSITIVE);
+    let norm = norm_bound(m);
     let mut rng = crate::seeds::stream(seed, crate::seeds::STAGE_EIGEN, n as u64);
     let mut basis = Basis::new(n, max_basis);
     let mut next = random_block(n, BLOCK, &mut rng);
@@ -94,30 +89,11 @@ pub fn lowest_eigenpairs(
             next = basis.last_products(added);
             continue;
         }
-        let (theta, y) = small_evd(basis.projected())?;
-        let keep = (wanted + BLOCK).min(basis.used);
-        let residuals = basis.residual_norms(&theta, y.as_ref(), keep);
-        let prefix = residuals
-            .iter()
-            .take_while(|&&r| r <= VALUE_TOL * norm)
-            .count();
-        let vectors_done = residuals
-            .iter()
-            .take_while(|&&r| r <= VECTOR_TOL * norm)
-            .count();
-        let converged = &theta[..prefix];
-        let needed = if prefix == n {
-            Some(prefix)
-        } else {
-            enough(converged)
-        };
-        if prefix >= 1 && needed.is_some_and(|k| k <= vectors_done) {
-            return Some(Lowest {
-                values: converged.to_vec(),
-                vectors: basis.combine(y.as_ref(), prefix),
-            });
+        let ritz = basis.ritz(wanted, norm)?;
+        if let Some(found) = ritz.enough_found(&basis, &enough) {
+            return Some(found);
         }
-        if prefix >= wanted {
+        if ritz.prefix >= wanted {
             wanted *= 2;
             if wanted + 2 * BLOCK > max_basis {
                 return None;
@@ -127,12 +103,57 @@ pub fn lowest_eigenpairs(
             // Thick restart on the lowest Ritz vectors; the residuals of the unconverged ones
             // continue the Krylov sequence (they are orthogonal to the kept vectors).
             let keep = (wanted + BLOCK).min(basis.used - BLOCK);
-            next = basis.restart(&theta, y.as_ref(), keep, vectors_done.min(prefix));
+            let from = ritz.vectors_done.min(ritz.prefix);
+            next = basis.restart(&ritz.theta, ritz.y.as_ref(), keep, from);
         } else {
             next = basis.last_products(added);
         }
     }
     None
+}
+
+/// The largest absolute column sum of `m` (the 1-norm, equal to the infinity norm of a
+/// symmetric matrix): it bounds the spectral norm, so the tolerances scale with the matrix.
+fn norm_bound(m: MatRef<'_, f64>) -> f64 {
+    (0..m.nrows())
+        .map(|j| m.col(j).iter().map(|v| v.abs()).sum::<f64>())
+        .fold(0.0f64, f64::max)
+        .max(f64::MIN_POSITIVE)
+}
+
+/// One Rayleigh-Ritz projection: the Ritz values `theta` (ascending) and the vectors `y`
+/// in the basis, with how many of the lowest have converged as values (`prefix`,
+/// [`VALUE_TOL`]) and as vectors (`vectors_done`, [`VECTOR_TOL`]).
+struct Ritz {
+    theta: Vec<f64>,
+    y: Mat<f64>,
+    prefix: usize,
+    vectors_done: usize,
+}
+
+impl Ritz {
+    /// The converged pairs when `enough` (asked with the converged values; a full spectrum
+    /// is always enough) needs no more vectors than have converged.
+    fn enough_found(
+        &self,
+        basis: &Basis,
+        enough: impl Fn(&[f64]) -> Option<usize>,
+    ) -> Option<Lowest> {
+        let converged = &self.theta[..self.prefix];
+        let needed = if self.prefix == basis.n {
+            Some(self.prefix)
+        } else {
+            enough(converged)
+        };
+        if self.prefix >= 1 && needed.is_some_and(|k| k <= self.vectors_done) {
+            Some(Lowest {
+                values: converged.to_vec(),
+                vectors: basis.combine(self.y.as_ref(), self.prefix),
+            })
+        } else {
+            None
+        }
+    }
 }
 
 /// The orthonormal Krylov basis `Q`, its products `W = M Q` and the projection `Q^T M Q`,
@@ -165,7 +186,22 @@ impl Basis {
 
     /// Orthonormalises `block` (column-major, `n` rows) against the basis and appends it,
     /// with its products and projection; returns the number of columns added.
-    fn extend(&mut self, single: &Mat<f32>, mut block: Vec<f64>, rng: &mut ChaCha8Rng) -> usize {
+    fn extend(&mut self, single: &Mat<f32>, block: Vec<f64>, rng: &mut ChaCha8Rng) -> usize {
+        let start = self.used;
+        let added = self.append_orthonormal(block, rng);
+        if added == 0 {
+            return 0;
+        }
+        self.multiply_new(single, start, added);
+        self.project_new(start, start + added);
+        self.used = start + added;
+        added
+    }
+
+    /// Appends the columns of `block` that are new against the basis, orthonormalised, after
+    /// column `used` (without counting them as used yet), while there is room; returns how
+    /// many.
+    fn append_orthonormal(&mut self, mut block: Vec<f64>, rng: &mut ChaCha8Rng) -> usize {
         let n = self.n;
         let start = self.used;
         let room = self.cap - start;
@@ -194,10 +230,13 @@ impl Basis {
             added += 1;
         }
         block.clear();
-        if added == 0 {
-            return 0;
-        }
-        // W_new = M Q_new in f32: one pass over the matrix for the whole block.
+        added
+    }
+
+    /// `W_new = M Q_new` for the `added` columns from `start`, in f32: one pass over the
+    /// matrix for the whole block.
+    fn multiply_new(&mut self, single: &Mat<f32>, start: usize, added: usize) {
+        let n = self.n;
         let qf = Mat::<f32>::from_fn(n, added, |i, c| self.q[(start + c) * n + i] as f32);
         let mut wf = Mat::<f32>::zeros(n, added);
         matmul(
@@ -214,8 +253,12 @@ impl Basis {
                 *v = f64::from(wf[(i, c)]);
             }
         }
-        let total = start + added;
-        // Projection columns of the new block against the whole basis, mirrored.
+    }
+
+    /// Projection columns `start..total` against the whole basis `0..total`, symmetrised
+    /// within the new block and mirrored into the rows of the old one.
+    fn project_new(&mut self, start: usize, total: usize) {
+        let n = self.n;
         for c in start..total {
             let wc = &self.w[c * n..(c + 1) * n];
             for r in 0..total {
@@ -233,8 +276,29 @@ impl Basis {
                 self.t[r * self.cap + c] = self.t[c * self.cap + r];
             }
         }
-        self.used = total;
-        added
+    }
+
+    /// Rayleigh-Ritz on the current basis, with the residuals of the lowest
+    /// `wanted + BLOCK` pairs measured against `norm`; `None` when the small decomposition
+    /// fails.
+    fn ritz(&self, wanted: usize, norm: f64) -> Option<Ritz> {
+        let (theta, y) = small_evd(self.projected())?;
+        let keep = (wanted + BLOCK).min(self.used);
+        let residuals = self.residual_norms(&theta, y.as_ref(), keep);
+        let prefix = residuals
+            .iter()
+            .take_while(|&&r| r <= VALUE_TOL * norm)
+            .count();
+        let vectors_done = residuals
+            .iter()
+            .take_while(|&&r| r <= VECTOR_TOL * norm)
+            .count();
+        Some(Ritz {
+            theta,
+            y,
+            prefix,
+            vectors_done,
+        })
     }
 
     /// Classical Gram-Schmidt twice against the first `upto` columns, then normalisation;
