@@ -169,40 +169,13 @@ fn propose(
         if round == 0 {
             first_count = n_clusters;
         }
-        let offset = fits.len() as u64;
-        let round_fits: Vec<RansacFit> = groups
-            .par_iter()
-            .enumerate()
-            .filter_map(|(k, g)| {
-                let mut rng = stream(seed, STAGE_RANSAC, offset + k as u64);
-                ransac(
-                    c,
-                    g,
-                    config.ransac_iterations,
-                    config.ransac_confidence,
-                    config.inlier_threshold,
-                    config.refine,
-                    &mut rng,
-                )
-            })
-            .collect();
-        let Some((null, bound)) = null else {
+        let round_fits = fit_groups(c, &groups, config, seed, fits.len() as u64);
+        let Some(null) = null else {
             fits.extend(round_fits);
             break;
         };
         let n_tests = fits.len() + round_fits.len();
-        let valid: Vec<bool> = round_fits
-            .par_iter()
-            .map(|f| null.log10_nfa(c, &f.pose, n_tests) <= bound)
-            .collect();
-        let mut explained = vec![false; c.len()];
-        for (f, _) in round_fits.iter().zip(&valid).filter(|(_, &v)| v) {
-            for &i in pool.iter() {
-                if f.pose.residual_sq(c.source(i), c.target(i)) < thr_sq {
-                    explained[i] = true;
-                }
-            }
-        }
+        let explained = explained_by_valid(c, &pool, &round_fits, null, n_tests, thr_sq);
         fits.extend(round_fits);
         let before = pool.len();
         pool.retain(|&i| !explained[i]);
@@ -215,6 +188,59 @@ fn propose(
         n_clusters: first_count,
         clustering,
     })
+}
+
+/// One RANSAC fit per group (none for a group without a non-degenerate triplet); group `k`
+/// draws from RANSAC stream `offset + k`, so every group of every round has its own stream.
+fn fit_groups(
+    c: &Correspondences,
+    groups: &[Vec<usize>],
+    config: &Config,
+    seed: u64,
+    offset: u64,
+) -> Vec<RansacFit> {
+    groups
+        .par_iter()
+        .enumerate()
+        .filter_map(|(k, g)| {
+            let mut rng = stream(seed, STAGE_RANSAC, offset + k as u64);
+            ransac(
+                c,
+                g,
+                config.ransac_iterations,
+                config.ransac_confidence,
+                config.inlier_threshold,
+                config.refine,
+                &mut rng,
+            )
+        })
+        .collect()
+}
+
+/// Per correspondence, whether a fit of this round that `null` validates (`log10 NFA` at
+/// most the bound, among `n_tests` poses) holds it among its inliers; only rows of `pool`
+/// are looked at.
+fn explained_by_valid(
+    c: &Correspondences,
+    pool: &[usize],
+    round_fits: &[RansacFit],
+    (null, bound): (&NullModel, f64),
+    n_tests: usize,
+    thr_sq: f64,
+) -> Vec<bool> {
+    let valid: Vec<bool> = round_fits
+        .par_iter()
+        .map(|f| null.log10_nfa(c, &f.pose, n_tests) <= bound)
+        .collect();
+    let mut explained = vec![false; c.len()];
+    for (f, _) in round_fits.iter().zip(&valid).filter(|(_, &v)| v) {
+        for &i in pool {
+            if f.pose.residual_sq(c.source(i), c.target(i)) < thr_sq {
+                explained[i] = true;
+            }
+        }
+    }
+    explained
 }
 
 /// Registers many scenes on a private pool of `num_threads` threads (0 = rayon's default,

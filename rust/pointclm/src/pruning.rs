@@ -55,73 +55,115 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64) -> Vec<u32> {
     if tau_s < 0.0 {
         return vec![n as u32; n]; // beta >= 0 > tau_s for every pair
     }
-    let centred = |cols: &[Vec<f64>; 3]| -> ([Vec<f32>; 3], f64) {
-        let mut extent = 0.0f64;
-        let out = std::array::from_fn(|k| {
-            let mean = cols[k].iter().sum::<f64>() / n.max(1) as f64;
-            cols[k]
-                .iter()
-                .map(|&v| {
-                    extent = extent.max((v - mean).abs());
-                    (v - mean) as f32
-                })
-                .collect()
-        });
-        (out, extent)
+    let (s, ms) = centred_f32(c.source_columns(), n);
+    let (t, mt) = centred_f32(c.target_columns(), n);
+    let (lo2, hi2) = undecided_band(tau_s, inv, ms.max(mt));
+    let rule = PaperRuleF32 {
+        s,
+        t,
+        src: c.source_columns(),
+        dst: c.target_columns(),
+        lo2,
+        hi2,
+        tau_s,
+        inv,
     };
-    let (s, ms) = centred(c.source_columns());
-    let (t, mt) = centred(c.target_columns());
-    // Rounding of the inputs, the differences, the sums of squares and the square roots: each
-    // length is off by at most ~21 u M (u = 2^-24, M the largest centred coordinate), so the
-    // difference by ~42 u M; 64 u M leaves room, plus a relative term for the f64 rule itself.
-    let d = ((1.0 - tau_s) / inv).max(0.0).sqrt();
-    let err = 64.0 * f64::from(f32::EPSILON) * ms.max(mt) + 1e-9 * d;
-    let lo = (d - err).max(0.0);
-    let (lo2, hi2) = ((lo * lo) as f32, ((d + err) * (d + err)) as f32);
-    // f32 rounding of the bounds themselves: widen the band by one ulp each way.
-    let (lo2, hi2) = (f32_down(lo2), f32_up(hi2));
-    let (src, dst) = (c.source_columns(), c.target_columns());
     let mut counts = vec![0u32; n];
     counts
         .par_chunks_mut(BLOCK_ROWS)
         .enumerate()
         .for_each(|(block, out)| {
-            let (s0, s1, s2) = (&s[0][..n], &s[1][..n], &s[2][..n]);
-            let (t0, t1, t2) = (&t[0][..n], &t[1][..n], &t[2][..n]);
             for (k, slot) in out.iter_mut().enumerate() {
-                let i = block * BLOCK_ROWS + k;
-                let (si, ti) = ([s0[i], s1[i], s2[i]], [t0[i], t1[i], t2[i]]);
-                // The row's squared f32 length differences, in an order the compiler
-                // vectorises (zipped slices, no bounds checks).
-                let row = || {
-                    s0.iter()
-                        .zip(s1)
-                        .zip(s2)
-                        .zip(t0)
-                        .zip(t1.iter().zip(t2))
-                        .map(move |((((&a0, &a1), &a2), &b0), (&b1, &b2))| {
-                            length_diff_sq([a0, a1, a2], [b0, b1, b2], si, ti)
-                        })
-                };
-                // Branch-free over the row: sure and undecided counts.
-                let (mut sure, mut near) = (0u32, 0u32);
-                for q in row() {
-                    sure += u32::from(q < lo2);
-                    near += u32::from((q >= lo2) & (q <= hi2));
-                }
-                if near > 0 {
-                    for (j, qj) in row().enumerate() {
-                        if qj >= lo2 && qj <= hi2 {
-                            let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
-                            let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
-                            sure += u32::from(beta_value(ds, dt, inv) > tau_s);
-                        }
-                    }
-                }
-                *slot = sure;
+                *slot = rule.count(block * BLOCK_ROWS + k);
             }
         });
     counts
+}
+
+/// The columns minus their means, in f32 (lengths do not change), and the largest absolute
+/// centred coordinate (in f64) that the error bound scales with.
+fn centred_f32(cols: &[Vec<f64>; 3], n: usize) -> ([Vec<f32>; 3], f64) {
+    let mut extent = 0.0f64;
+    let out = std::array::from_fn(|k| {
+        let mean = cols[k].iter().sum::<f64>() / n.max(1) as f64;
+        cols[k]
+            .iter()
+            .map(|&v| {
+                extent = extent.max((v - mean).abs());
+                (v - mean) as f32
+            })
+            .collect()
+    });
+    (out, extent)
+}
+
+/// The band `[lo2, hi2]` of squared f32 length differences that f32 cannot decide against
+/// `D^2 = (1 - tau_s) / inv`, for centred coordinates up to `extent`: below it the pair is
+/// surely consistent, above it surely not.
+fn undecided_band(tau_s: f64, inv: f64, extent: f64) -> (f32, f32) {
+    // Rounding of the inputs, the differences, the sums of squares and the square roots: each
+    // length is off by at most ~21 u M (u = 2^-24, M the largest centred coordinate), so the
+    // difference by ~42 u M; 64 u M leaves room, plus a relative term for the f64 rule itself.
+    let d = ((1.0 - tau_s) / inv).max(0.0).sqrt();
+    let err = 64.0 * f64::from(f32::EPSILON) * extent + 1e-9 * d;
+    let lo = (d - err).max(0.0);
+    let (lo2, hi2) = ((lo * lo) as f32, ((d + err) * (d + err)) as f32);
+    // f32 rounding of the bounds themselves: widen the band by one ulp each way.
+    (f32_down(lo2), f32_up(hi2))
+}
+
+/// The paper's rule decided in f32 on centred columns `s`, `t`, with the f64 columns `src`,
+/// `dst` and [`beta_value`] for the pairs in the undecided band `[lo2, hi2]`.
+struct PaperRuleF32<'a> {
+    s: [Vec<f32>; 3],
+    t: [Vec<f32>; 3],
+    src: &'a [Vec<f64>; 3],
+    dst: &'a [Vec<f64>; 3],
+    lo2: f32,
+    hi2: f32,
+    tau_s: f64,
+    inv: f64,
+}
+
+impl PaperRuleF32<'_> {
+    /// How many `j` (including `i`) have `beta_ij > tau_s`.
+    #[inline]
+    fn count(&self, i: usize) -> u32 {
+        let (s, t, src, dst) = (&self.s, &self.t, self.src, self.dst);
+        let (lo2, hi2) = (self.lo2, self.hi2);
+        let n = s[0].len();
+        let (s0, s1, s2) = (&s[0][..n], &s[1][..n], &s[2][..n]);
+        let (t0, t1, t2) = (&t[0][..n], &t[1][..n], &t[2][..n]);
+        let (si, ti) = ([s0[i], s1[i], s2[i]], [t0[i], t1[i], t2[i]]);
+        // The row's squared f32 length differences, in an order the compiler vectorises
+        // (zipped slices, no bounds checks).
+        let row = || {
+            s0.iter()
+                .zip(s1)
+                .zip(s2)
+                .zip(t0)
+                .zip(t1.iter().zip(t2))
+                .map(move |((((&a0, &a1), &a2), &b0), (&b1, &b2))| {
+                    length_diff_sq([a0, a1, a2], [b0, b1, b2], si, ti)
+                })
+        };
+        // Branch-free over the row: sure and undecided counts.
+        let (mut sure, mut near) = (0u32, 0u32);
+        for q in row() {
+            sure += u32::from(q < lo2);
+            near += u32::from((q >= lo2) & (q <= hi2));
+        }
+        if near > 0 {
+            for (j, qj) in row().enumerate() {
+                if qj >= lo2 && qj <= hi2 {
+                    let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
+                    let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
+                    sure += u32::from(beta_value(ds, dt, self.inv) > self.tau_s);
+                }
+            }
+        }
+        sure
+    }
 }
 
 /// `(|a - ai| - |b - bi|)^2` in f32.
