@@ -77,6 +77,39 @@ pub fn match_features(
     config: &MatchingConfig,
     seed: u64,
 ) -> Result<Matches> {
+    check_inputs(source, target, config)?;
+    let k = config.k.min(source.len());
+    // Candidate p is the (p % k)-th nearest source row of target row p / k.
+    let (src_of_tgt, dist2) = nearest_rows(target, source, k);
+    let mut order: Vec<usize> = (0..src_of_tgt.len()).collect();
+    if config.mutual {
+        let kt = config.k.min(target.len());
+        let (tgt_of_src, _) = nearest_rows(source, target, kt);
+        order.retain(|&p| {
+            let s = src_of_tgt[p];
+            tgt_of_src[s * kt..(s + 1) * kt].contains(&(p / k))
+        });
+    }
+    // Ties broken by target index then rank, so the order is total and reproducible.
+    order.sort_unstable_by(|&a, &b| dist2[a].total_cmp(&dist2[b]).then(a.cmp(&b)));
+    order.truncate(config.top_k);
+    if let Some(n) = config.n_samples {
+        if n < order.len() {
+            let mut rng = stream(seed, STAGE_MATCHING, 0);
+            let mut picked = sample(&mut rng, order.len(), n).into_vec();
+            picked.sort_unstable();
+            order = picked.into_iter().map(|i| order[i]).collect();
+        }
+    }
+    Ok(Matches {
+        source: order.iter().map(|&p| src_of_tgt[p]).collect(),
+        target: order.iter().map(|&p| p / k).collect(),
+        distance: order.iter().map(|&p| dist2[p].max(0.0).sqrt()).collect(),
+    })
+}
+
+/// The errors [`match_features`] reports before any work.
+fn check_inputs(source: &Features, target: &Features, config: &MatchingConfig) -> Result<()> {
     if source.is_empty() || target.is_empty() {
         return Err(Error::TooFewPoints {
             what: if source.is_empty() {
@@ -116,35 +149,7 @@ pub fn match_features(
             reason: "must sample at least one match (or None for all)",
         });
     }
-
-    let k = config.k.min(source.len());
-    // Candidate p is the (p % k)-th nearest source row of target row p / k.
-    let (src_of_tgt, dist2) = nearest_rows(target, source, k);
-    let mut order: Vec<usize> = (0..src_of_tgt.len()).collect();
-    if config.mutual {
-        let kt = config.k.min(target.len());
-        let (tgt_of_src, _) = nearest_rows(source, target, kt);
-        order.retain(|&p| {
-            let s = src_of_tgt[p];
-            tgt_of_src[s * kt..(s + 1) * kt].contains(&(p / k))
-        });
-    }
-    // Ties broken by target index then rank, so the order is total and reproducible.
-    order.sort_unstable_by(|&a, &b| dist2[a].total_cmp(&dist2[b]).then(a.cmp(&b)));
-    order.truncate(config.top_k);
-    if let Some(n) = config.n_samples {
-        if n < order.len() {
-            let mut rng = stream(seed, STAGE_MATCHING, 0);
-            let mut picked = sample(&mut rng, order.len(), n).into_vec();
-            picked.sort_unstable();
-            order = picked.into_iter().map(|i| order[i]).collect();
-        }
-    }
-    Ok(Matches {
-        source: order.iter().map(|&p| src_of_tgt[p]).collect(),
-        target: order.iter().map(|&p| p / k).collect(),
-        distance: order.iter().map(|&p| dist2[p].max(0.0).sqrt()).collect(),
-    })
+    Ok(())
 }
 
 /// Rows of queries handled per matrix product: large enough for an efficient product, small
@@ -250,15 +255,15 @@ fn screened_block<T: Screen>(
     // to spare; `tiny` covers underflow.
     let err = 4.0 * (dim as f64 + 4.0) * T::UNIT;
     let tiny = 1e-30;
-    let mut best = Vec::with_capacity((hi - lo) * k);
-    let mut best_d2 = Vec::with_capacity((hi - lo) * k);
-    let mut top: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
-    let mut cands: Vec<(f64, usize)> = Vec::new();
+    let mut best = (
+        Vec::with_capacity((hi - lo) * k),
+        Vec::with_capacity((hi - lo) * k),
+    );
     for i in 0..hi - lo {
         let query = queries.row(lo + i);
         let qn: f64 = query.iter().map(|v| v * v).sum();
         let col = g.col_as_slice(i);
-        let screened = |j: usize| {
+        let bounds = |j: usize| {
             let v = base_norm[j] - 2.0 * col[j].to_f64();
             let e = err * (qn + base_norm[j]) + tiny;
             // Overflowing descriptors (f64 path only) rule nothing out: the direct distance
@@ -269,36 +274,49 @@ fn screened_block<T: Screen>(
                 (f64::NEG_INFINITY, f64::INFINITY)
             }
         };
-        // One sweep: `top` keeps the k smallest upper bounds so far, whose largest (`cut`)
-        // only shrinks; a row whose lower bound exceeds the cut can never be among the k
-        // nearest, so only rows under the running cut are kept, and the final cut prunes them.
-        top.clear();
-        cands.clear();
-        for j in 0..base.len() {
-            let (lower, upper) = screened(j);
-            if top.len() < k || lower <= top[k - 1].0 {
-                cands.push((lower, j));
-                keep_smallest(&mut top, k, upper, j);
-            }
-        }
-        let cut = top[top.len() - 1].0;
-        top.clear();
-        for &(lower, j) in &cands {
-            if lower <= cut {
-                let d2: f64 = query
-                    .iter()
-                    .zip(base.row(j))
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum();
-                keep_smallest(&mut top, k, d2, j);
-            }
-        }
-        for &(d2, j) in &top {
-            best.push(j);
-            best_d2.push(d2);
+        rank_query(query, base, k, bounds, &mut best);
+    }
+    best
+}
+
+/// Appends the k nearest base rows of `query` and their squared distances to `out`, nearest
+/// first, given bounds on every row's squared distance up to a constant (`bounds(j)`: lower,
+/// upper). One sweep: `top` keeps the k smallest upper bounds so far, whose largest only
+/// shrinks; a row whose lower bound exceeds it can never be among the k nearest, so only rows
+/// under the running cut are kept, the final cut prunes them, and direct distances rank the
+/// rest.
+fn rank_query(
+    query: &[f64],
+    base: &Features,
+    k: usize,
+    bounds: impl Fn(usize) -> (f64, f64),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    let mut top: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+    let mut cands: Vec<(f64, usize)> = Vec::new();
+    for j in 0..base.len() {
+        let (lower, upper) = bounds(j);
+        if top.len() < k || lower <= top[k - 1].0 {
+            cands.push((lower, j));
+            keep_smallest(&mut top, k, upper, j);
         }
     }
-    (best, best_d2)
+    let cut = top[top.len() - 1].0;
+    top.clear();
+    for &(lower, j) in &cands {
+        if lower <= cut {
+            let d2: f64 = query
+                .iter()
+                .zip(base.row(j))
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum();
+            keep_smallest(&mut top, k, d2, j);
+        }
+    }
+    for &(d2, j) in &top {
+        out.0.push(j);
+        out.1.push(d2);
+    }
 }
 
 /// Inserts `(v, j)` into `top`, sorted and at most `k` long; rows come in increasing order, so

@@ -165,22 +165,7 @@ pub fn refine_poses(
     viewpoint: Option<[f64; 3]>,
     params: &RefineParams,
 ) -> Result<Refined> {
-    check_points(source, "source points", 3)?;
-    check_points(target, "target points", 3)?;
-    params.check()?;
-    if let Some(row) = poses.iter().position(|p| {
-        !(p.rotation.iter().all(|v| v.is_finite()) && p.translation.iter().all(|v| v.is_finite()))
-    }) {
-        return Err(Error::NonFinite { what: "poses", row });
-    }
-    if let Some(v) = viewpoint {
-        if !v.iter().all(|c| c.is_finite()) {
-            return Err(Error::NonFinite {
-                what: "viewpoint",
-                row: 0,
-            });
-        }
-    }
+    check_inputs(source, target, poses, viewpoint, params)?;
     let index = PointIndex::new(target)?;
     let trusted = viewpoint.filter(|&v| {
         DepthMap::new(target, v, params.trust_cell, params.trust_tolerance).hidden_share(target)
@@ -197,20 +182,61 @@ pub fn refine_poses(
         })
         .collect();
 
-    let floor = match depth {
-        Some(_) => 0.0,
-        None => {
-            let best = fitted.iter().map(|(_, j)| j.fitness).fold(0.0, f64::max);
-            params.min_fitness.max(params.min_relative_fitness * best)
+    let kept = keep_surest(&fitted, depth.is_some(), target.len(), params);
+    Ok(Refined {
+        poses: kept,
+        by_visibility: depth.is_some(),
+    })
+}
+
+fn check_inputs(
+    source: &[[f64; 3]],
+    target: &[[f64; 3]],
+    poses: &[RigidTransform],
+    viewpoint: Option<[f64; 3]>,
+    params: &RefineParams,
+) -> Result<()> {
+    check_points(source, "source points", 3)?;
+    check_points(target, "target points", 3)?;
+    params.check()?;
+    if let Some(row) = poses.iter().position(|p| {
+        !(p.rotation.iter().all(|v| v.is_finite()) && p.translation.iter().all(|v| v.is_finite()))
+    }) {
+        return Err(Error::NonFinite { what: "poses", row });
+    }
+    if let Some(v) = viewpoint {
+        if !v.iter().all(|c| c.is_finite()) {
+            return Err(Error::NonFinite {
+                what: "viewpoint",
+                row: 0,
+            });
         }
+    }
+    Ok(())
+}
+
+/// The fitted poses that pass the rules, surest first (ties: input order), each dropped when
+/// more than `max_shared` of the scan points it explains are claimed by a surer kept pose.
+fn keep_surest(
+    fitted: &[(RigidTransform, Judged)],
+    by_visibility: bool,
+    n_target: usize,
+    params: &RefineParams,
+) -> Vec<RefinedPose> {
+    let floor = if by_visibility {
+        0.0
+    } else {
+        let best = fitted.iter().map(|(_, j)| j.fitness).fold(0.0, f64::max);
+        params.min_fitness.max(params.min_relative_fitness * best)
     };
-    let passes = |j: &Judged| match depth {
-        Some(_) => {
+    let passes = |j: &Judged| {
+        if by_visibility {
             j.seen >= params.min_seen
                 && j.visible_fitness >= params.min_visible_fitness
                 && j.contradiction <= params.max_contradiction
+        } else {
+            j.fitness >= floor
         }
-        None => j.fitness >= floor,
     };
     let mut order: Vec<usize> = (0..fitted.len()).collect();
     order.sort_by(|&a, &b| {
@@ -220,7 +246,7 @@ pub fn refine_poses(
             .total_cmp(&fitted[a].1.confidence)
             .then(a.cmp(&b))
     });
-    let mut claimed = vec![false; target.len()];
+    let mut claimed = vec![false; n_target];
     let mut kept = Vec::new();
     for k in order {
         let (pose, j) = &fitted[k];
@@ -245,10 +271,7 @@ pub fn refine_poses(
             origin: k,
         });
     }
-    Ok(Refined {
-        poses: kept,
-        by_visibility: depth.is_some(),
-    })
+    kept
 }
 
 /// How far from a rotation a 3x3 block may be (`||R^T R - I||_F`) and still be taken for
@@ -324,19 +347,7 @@ fn judge(
             targets,
         };
     };
-    // A point the scan explains was evidently seen, whatever its depth cell says (cells
-    // straddle occlusion edges); the others count by the sensor's verdict.
-    let (mut seen, mut contradicted) = (hits, 0usize);
-    for (sight, hit) in depth.judge(&posed).into_iter().zip(&explained) {
-        match (sight, hit) {
-            (_, true) | (Sight::Hidden, _) => {}
-            (Sight::Seen, false) => seen += 1,
-            (Sight::Contradicted, false) => {
-                seen += 1;
-                contradicted += 1;
-            }
-        }
-    }
+    let (seen, contradicted) = sensor_verdict(depth, &posed, &explained);
     let share = |k: usize| {
         if seen > 0 {
             k as f64 / seen as f64
@@ -354,6 +365,25 @@ fn judge(
         rmse,
         targets,
     }
+}
+
+/// How many posed model points the sensor could see, and how many of those lie where it saw
+/// free space. A point the scan explains was evidently seen, whatever its depth cell says
+/// (cells straddle occlusion edges); the others count by the sensor's verdict.
+fn sensor_verdict(depth: &DepthMap, posed: &[[f64; 3]], explained: &[bool]) -> (usize, usize) {
+    let hits = explained.iter().filter(|&&e| e).count();
+    let (mut seen, mut contradicted) = (hits, 0usize);
+    for (sight, hit) in depth.judge(posed).into_iter().zip(explained) {
+        match (sight, hit) {
+            (_, true) | (Sight::Hidden, _) => {}
+            (Sight::Seen, false) => seen += 1,
+            (Sight::Contradicted, false) => {
+                seen += 1;
+                contradicted += 1;
+            }
+        }
+    }
+    (seen, contradicted)
 }
 
 /// Point-to-point ICP over shrinking radii; a step that cannot be fitted (fewer than 3 model
