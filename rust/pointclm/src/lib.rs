@@ -71,7 +71,9 @@ pub use correspondences::{Correspondences, Features, MIN_CORRESPONDENCES};
 pub use error::{Error, Result};
 pub use instances::Instance;
 pub use kabsch::RigidTransform;
-pub use matching::{match_features, Matches, MatchingConfig};
+pub use matching::{
+    match_features, match_features_given, nearest_sources, Matches, MatchingConfig, NearestSources,
+};
 #[cfg(feature = "network")]
 pub use network::{Architecture, Network};
 pub use pipeline::{register, register_batch, Registration, Scene, StageTimings};

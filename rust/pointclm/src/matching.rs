@@ -79,8 +79,110 @@ pub fn match_features(
 ) -> Result<Matches> {
     check_inputs(source, target, config)?;
     let k = config.k.min(source.len());
-    // Candidate p is the (p % k)-th nearest source row of target row p / k.
     let (src_of_tgt, dist2) = nearest_rows(target, source, k);
+    Ok(select(source, target, config, seed, k, &src_of_tgt, &dist2))
+}
+
+/// Every target row's `k` nearest source rows (`k` capped at the source's rows), nearest
+/// first, flattened row after row, with their squared descriptor distances.
+///
+/// Why apart from [`match_features`]: a target row's nearest source rows do not depend on the
+/// other target rows, so a caller matching several subsets of one target (peeling matches the
+/// scan points no accepted copy explains, pass after pass) computes them once and hands each
+/// subset's rows to [`match_features_given`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct NearestSources {
+    pub k: usize,
+    pub source: Vec<usize>,
+    pub dist2: Vec<f64>,
+}
+
+/// [`NearestSources`] of every target row; parallel on the current rayon pool, exact.
+pub fn nearest_sources(source: &Features, target: &Features, k: usize) -> Result<NearestSources> {
+    let config = MatchingConfig {
+        k,
+        ..MatchingConfig::default()
+    };
+    check_inputs(source, target, &config)?;
+    let k = k.min(source.len());
+    let (source_rows, dist2) = nearest_rows(target, source, k);
+    Ok(NearestSources {
+        k,
+        source: source_rows,
+        dist2,
+    })
+}
+
+/// [`match_features`] with the target rows' nearest source rows already known (`nearest`,
+/// row for row with `target`, as [`nearest_sources`] gives them): the same result, without
+/// the search from the target side.
+pub fn match_features_given(
+    source: &Features,
+    target: &Features,
+    nearest: &NearestSources,
+    config: &MatchingConfig,
+    seed: u64,
+) -> Result<Matches> {
+    check_inputs(source, target, config)?;
+    let k = config.k.min(source.len());
+    if nearest.k != k {
+        return Err(Error::InvalidParameter {
+            name: "nearest",
+            value: format!("{} neighbours per row", nearest.k),
+            reason: "must hold as many neighbours per row as the matching's k (capped at the source rows)",
+        });
+    }
+    for (what, got) in [
+        (
+            "nearest source rows (k per target row)",
+            nearest.source.len(),
+        ),
+        ("nearest distances (k per target row)", nearest.dist2.len()),
+    ] {
+        if got != target.len() * k {
+            return Err(Error::LengthMismatch {
+                what,
+                expected: target.len() * k,
+                got,
+            });
+        }
+    }
+    if let Some(row) = nearest.source.iter().position(|&s| s >= source.len()) {
+        return Err(Error::InvalidParameter {
+            name: "nearest",
+            value: format!("source row {} at position {row}", nearest.source[row]),
+            reason: "names a source row that does not exist",
+        });
+    }
+    if let Some(row) = nearest.dist2.iter().position(|d| !d.is_finite()) {
+        return Err(Error::NonFinite {
+            what: "nearest distances",
+            row: row / k,
+        });
+    }
+    Ok(select(
+        source,
+        target,
+        config,
+        seed,
+        k,
+        &nearest.source,
+        &nearest.dist2,
+    ))
+}
+
+/// The matches kept from each target row's `k` nearest source rows (candidate p is the
+/// (p % k)-th nearest source row of target row p / k): mutual ones if asked, the `top_k`
+/// closest, then `n_samples` drawn with `seed`.
+fn select(
+    source: &Features,
+    target: &Features,
+    config: &MatchingConfig,
+    seed: u64,
+    k: usize,
+    src_of_tgt: &[usize],
+    dist2: &[f64],
+) -> Matches {
     let mut order: Vec<usize> = (0..src_of_tgt.len()).collect();
     if config.mutual {
         let kt = config.k.min(target.len());
@@ -101,11 +203,11 @@ pub fn match_features(
             order = picked.into_iter().map(|i| order[i]).collect();
         }
     }
-    Ok(Matches {
+    Matches {
         source: order.iter().map(|&p| src_of_tgt[p]).collect(),
         target: order.iter().map(|&p| p / k).collect(),
         distance: order.iter().map(|&p| dist2[p].max(0.0).sqrt()).collect(),
-    })
+    }
 }
 
 /// The errors [`match_features`] reports before any work.

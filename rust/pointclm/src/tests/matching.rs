@@ -247,3 +247,75 @@ fn identical_rows_rank_by_index_and_huge_descriptors_still_match() {
     assert_eq!(idx, vec![1, 0, 2]);
     assert!(d2[0] < d2[1] && d2[1] < d2[2]);
 }
+
+#[test]
+fn given_nearest_sources_give_the_same_matches_on_any_subset() {
+    let src = features(&pseudo_random(120, 33, 5));
+    let all = pseudo_random(300, 33, 6);
+    let nearest = nearest_sources(&src, &features(&all), 2).unwrap();
+    let rows: Vec<usize> = (0..300).filter(|r| r % 3 != 1).collect();
+    let subset = features(&rows.iter().map(|&r| all[r].clone()).collect::<Vec<_>>());
+    let given = NearestSources {
+        k: nearest.k,
+        source: rows
+            .iter()
+            .flat_map(|&r| nearest.source[2 * r..2 * r + 2].to_vec())
+            .collect(),
+        dist2: rows
+            .iter()
+            .flat_map(|&r| nearest.dist2[2 * r..2 * r + 2].to_vec())
+            .collect(),
+    };
+    for mutual in [false, true] {
+        let cfg = MatchingConfig {
+            top_k: 150,
+            mutual,
+            k: 2,
+            n_samples: Some(60),
+        };
+        let direct = match_features(&src, &subset, &cfg, 7).unwrap();
+        let reused = match_features_given(&src, &subset, &given, &cfg, 7).unwrap();
+        assert_eq!(direct, reused);
+    }
+}
+
+#[test]
+fn given_nearest_sources_are_checked() {
+    let src = features(&pseudo_random(10, 4, 1));
+    let tgt = features(&pseudo_random(6, 4, 2));
+    let cfg = MatchingConfig {
+        k: 1,
+        ..MatchingConfig::default()
+    };
+    let good = nearest_sources(&src, &tgt, 1).unwrap();
+    assert!(match_features_given(&src, &tgt, &good, &cfg, 0).is_ok());
+    let wrong_k = nearest_sources(&src, &tgt, 2).unwrap();
+    assert!(matches!(
+        match_features_given(&src, &tgt, &wrong_k, &cfg, 0),
+        Err(Error::InvalidParameter {
+            name: "nearest",
+            ..
+        })
+    ));
+    let mut short = good.clone();
+    short.source.pop();
+    assert!(matches!(
+        match_features_given(&src, &tgt, &short, &cfg, 0),
+        Err(Error::LengthMismatch { .. })
+    ));
+    let mut outside = good.clone();
+    outside.source[3] = 10;
+    assert!(matches!(
+        match_features_given(&src, &tgt, &outside, &cfg, 0),
+        Err(Error::InvalidParameter {
+            name: "nearest",
+            ..
+        })
+    ));
+    let mut nan = good;
+    nan.dist2[4] = f64::NAN;
+    assert!(matches!(
+        match_features_given(&src, &tgt, &nan, &cfg, 0),
+        Err(Error::NonFinite { row: 4, .. })
+    ));
+}
