@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import typing
+from typing import Any
 
 import numpy as np
 import pointclm
@@ -299,15 +301,37 @@ def test_seed_is_used(corr: np.ndarray) -> None:
 # --- config ---------------------------------------------------------------------------------
 
 
-def test_config_defaults_mirror_rust() -> None:
-    rust = _core.default_config()
-    fields = {f.name for f in dataclasses.fields(Config)}
-    assert fields == set(rust)
-    py = Config()
-    for name, value in rust.items():
-        assert getattr(py, name) == value, name
-        assert type(getattr(py, name)) is type(value), name
-    assert py.to_dict() == rust
+def test_config_is_the_rust_schema() -> None:
+    # The Rust struct is the one definition: the dataclass has its fields, in its order, with
+    # the annotation its kind implies and its default.
+    schema = _core.config_schema()
+    assert [f.name for f in dataclasses.fields(Config)] == [f["name"] for f in schema]
+    hints = typing.get_type_hints(Config)
+    for field in schema:
+        name = field["name"]
+        if field["kind"] == "choice":
+            expected: Any = typing.Literal[tuple(field["choices"])]
+        else:
+            expected = {"float": float, "count": int, "bool": bool}[field["kind"]]
+        if field["optional"]:
+            expected = expected | None
+        assert hints[name] == expected, name
+        py = getattr(Config(), name)
+        assert py == field["default"] and type(py) is type(field["default"]), name
+        assert f"\n    {name} : " in (Config.__doc__ or ""), name  # documented from Rust
+        assert field["doc"].strip(), name
+    assert Config().to_dict() == _core.default_config()
+    _core.validate_config(_core.default_config())
+
+
+def test_config_scaled_multiplies_the_schema_lengths() -> None:
+    lengths = [f["name"] for f in _core.config_schema() if f["length"]]
+    assert lengths == ["sigma_d", "affinity_sigma", "inlier_threshold"]  # as documented
+    base = Config(max_nfa=0.5, cluster_level=0.3, max_instances=4)
+    scaled = base.scaled(4)
+    for name, value in base.to_dict().items():
+        expected = value * 4 if name in lengths else value
+        assert getattr(scaled, name) == expected, name
 
 
 def test_config_normalises_numbers() -> None:

@@ -220,7 +220,11 @@ def test_the_public_api_raises_the_core_classes() -> None:
         ),
         (ConfigError, r"config must be a dict or None", lambda: _core.register(CORR, config=[1])),
         (ConfigError, r"config field pruning", lambda: _core.validate_config({"pruning": "x"})),
-        (ConfigError, r"^assignment: expected", lambda: _core.validate_config({"assignment": "x"})),
+        (
+            ConfigError,
+            r"^config field assignment: expected",
+            lambda: _core.validate_config({"assignment": "x"}),
+        ),
         (
             InputError,
             r"^assignment: expected",

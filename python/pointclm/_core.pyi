@@ -15,6 +15,7 @@ __all__ = [
     "Instance",
     "Network",
     "RegistrationResult",
+    "config_schema",
     "default_config",
     "density_counts",
     "eigh",
@@ -128,6 +129,7 @@ def spectral_clustering(
 def kabsch(
     source: npt.NDArray[np.float64], target: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]: ...
+def config_schema() -> list[dict[str, Any]]: ...
 def default_config() -> dict[str, Any]: ...
 def validate_config(config: dict[str, Any]) -> None: ...
 def voxel_downsample(

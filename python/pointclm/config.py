@@ -1,4 +1,10 @@
-"""`Config`: every threshold of the method, mirroring the Rust `pointclm::Config`.
+"""`Config`: every threshold of the method, the typed Python view of the Rust `pointclm::Config`.
+
+The Rust struct is the one definition of the fields: their names, defaults, documentation,
+kinds and which are lengths reach Python through `_core.config_schema()`. Here each field is a
+typed line (for mypy and IDEs) whose default is read from that schema; the checks, `scaled` and
+the "Attributes" section of `Config`'s docstring are derived from it, and a test fails if the
+lines and the schema drift apart.
 
 Lengths (`sigma_d`, `affinity_sigma`, `inlier_threshold`) are in the units of your points. The
 defaults are the paper's synthetic settings (shapes in a unit sphere, noise about 0.01); use
@@ -9,6 +15,7 @@ defaults are the paper's synthetic settings (shapes in a unit sphere, noise abou
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -23,6 +30,58 @@ __all__ = ["INLIER_VOXELS", "SIGMA_D_VOXELS", "Config"]
 SIGMA_D_VOXELS = 3.0
 #: `Config.for_voxel`: `Config()`'s inlier threshold becomes this many voxels (see there why).
 INLIER_VOXELS = 2.0
+
+#: The Rust core's description of every field of `Config`, by name, in declaration order:
+#: kind ("float", "count", "bool", "choice"), choices, optional, default, length, doc.
+_SCHEMA: dict[str, dict[str, Any]] = {f["name"]: f for f in _core.config_schema()}
+#: The fields that are lengths (multiplied by `Config.scaled`), from the schema.
+_LENGTHS: tuple[str, ...] = tuple(name for name, f in _SCHEMA.items() if f["length"])
+
+_REAL = (int, float, np.integer, np.floating)
+
+
+def _default(name: str) -> Any:
+    """The Rust default of field `name` (a KeyError at import for a name the core lacks)."""
+    return _SCHEMA[name]["default"]
+
+
+def _checked(name: str, value: Any) -> Any:
+    """`value` of field `name` as the plain Python type the core and repr expect (numpy
+    scalars and ints as float or int), or ConfigError for a value of the wrong kind. Ranges
+    and choices are the core's to check."""
+    field = _SCHEMA[name]
+    kind, optional = field["kind"], field["optional"]
+    if optional and value is None:
+        return None
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"config field {name}: expected True or False")
+        return value
+    if kind == "float":
+        number = not isinstance(value, bool) and isinstance(value, _REAL)
+        if optional and not number:
+            raise ConfigError(f"config field {name}: expected None or a number, got {value!r}")
+        if isinstance(value, bool):
+            raise ConfigError(f"config field {name}: expected a number, got {value!r}")
+        if not number:
+            return value  # the core names the type it wanted
+        try:
+            return float(value)
+        except OverflowError:
+            raise ConfigError(f"config field {name}: {value!r} is too large") from None
+    if kind == "count":
+        integer = not isinstance(value, bool) and isinstance(value, int | np.integer)
+        if optional:
+            if not integer or value < 1:
+                raise ConfigError(
+                    f"config field {name}: expected None or an int >= 1, got {value!r}"
+                )
+        elif not integer:
+            raise ConfigError(f"config field {name}: expected an int, got {value!r}")
+        elif value < 0:
+            raise ConfigError(f"config field {name}: must be >= 0, got {value}")
+        return int(value)
+    return value  # a choice: the core checks the name
 
 
 @dataclass(frozen=True)
@@ -45,132 +104,34 @@ class Config:
     - `pointclm.evaluation.evaluate(config=...)` on scenes with a ``voxel_size`` (realistic
       scenes of different sizes): the synthetic units, scaled to each scene's voxel by
       `for_voxel`.
-
-    Attributes
-    ----------
-    sigma_d : float
-        Length tolerance of spatial consistency ``beta = [1 - d^2 / sigma_d^2]_+``.
-    pruning : {"paper", "authors", "none"}
-        "paper": binarise ``S`` at `tau_s`, keep rows whose sum exceeds `tau_n`.
-        "authors": the authors' code, ``beta > beta_threshold`` (and feature similarity
-        ``> feature_threshold``), keep rows whose count exceeds `min_count`.
-        "none": no pruning (ablation).
-    max_kept : int
-        At most this many pruned correspondences go to the dense eigensolver (the densest).
-    affinity_sigma : float
-        Length scale of the clustering affinity.
-    max_instances : int or None
-        Optional cap on the number of clusters the eigengap may choose.
-    cluster_level : float or None
-        When set, the cluster count is the larger of the eigengap's and the number of
-        normalised-Laplacian eigenvalues below this level (in (0, 2)): with dozens of similar
-        copies the largest gap comes early. None: the eigengap alone (the paper's rule).
-    max_rounds : int
-        Clustering rounds: after each, the correspondences explained by validated instances
-        leave the kept set and the rest is clustered again (finds copies the eigengap merged
-        or missed). Needs `max_nfa`; 1 is the paper's single round.
-    assignment : {"kmeans", "discretize"}
-        k-means++ on the row-normalised embedding, or Yu-Shi discretisation.
-    kmeans_restarts : int
-        Restarts of the label assignment (best objective wins).
-    min_cluster_size : int
-        Clusters and final instances with fewer members are dropped.
-    ransac_iterations : int
-        At most this many 3-point hypotheses per cluster.
-    ransac_confidence : float
-        RANSAC stops once an all-inlier sample would have been drawn with this probability at
-        the best inlier share so far (1.0 runs all `ransac_iterations`).
-    max_nfa : float or None
-        A-contrario validation: an instance is kept only if its expected number of false
-        alarms (equally supported poses arising from unrelated matches, among all candidates)
-        is at most this. None keeps every instance.
-    inlier_threshold : float
-        A correspondence is an inlier of a pose if ``||R x + t - y||`` is below this.
-    refine : bool
-        Least-squares refit of each pose on its inliers.
-    merge_duplicates : bool
-        Merge instances whose poses place the object at the same spot.
     """
 
-    sigma_d: float = 0.05
-    pruning: Literal["paper", "authors", "none"] = "paper"
-    tau_s: float = 0.85
-    tau_n: int = 10
-    beta_threshold: float = 0.9
-    feature_threshold: float = 0.8
-    min_count: int = 9
-    max_kept: int = 2000
-    affinity_sigma: float = 0.1
-    max_instances: int | None = None
-    cluster_level: float | None = None
-    max_rounds: int = 1
-    assignment: Literal["kmeans", "discretize"] = "kmeans"
-    kmeans_restarts: int = 10
-    min_cluster_size: int = 10
-    ransac_iterations: int = 1000
-    ransac_confidence: float = 1.0
-    max_nfa: float | None = 1e-3
-    inlier_threshold: float = 0.1
-    refine: bool = True
-    merge_duplicates: bool = True
+    sigma_d: float = _default("sigma_d")
+    pruning: Literal["paper", "authors", "none"] = _default("pruning")
+    tau_s: float = _default("tau_s")
+    tau_n: int = _default("tau_n")
+    beta_threshold: float = _default("beta_threshold")
+    feature_threshold: float = _default("feature_threshold")
+    min_count: int = _default("min_count")
+    max_kept: int = _default("max_kept")
+    affinity_sigma: float = _default("affinity_sigma")
+    max_instances: int | None = _default("max_instances")
+    cluster_level: float | None = _default("cluster_level")
+    max_rounds: int = _default("max_rounds")
+    assignment: Literal["kmeans", "discretize"] = _default("assignment")
+    kmeans_restarts: int = _default("kmeans_restarts")
+    min_cluster_size: int = _default("min_cluster_size")
+    ransac_iterations: int = _default("ransac_iterations")
+    ransac_confidence: float = _default("ransac_confidence")
+    max_nfa: float | None = _default("max_nfa")
+    inlier_threshold: float = _default("inlier_threshold")
+    refine: bool = _default("refine")
+    merge_duplicates: bool = _default("merge_duplicates")
 
     def __post_init__(self) -> None:
-        for name in (
-            "sigma_d",
-            "tau_s",
-            "beta_threshold",
-            "feature_threshold",
-            "affinity_sigma",
-            "inlier_threshold",
-            "ransac_confidence",
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool):
-                raise ConfigError(f"config field {name}: expected a number, got {value!r}")
-            if isinstance(value, int | float | np.integer | np.floating):
-                try:
-                    object.__setattr__(self, name, float(value))  # numpy floats -> float
-                except OverflowError:
-                    raise ConfigError(f"config field {name}: {value!r} is too large") from None
-        for name in ("refine", "merge_duplicates"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"config field {name}: expected True or False")
-        for name in (
-            "tau_n",
-            "min_count",
-            "max_kept",
-            "kmeans_restarts",
-            "min_cluster_size",
-            "ransac_iterations",
-            "max_rounds",
-        ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise ConfigError(f"config field {name}: expected an int, got {value!r}")
-            if value < 0:
-                raise ConfigError(f"config field {name}: must be >= 0, got {value}")
-            object.__setattr__(self, name, int(value))  # numpy ints -> int for the core
-        level = self.cluster_level
-        if level is not None:
-            if isinstance(level, bool) or not isinstance(
-                level, int | float | np.integer | np.floating
-            ):
-                raise ConfigError(
-                    f"config field cluster_level: expected None or a number, got {level!r}"
-                )
-            object.__setattr__(self, "cluster_level", float(level))
-        nfa = self.max_nfa
-        if nfa is not None:
-            if isinstance(nfa, bool) or not isinstance(nfa, int | float | np.integer | np.floating):
-                raise ConfigError(f"config field max_nfa: expected None or a number, got {nfa!r}")
-            object.__setattr__(self, "max_nfa", float(nfa))
-        mi = self.max_instances
-        if mi is not None:
-            if isinstance(mi, bool) or not isinstance(mi, int | np.integer) or mi < 1:
-                raise ConfigError(
-                    f"config field max_instances: expected None or an int >= 1, got {mi!r}"
-                )
-            object.__setattr__(self, "max_instances", int(mi))
+        for name in _SCHEMA:
+            if name in self.__dataclass_fields__:
+                object.__setattr__(self, name, _checked(name, getattr(self, name)))
         # The Rust core is the single source of truth for valid ranges.
         _core.validate_config(self.to_dict())
 
@@ -203,7 +164,8 @@ class Config:
         return replace(scaled, inlier_threshold=base.inlier_threshold * per_unit)
 
     def scaled(self, factor: float) -> Config:
-        """The same settings with every length multiplied by `factor`."""
+        """The same settings with every length (the schema's, see the attributes) multiplied
+        by `factor`."""
         real = not isinstance(factor, bool) and isinstance(
             factor, int | float | np.integer | np.floating
         )
@@ -213,9 +175,25 @@ class Config:
             ok = False
         if not ok:
             raise InputError(f"scale factor must be a finite number > 0, got {factor!r}")
-        return replace(
-            self,
-            sigma_d=self.sigma_d * factor,
-            affinity_sigma=self.affinity_sigma * factor,
-            inlier_threshold=self.inlier_threshold * factor,
-        )
+        return replace(self, **{name: getattr(self, name) * factor for name in _LENGTHS})
+
+
+def _attributes() -> str:
+    """The numpydoc "Attributes" section of `Config`, from the Rust fields' docs."""
+    lines = ["", "", "    Attributes", "    ----------"]
+    for name, field in _SCHEMA.items():
+        if field["kind"] == "choice":
+            kind = "{" + ", ".join(f'"{c}"' for c in field["choices"]) + "}"
+        else:
+            kind = {"float": "float", "count": "int", "bool": "bool"}[field["kind"]]
+        kind += " or None" if field["optional"] else ""
+        kind += ", a length" if field["length"] else ""
+        lines.append(f"    {name} : {kind}")
+        # rustdoc links name Rust items: [`Pruning`] -> `pointclm::Pruning` (Rust)
+        doc = re.sub(r"\[`(?:crate::)?([^`]+)`\]", r"`pointclm::\1` (Rust)", field["doc"])
+        lines += [f"        {line.strip()}" for line in doc.strip().splitlines()]
+    return "\n".join(lines) + "\n"
+
+
+if Config.__doc__ is not None:  # None under python -OO
+    Config.__doc__ = Config.__doc__.rstrip() + _attributes()

@@ -1,8 +1,11 @@
-//! Python `Config` (passed as a dict of its fields) -> core `Config`, refusing unknown keys.
+//! Python `Config` (passed as a dict of its fields) <-> core `Config`, field by field from the
+//! core's [`Config::FIELDS`], so that a field is declared once (in the core) and this module
+//! never names one.
 
-use pointclm::{Assignment, Config, Pruning};
+use pointclm::config::{Field, Kind, Unit, Value};
+use pointclm::{Assignment, Config};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 use crate::errors::{to_py_err, ConfigError};
 
@@ -15,104 +18,104 @@ pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
         let key: String = k
             .extract()
             .map_err(|_| ConfigError::new_err(format!("config keys must be str, got {k}")))?;
-        let bad = |e: PyErr| ConfigError::new_err(format!("config field {key}: {e}"));
-        match key.as_str() {
-            "sigma_d" => c.sigma_d = v.extract().map_err(bad)?,
-            "pruning" => {
-                let s: String = v.extract().map_err(bad)?;
-                c.pruning = match s.as_str() {
-                    "paper" => Pruning::Paper,
-                    "authors" => Pruning::AuthorsCode,
-                    "none" => Pruning::Disabled,
-                    other => {
-                        return Err(ConfigError::new_err(format!(
-                            "config field pruning: expected 'paper', 'authors' or 'none', got {other:?}"
-                        )))
-                    }
-                }
-            }
-            "tau_s" => c.tau_s = v.extract().map_err(bad)?,
-            "tau_n" => c.tau_n = v.extract().map_err(bad)?,
-            "beta_threshold" => c.beta_threshold = v.extract().map_err(bad)?,
-            "feature_threshold" => c.feature_threshold = v.extract().map_err(bad)?,
-            "min_count" => c.min_count = v.extract().map_err(bad)?,
-            "max_kept" => c.max_kept = v.extract().map_err(bad)?,
-            "affinity_sigma" => c.affinity_sigma = v.extract().map_err(bad)?,
-            "max_instances" => c.max_instances = v.extract().map_err(bad)?,
-            "max_rounds" => c.max_rounds = v.extract().map_err(bad)?,
-            "cluster_level" => c.cluster_level = v.extract().map_err(bad)?,
-            "assignment" => {
-                let s: String = v.extract().map_err(bad)?;
-                c.assignment = assignment(&s, ConfigError::new_err)?
-            }
-            "kmeans_restarts" => c.kmeans_restarts = v.extract().map_err(bad)?,
-            "min_cluster_size" => c.min_cluster_size = v.extract().map_err(bad)?,
-            "ransac_iterations" => c.ransac_iterations = v.extract().map_err(bad)?,
-            "ransac_confidence" => c.ransac_confidence = v.extract().map_err(bad)?,
-            "max_nfa" => c.max_nfa = v.extract().map_err(bad)?,
-            "inlier_threshold" => c.inlier_threshold = v.extract().map_err(bad)?,
-            "refine" => c.refine = v.extract().map_err(bad)?,
-            "merge_duplicates" => c.merge_duplicates = v.extract().map_err(bad)?,
-            other => {
-                return Err(ConfigError::new_err(format!(
-                    "unknown config field {other:?}"
-                )))
-            }
-        }
+        let field = Config::FIELDS
+            .iter()
+            .find(|f| f.name == key)
+            .ok_or_else(|| ConfigError::new_err(format!("unknown config field {key:?}")))?;
+        let value = extract(field, &v)
+            .map_err(|e| ConfigError::new_err(format!("config field {key}: {e}")))?;
+        let set = c.set(field.name, value);
+        debug_assert!(set, "extract gives a value of the field's kind");
     }
     c.validate().map_err(to_py_err)?;
     Ok(c)
 }
 
-/// An assignment by name, or `error` (InputError for `spectral_clustering`'s argument,
-/// ConfigError for the config field).
-pub fn assignment(s: &str, error: fn(String) -> PyErr) -> PyResult<Assignment> {
-    match s {
-        "kmeans" => Ok(Assignment::KMeans),
-        "discretize" => Ok(Assignment::Discretize),
-        other => Err(error(format!(
-            "assignment: expected 'kmeans' or 'discretize', got {other:?}"
-        ))),
+/// A Python value as the core value of `field`, or why not (the extraction error, or the
+/// names a choice may take).
+fn extract(field: &Field, v: &Bound<'_, PyAny>) -> Result<Value, String> {
+    if field.optional && v.is_none() {
+        return Ok(Value::None);
     }
+    let e = |e: PyErr| e.to_string();
+    Ok(match field.kind {
+        Kind::Float => Value::Float(v.extract().map_err(e)?),
+        Kind::Count => Value::Count(v.extract().map_err(e)?),
+        Kind::Bool => Value::Bool(v.extract().map_err(e)?),
+        Kind::Choice(names) => {
+            let s: String = v.extract().map_err(e)?;
+            Value::Choice(choose(names, &s)?)
+        }
+    })
 }
 
-/// The defaults, as a dict, so the Python dataclass can be checked against them.
+/// The name in `names` equal to `s`, or "expected 'a', 'b' or 'c', got \"s\"".
+fn choose(names: &'static [&'static str], s: &str) -> Result<&'static str, String> {
+    names.iter().copied().find(|n| *n == s).ok_or_else(|| {
+        let quoted: Vec<String> = names.iter().map(|n| format!("'{n}'")).collect();
+        let list = match quoted.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => quoted.join(""),
+        };
+        format!("expected {list}, got {s:?}")
+    })
+}
+
+/// An assignment by name, or `error` (InputError for `spectral_clustering`'s argument).
+pub fn assignment(s: &str, error: fn(String) -> PyErr) -> PyResult<Assignment> {
+    let name = choose(Assignment::NAMES, s).map_err(|e| error(format!("assignment: {e}")))?;
+    Ok(Assignment::from_name(name).expect("one of Assignment::NAMES"))
+}
+
+fn to_py<'py>(py: Python<'py>, v: Value) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match v {
+        Value::None => py.None().into_bound(py),
+        Value::Float(x) => x.into_pyobject(py)?.into_any(),
+        Value::Count(n) => n.into_pyobject(py)?.into_any(),
+        Value::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+        Value::Choice(s) => s.into_pyobject(py)?.into_any(),
+    })
+}
+
+/// The defaults, as a dict.
 pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     to_dict(py, &Config::default())
 }
 
-/// A config as the dict of `pointclm.Config`'s fields.
 pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    d.set_item("sigma_d", c.sigma_d)?;
-    let pruning = match c.pruning {
-        Pruning::Paper => "paper",
-        Pruning::AuthorsCode => "authors",
-        Pruning::Disabled => "none",
-    };
-    d.set_item("pruning", pruning)?;
-    d.set_item("tau_s", c.tau_s)?;
-    d.set_item("tau_n", c.tau_n)?;
-    d.set_item("beta_threshold", c.beta_threshold)?;
-    d.set_item("feature_threshold", c.feature_threshold)?;
-    d.set_item("min_count", c.min_count)?;
-    d.set_item("max_kept", c.max_kept)?;
-    d.set_item("affinity_sigma", c.affinity_sigma)?;
-    d.set_item("max_instances", c.max_instances)?;
-    d.set_item("max_rounds", c.max_rounds)?;
-    d.set_item("cluster_level", c.cluster_level)?;
-    let assignment = match c.assignment {
-        Assignment::KMeans => "kmeans",
-        Assignment::Discretize => "discretize",
-    };
-    d.set_item("assignment", assignment)?;
-    d.set_item("kmeans_restarts", c.kmeans_restarts)?;
-    d.set_item("min_cluster_size", c.min_cluster_size)?;
-    d.set_item("ransac_iterations", c.ransac_iterations)?;
-    d.set_item("ransac_confidence", c.ransac_confidence)?;
-    d.set_item("max_nfa", c.max_nfa)?;
-    d.set_item("inlier_threshold", c.inlier_threshold)?;
-    d.set_item("refine", c.refine)?;
-    d.set_item("merge_duplicates", c.merge_duplicates)?;
+    for f in Config::FIELDS {
+        let v = c.get(f.name).expect("FIELDS names fields");
+        d.set_item(f.name, to_py(py, v)?)?;
+    }
     Ok(d)
+}
+
+/// [`Config::FIELDS`] as a list of dicts, in declaration order: name, kind ("float", "count",
+/// "bool" or "choice"), choices (the names, or None), optional, default, length (whether
+/// `scaled` multiplies it) and doc.
+pub fn schema<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+    let defaults = Config::default();
+    let list = PyList::empty(py);
+    for f in Config::FIELDS {
+        let d = PyDict::new(py);
+        d.set_item("name", f.name)?;
+        let (kind, choices) = match f.kind {
+            Kind::Float => ("float", None),
+            Kind::Count => ("count", None),
+            Kind::Bool => ("bool", None),
+            Kind::Choice(names) => ("choice", Some(names.to_vec())),
+        };
+        d.set_item("kind", kind)?;
+        d.set_item("choices", choices)?;
+        d.set_item("optional", f.optional)?;
+        d.set_item(
+            "default",
+            to_py(py, defaults.get(f.name).expect("a field"))?,
+        )?;
+        d.set_item("length", f.unit == Unit::Length)?;
+        d.set_item("doc", f.doc)?;
+        list.append(d)?;
+    }
+    Ok(list)
 }

@@ -261,6 +261,13 @@ fn default_config(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     config::defaults(py)
 }
 
+/// Every field of the core's `Config`, in order: name, kind, choices, optional, default,
+/// length, doc. The Python `Config` takes its defaults, checks and lengths from it.
+#[pyfunction]
+fn config_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    config::schema(py)
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
@@ -276,6 +283,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(spectral_clustering, m)?)?;
     m.add_function(wrap_pyfunction!(kabsch, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
+    m.add_function(wrap_pyfunction!(config_schema, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::compute_fpfh, m)?)?;

@@ -2,6 +2,48 @@
 
 use crate::error::{Error, Result};
 
+/// Gives an enum of plain variants the names a config read by name uses (the Python
+/// binding's `"paper"`, `"kmeans"`, ...): `NAMES`, `name` and `from_name`, and its
+/// [`FieldType`] as a [`Kind::Choice`] among those names.
+macro_rules! named_choices {
+    ($ty:ident { $($variant:ident = $name:literal),+ $(,)? }) => {
+        impl $ty {
+            /// The variants' names, in declaration order.
+            pub const NAMES: &'static [&'static str] = &[$($name),+];
+
+            /// This variant's name.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(Self::$variant => $name,)+
+                }
+            }
+
+            /// The variant called `name`, if any.
+            pub fn from_name(name: &str) -> Option<Self> {
+                match name {
+                    $($name => Some(Self::$variant),)+
+                    _ => None,
+                }
+            }
+        }
+
+        impl FieldType for $ty {
+            const KIND: Kind = Kind::Choice(Self::NAMES);
+
+            fn to_value(&self) -> Value {
+                Value::Choice(self.name())
+            }
+
+            fn from_value(value: Value) -> Option<Self> {
+                match value {
+                    Value::Choice(name) => Self::from_name(name),
+                    _ => None,
+                }
+            }
+        }
+    };
+}
+
 /// How density pruning decides that a correspondence lies in a dense (inlier) region.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Pruning {
@@ -15,6 +57,12 @@ pub enum Pruning {
     Disabled,
 }
 
+named_choices!(Pruning {
+    Paper = "paper",
+    AuthorsCode = "authors",
+    Disabled = "none",
+});
+
 /// How rows of the spectral embedding are turned into cluster labels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Assignment {
@@ -25,95 +73,284 @@ pub enum Assignment {
     Discretize,
 }
 
-/// Parameters of the whole pipeline.
-///
-/// Lengths (`sigma_d`, `affinity_sigma`, `inlier_threshold`) are in the units of the points.
-/// The defaults are the paper's synthetic settings, where shapes fit in a unit sphere and the
-/// noise is about 0.01; [`Config::scaled`] multiplies every length for data at another scale.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Config {
-    /// Length tolerance of spatial consistency `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`.
-    pub sigma_d: f64,
-    /// Pruning rule; see [`Pruning`].
-    pub pruning: Pruning,
-    /// Paper rule: binarisation threshold on `S`.
-    pub tau_s: f64,
-    /// Paper rule: a row must have more than this many entries above `tau_s`.
-    pub tau_n: usize,
-    /// Authors'-code rule: threshold on `beta`.
-    pub beta_threshold: f64,
-    /// Authors'-code rule: threshold on the feature similarity `S^F` (ignored without features).
-    pub feature_threshold: f64,
-    /// Authors'-code rule: a row must count more than this many consistent correspondences.
-    pub min_count: usize,
-    /// Upper bound on the kept set handed to the dense eigensolver: when pruning keeps more,
-    /// the densest `max_kept` rows are clustered (memory and time grow as its square and cube).
-    pub max_kept: usize,
-    /// Length scale of the clustering affinity `[1 - d_ij^2 / affinity_sigma^2]_+`.
-    pub affinity_sigma: f64,
-    /// Optional cap on the number of clusters the eigengap may choose.
-    pub max_instances: Option<usize>,
-    /// When set, the cluster count is the larger of the eigengap's and the number of
-    /// normalised-Laplacian eigenvalues below this level (in (0, 2)). Why: with dozens of
-    /// similar copies the spectrum rises smoothly and its largest gap comes early, while
-    /// every copy still contributes an eigenvalue well below 1 (a group with more affinity
-    /// inside than across has a small Rayleigh quotient). `None`: the eigengap alone (the
-    /// paper's rule).
-    pub cluster_level: Option<f64>,
-    /// Clustering rounds: after each, the correspondences explained by validated instances
-    /// leave the kept set and the rest is clustered again, which finds copies the eigengap
-    /// merged or missed (bins of dozens of parts). Needs `max_nfa` (without validation one
-    /// round runs, as in the paper).
-    pub max_rounds: usize,
-    /// Label assignment on the spectral embedding.
-    pub assignment: Assignment,
-    /// Restarts of k-means (best inertia wins) or of the discretisation.
-    pub kmeans_restarts: usize,
-    /// Clusters, and final instances, with fewer members are dropped.
-    pub min_cluster_size: usize,
-    /// At most this many RANSAC hypotheses (3-point Kabsch) per cluster.
-    pub ransac_iterations: usize,
-    /// RANSAC stops once an all-inlier sample would have been drawn with this probability
-    /// at the best inlier share found so far (1 runs all `ransac_iterations`).
-    pub ransac_confidence: f64,
-    /// A-contrario validation: an instance is kept only if its number of false alarms (how
-    /// many poses as well supported would arise from unrelated matches) is at most this
-    /// ([`crate::validation`]). `None` keeps every instance.
-    pub max_nfa: Option<f64>,
-    /// A correspondence is an inlier of a pose if `||R x + t - y||` is below this.
-    pub inlier_threshold: f64,
-    /// Refit each pose by least squares on its inliers (the authors' code does not).
-    pub refine: bool,
-    /// Merge instances whose poses place the object at the same spot (the authors' code
-    /// returns such duplicates).
-    pub merge_duplicates: bool,
+named_choices!(Assignment {
+    KMeans = "kmeans",
+    Discretize = "discretize",
+});
+
+/// What a field of [`Config`] holds, for code that reads or writes configs by field name
+/// (the Python binding, a file format): see [`Config::FIELDS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// A real number (`f64`).
+    Float,
+    /// A count (`usize`).
+    Count,
+    /// `true` or `false`.
+    Bool,
+    /// One of these names (an enum such as [`Pruning`]).
+    Choice(&'static [&'static str]),
 }
 
-impl Default for Config {
-    fn default() -> Self {
-        Self {
-            sigma_d: 0.05,
-            pruning: Pruning::Paper,
-            tau_s: 0.85,
-            tau_n: 10,
-            beta_threshold: 0.9,
-            feature_threshold: 0.8,
-            min_count: 9,
-            max_kept: 2000,
-            affinity_sigma: 0.1,
-            max_instances: None,
-            cluster_level: None,
-            max_rounds: 1,
-            assignment: Assignment::KMeans,
-            kmeans_restarts: 10,
-            min_cluster_size: 10,
-            ransac_iterations: 1000,
-            ransac_confidence: 1.0,
-            max_nfa: Some(1e-3),
-            inlier_threshold: 0.1,
-            refine: true,
-            merge_duplicates: true,
+/// Whether a field of [`Config`] is a length, in the units of the points, which
+/// [`Config::scaled`] multiplies, or a unitless level, count or switch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unit {
+    /// In the units of the points; scaled with the data.
+    Length,
+    /// Unitless: kept as it is when the data is scaled.
+    Unitless,
+}
+
+/// The description of one field of [`Config`], an entry of [`Config::FIELDS`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Field {
+    /// The field's name, as written in Rust and in the Python binding.
+    pub name: &'static str,
+    /// Its documentation (the field's doc comment, one line per source line).
+    pub doc: &'static str,
+    /// What it holds.
+    pub kind: Kind,
+    /// Whether it may be unset (`Option<_>`, `None` in Python).
+    pub optional: bool,
+    /// Length or unitless.
+    pub unit: Unit,
+}
+
+/// The value of one field of [`Config`], read or written by name ([`Config::get`],
+/// [`Config::set`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Value {
+    /// An unset optional field.
+    None,
+    /// A [`Kind::Float`] value.
+    Float(f64),
+    /// A [`Kind::Count`] value.
+    Count(usize),
+    /// A [`Kind::Bool`] value.
+    Bool(bool),
+    /// A [`Kind::Choice`] value, by name.
+    Choice(&'static str),
+}
+
+/// A type a field of [`Config`] may have, with its [`Kind`] and its conversion to and from a
+/// [`Value`].
+pub trait FieldType: Sized {
+    /// What the field holds.
+    const KIND: Kind;
+    /// Whether it may be unset.
+    const OPTIONAL: bool = false;
+    /// The value, by kind.
+    fn to_value(&self) -> Value;
+    /// A value of this type, or `None` if `value` is of another kind.
+    fn from_value(value: Value) -> Option<Self>;
+}
+
+impl FieldType for f64 {
+    const KIND: Kind = Kind::Float;
+
+    fn to_value(&self) -> Value {
+        Value::Float(*self)
+    }
+
+    fn from_value(value: Value) -> Option<Self> {
+        match value {
+            Value::Float(v) => Some(v),
+            _ => None,
         }
+    }
+}
+
+impl FieldType for usize {
+    const KIND: Kind = Kind::Count;
+
+    fn to_value(&self) -> Value {
+        Value::Count(*self)
+    }
+
+    fn from_value(value: Value) -> Option<Self> {
+        match value {
+            Value::Count(v) => Some(v),
+            _ => None,
+        }
+    }
+}
+
+impl FieldType for bool {
+    const KIND: Kind = Kind::Bool;
+
+    fn to_value(&self) -> Value {
+        Value::Bool(*self)
+    }
+
+    fn from_value(value: Value) -> Option<Self> {
+        match value {
+            Value::Bool(v) => Some(v),
+            _ => None,
+        }
+    }
+}
+
+impl<T: FieldType> FieldType for Option<T> {
+    const KIND: Kind = T::KIND;
+    const OPTIONAL: bool = true;
+
+    fn to_value(&self) -> Value {
+        self.as_ref().map_or(Value::None, T::to_value)
+    }
+
+    fn from_value(value: Value) -> Option<Self> {
+        match value {
+            Value::None => Some(None),
+            v => T::from_value(v).map(Some),
+        }
+    }
+}
+
+/// Declares [`Config`] from one list, each field written once with its doc, type, default and
+/// unit, and derives from it `Default`, the table [`Config::FIELDS`] and access by name
+/// ([`Config::get`], [`Config::set`]), which the Python binding and `scaled` use.
+macro_rules! config {
+    (
+        $(#[$meta:meta])*
+        pub struct Config {
+            $(
+                $(#[doc = $doc:literal])*
+                pub $name:ident: $ty:ty = $default:expr => $unit:expr,
+            )+
+        }
+    ) => {
+        $(#[$meta])*
+        pub struct Config {
+            $(
+                $(#[doc = $doc])*
+                pub $name: $ty,
+            )+
+        }
+
+        impl Default for Config {
+            fn default() -> Self {
+                Self {
+                    $($name: $default,)+
+                }
+            }
+        }
+
+        impl Config {
+            /// Every field, in declaration order, with its doc, kind and unit: what code that
+            /// reads or writes configs by name (the Python binding) works from, so that a field
+            /// is declared in one place.
+            pub const FIELDS: &'static [Field] = &[$(
+                Field {
+                    name: stringify!($name),
+                    doc: concat!($($doc, "\n"),*),
+                    kind: <$ty as FieldType>::KIND,
+                    optional: <$ty as FieldType>::OPTIONAL,
+                    unit: $unit,
+                },
+            )+];
+
+            /// The value of the field called `name`, if there is one.
+            pub fn get(&self, name: &str) -> Option<Value> {
+                match name {
+                    $(stringify!($name) => Some(self.$name.to_value()),)+
+                    _ => None,
+                }
+            }
+
+            /// Sets the field called `name` to `value`; `false` (and nothing set) if there is
+            /// no such field or `value` is of another kind. No range is checked here: see
+            /// [`Config::validate`].
+            #[must_use]
+            pub fn set(&mut self, name: &str, value: Value) -> bool {
+                match name {
+                    $(stringify!($name) => match <$ty as FieldType>::from_value(value) {
+                        Some(v) => {
+                            self.$name = v;
+                            true
+                        }
+                        None => false,
+                    },)+
+                    _ => false,
+                }
+            }
+        }
+    };
+}
+
+config! {
+    /// Parameters of the whole pipeline.
+    ///
+    /// Lengths (`sigma_d`, `affinity_sigma`, `inlier_threshold`) are in the units of the
+    /// points. The defaults are the paper's synthetic settings, where shapes fit in a unit
+    /// sphere and the noise is about 0.01; [`Config::scaled`] multiplies every length for data
+    /// at another scale. Each field is declared once, below, with its default and unit;
+    /// [`Config::FIELDS`] describes them to code that works by name (the Python binding).
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct Config {
+        /// Length tolerance of spatial consistency `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`.
+        pub sigma_d: f64 = 0.05 => Unit::Length,
+        /// Pruning rule; see [`Pruning`]. "paper": binarise `S` at `tau_s`, keep rows whose
+        /// sum exceeds `tau_n`. "authors": the authors' code, `beta > beta_threshold` (and
+        /// feature similarity `> feature_threshold`), keep rows whose count exceeds
+        /// `min_count`. "none": no pruning (ablation).
+        pub pruning: Pruning = Pruning::Paper => Unit::Unitless,
+        /// Paper rule: binarisation threshold on `S`.
+        pub tau_s: f64 = 0.85 => Unit::Unitless,
+        /// Paper rule: a row must have more than this many entries above `tau_s`.
+        pub tau_n: usize = 10 => Unit::Unitless,
+        /// Authors'-code rule: threshold on `beta`.
+        pub beta_threshold: f64 = 0.9 => Unit::Unitless,
+        /// Authors'-code rule: threshold on the feature similarity `S^F` (ignored without
+        /// features).
+        pub feature_threshold: f64 = 0.8 => Unit::Unitless,
+        /// Authors'-code rule: a row must count more than this many consistent
+        /// correspondences.
+        pub min_count: usize = 9 => Unit::Unitless,
+        /// Upper bound on the kept set handed to the dense eigensolver: when pruning keeps
+        /// more, the densest `max_kept` rows are clustered (memory and time grow as its
+        /// square and cube).
+        pub max_kept: usize = 2000 => Unit::Unitless,
+        /// Length scale of the clustering affinity `[1 - d_ij^2 / affinity_sigma^2]_+`.
+        pub affinity_sigma: f64 = 0.1 => Unit::Length,
+        /// Optional cap on the number of clusters the eigengap may choose.
+        pub max_instances: Option<usize> = None => Unit::Unitless,
+        /// When set, the cluster count is the larger of the eigengap's and the number of
+        /// normalised-Laplacian eigenvalues below this level (in (0, 2)). Why: with dozens of
+        /// similar copies the spectrum rises smoothly and its largest gap comes early, while
+        /// every copy still contributes an eigenvalue well below 1 (a group with more affinity
+        /// inside than across has a small Rayleigh quotient). `None`: the eigengap alone (the
+        /// paper's rule).
+        pub cluster_level: Option<f64> = None => Unit::Unitless,
+        /// Clustering rounds: after each, the correspondences explained by validated instances
+        /// leave the kept set and the rest is clustered again, which finds copies the eigengap
+        /// merged or missed (bins of dozens of parts). Needs `max_nfa` (without validation one
+        /// round runs, as in the paper).
+        pub max_rounds: usize = 1 => Unit::Unitless,
+        /// Label assignment on the spectral embedding: "kmeans", k-means++ on the
+        /// row-normalised embedding, or "discretize", Yu and Shi's discretisation; see
+        /// [`Assignment`].
+        pub assignment: Assignment = Assignment::KMeans => Unit::Unitless,
+        /// Restarts of k-means (best inertia wins) or of the discretisation.
+        pub kmeans_restarts: usize = 10 => Unit::Unitless,
+        /// Clusters, and final instances, with fewer members are dropped.
+        pub min_cluster_size: usize = 10 => Unit::Unitless,
+        /// At most this many RANSAC hypotheses (3-point Kabsch) per cluster.
+        pub ransac_iterations: usize = 1000 => Unit::Unitless,
+        /// RANSAC stops once an all-inlier sample would have been drawn with this probability
+        /// at the best inlier share found so far (1 runs all `ransac_iterations`).
+        pub ransac_confidence: f64 = 1.0 => Unit::Unitless,
+        /// A-contrario validation: an instance is kept only if its number of false alarms (how
+        /// many poses as well supported would arise from unrelated matches) is at most this
+        /// ([`crate::validation`]). `None` keeps every instance.
+        pub max_nfa: Option<f64> = Some(1e-3) => Unit::Unitless,
+        /// A correspondence is an inlier of a pose if `||R x + t - y||` is below this.
+        pub inlier_threshold: f64 = 0.1 => Unit::Length,
+        /// Refit each pose by least squares on its inliers (the authors' code does not).
+        pub refine: bool = true => Unit::Unitless,
+        /// Merge instances whose poses place the object at the same spot (the authors' code
+        /// returns such duplicates).
+        pub merge_duplicates: bool = true => Unit::Unitless,
     }
 }
 
@@ -196,13 +433,16 @@ impl Config {
 
     /// The same settings with every length multiplied by `factor` (for data whose noise and
     /// object size are `factor` times the synthetic benchmark's).
+    /// The lengths are the fields of [`Unit::Length`] in [`Config::FIELDS`].
     pub fn scaled(&self, factor: f64) -> Self {
-        Self {
-            sigma_d: self.sigma_d * factor,
-            affinity_sigma: self.affinity_sigma * factor,
-            inlier_threshold: self.inlier_threshold * factor,
-            ..self.clone()
+        let mut scaled = self.clone();
+        for field in Self::FIELDS.iter().filter(|f| f.unit == Unit::Length) {
+            if let Some(Value::Float(v)) = self.get(field.name) {
+                let set = scaled.set(field.name, Value::Float(v * factor));
+                debug_assert!(set, "{} is a float field", field.name);
+            }
         }
+        scaled
     }
 
     /// Checks every field; the pipeline calls this before touching any data.
