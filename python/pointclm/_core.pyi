@@ -29,6 +29,7 @@ __all__ = [
     "voxel_downsample",
     "estimate_normals",
     "compute_fpfh",
+    "describe",
     "match_features",
     "nearest_neighbours",
     "refine_poses",
@@ -151,6 +152,21 @@ def compute_fpfh(
     variant: str = "open3d",
     num_threads: int | None = None,
 ) -> npt.NDArray[np.float64]: ...
+def describe(
+    points: npt.NDArray[np.float64],
+    voxel_size: float | None = None,
+    normals: npt.NDArray[np.float64] | None = None,
+    towards: tuple[float, float, float] | None = None,
+    away_from: tuple[float, float, float] | None = None,
+    normal_radius: float | None = None,
+    normal_max_nn: int = 30,
+    feature_radius: float | None = None,
+    feature_max_nn: int = 100,
+    variant: str = "open3d",
+    num_threads: int | None = None,
+) -> tuple[
+    npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], dict[str, float]
+]: ...
 def match_features(
     source: npt.NDArray[np.float64],
     target: npt.NDArray[np.float64],

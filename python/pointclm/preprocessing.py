@@ -16,8 +16,8 @@ Open3D wrote to its feature files.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -265,14 +265,17 @@ def describe(
     num_threads: int | None = None,
 ) -> DescribedCloud:
     """Downsample to `voxel_size` (None: keep the points), estimate normals (unless given, which
-    needs ``voxel_size=None``) and compute FPFH.
+    needs ``voxel_size=None``) and compute FPFH, both over one k-d tree of the cloud.
 
     Radii default to the usual multiples of the voxel (Open3D's registration tutorials): 2 for
-    normals, 5 for descriptors. Without a voxel size both radii must be given.
+    normals, 5 for descriptors. Without a voxel size both radii must be given. Normals face
+    `towards` a viewpoint (default: the origin) or away from `away_from`, as in
+    :func:`estimate_normals`; the result equals :func:`voxel_downsample`,
+    :func:`estimate_normals` and :func:`compute_fpfh` run one after the other.
     """
-    t0 = time.perf_counter()
     pts = as_points(points, "points")
-    as_threads(num_threads)  # checked before any work
+    threads = as_threads(num_threads)  # checked before any work
+    v = None
     if voxel_size is not None:
         v = as_positive(voxel_size, "voxel_size")
         if normals is not None:
@@ -280,32 +283,44 @@ def describe(
                 "normals given with voxel_size: downsampling would leave them unaligned; "
                 "pass voxel_size=None with normals, or drop the normals"
             )
-        pts = _core.voxel_downsample(pts, v)
         normal_radius = 2.0 * v if normal_radius is None else normal_radius
         feature_radius = 5.0 * v if feature_radius is None else feature_radius
     if normal_radius is None and normals is None or feature_radius is None:
         raise InputError("without voxel_size, give feature_radius (and normal_radius or normals)")
-    t1 = time.perf_counter()
+    if not isinstance(variant, str) or variant not in ("open3d", "pcl"):
+        raise InputError(f"variant must be 'open3d' or 'pcl', got {variant!r}")
     if normals is None:
         assert normal_radius is not None
-        nrm = estimate_normals(
-            pts,
-            normal_radius,
-            normal_max_nn,
-            towards=towards,
-            away_from=away_from,
-            num_threads=num_threads,
-        )
+        nrm, estimate = None, _normal_args(towards, away_from, normal_radius, normal_max_nn)
     else:
-        nrm = as_matrix(normals, "normals", 3)
-    t2 = time.perf_counter()
-    desc = compute_fpfh(
-        pts, nrm, feature_radius, feature_max_nn, variant=variant, num_threads=num_threads
+        nrm, estimate = as_matrix(normals, "normals", 3), {}
+        if len(nrm) != len(pts):
+            raise InputError(f"need one normal per point: {len(pts)} points, {len(nrm)} normals")
+    p, n, d, timings = _core.describe(
+        pts,
+        v,
+        nrm,
+        feature_radius=as_positive(feature_radius, "feature_radius"),
+        feature_max_nn=_count(feature_max_nn, "feature_max_nn", 2),
+        variant=variant,
+        num_threads=threads,
+        **estimate,
     )
-    t3 = time.perf_counter()
-    return DescribedCloud(
-        pts, nrm, desc, {"downsample": t1 - t0, "normals": t2 - t1, "fpfh": t3 - t2}
-    )
+    return DescribedCloud(p, n, d, timings)
+
+
+def _normal_args(
+    towards: ArrayLike | None, away_from: ArrayLike | None, radius: float, max_nn: int
+) -> dict[str, Any]:
+    """`describe`'s checked arguments for estimating normals."""
+    if towards is not None and away_from is not None:
+        raise InputError("give towards= or away_from=, not both")
+    return {
+        "towards": None if towards is None else as_point(towards, "towards"),
+        "away_from": None if away_from is None else as_point(away_from, "away_from"),
+        "normal_radius": as_positive(radius, "normal_radius"),
+        "normal_max_nn": _count(max_nn, "normal_max_nn", 3),
+    }
 
 
 @dataclass(frozen=True)

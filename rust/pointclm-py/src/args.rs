@@ -174,6 +174,11 @@ converters! {
     variant -> String = |o| text(o, "variant");
     towards -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "towards"));
     away_from -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "away_from"));
+    optional_voxel_size -> Option<f64> = |o| optional(o, |o| real(o, "voxel_size"));
+    normal_radius -> Option<f64> = |o| optional(o, |o| real(o, "normal_radius"));
+    feature_radius -> Option<f64> = |o| optional(o, |o| real(o, "feature_radius"));
+    normal_max_nn -> usize = |o| usize_in(o, "normal_max_nn", 0, usize::MAX);
+    feature_max_nn -> usize = |o| usize_in(o, "feature_max_nn", 0, usize::MAX);
     path -> std::path::PathBuf = |o| o.extract().map_err(|_| {
         InputError::new_err(format!("path must be a str or os.PathLike, got {}", repr(o)))
     });
@@ -200,6 +205,12 @@ array_converters! {
     queries: matrix -> PyReadonlyArray2;
     affinity: matrix -> PyReadonlyArray2;
     transformations: tensor3 -> PyReadonlyArray3;
+}
+
+pub fn optional_normals<'py>(
+    obj: &Bound<'py, PyAny>,
+) -> PyResult<Option<PyReadonlyArray2<'py, f64>>> {
+    optional(obj, |o| matrix(o, "normals"))
 }
 
 pub fn features<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<PyReadonlyArray2<'py, f64>>> {

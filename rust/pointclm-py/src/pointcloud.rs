@@ -9,6 +9,7 @@ use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex, RefinePar
 use pointclm::{Features, MatchingConfig};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use rayon::prelude::*;
 
 use crate::args;
@@ -98,15 +99,7 @@ pub fn compute_fpfh<'py>(
     #[pyo3(from_py_with = args::variant)] variant: String,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let variant = match variant.as_str() {
-        "open3d" => FpfhVariant::Open3d,
-        "pcl" => FpfhVariant::Pcl,
-        other => {
-            return Err(InputError::new_err(format!(
-                "variant must be 'open3d' or 'pcl', got {other:?}"
-            )))
-        }
-    };
+    let variant = fpfh_variant(&variant)?;
     let p = rows3(&points, "points")?;
     let n = rows3(&normals, "normals")?;
     let max_nn = neighbours_at_most(max_nn, p.len());
@@ -309,4 +302,101 @@ pub fn refine_poses<'py>(
         indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
         out.by_visibility,
     ))
+}
+
+type DescribedArrays<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyDict>,
+);
+
+/// The whole preprocessing of one cloud over one k-d tree: downsampled to `voxel_size` (None:
+/// as given), normals estimated (unless given, which needs no downsampling) and signed towards
+/// `towards` or away from `away_from` (neither: towards the origin), then FPFH. Radii default
+/// to 2 (normals) and 5 (FPFH) voxels. Returns (points, normals, descriptors (N, 33), seconds
+/// per stage).
+#[pyfunction]
+#[pyo3(
+    signature = (points, voxel_size=None, normals=None, towards=None, away_from=None, normal_radius=None, normal_max_nn=30, feature_radius=None, feature_max_nn=100, variant="open3d".to_string(), num_threads=None),
+    text_signature = "(points, voxel_size=None, normals=None, towards=None, away_from=None, normal_radius=None, normal_max_nn=30, feature_radius=None, feature_max_nn=100, variant='open3d', num_threads=None)"
+)]
+#[allow(clippy::too_many_arguments)]
+pub fn describe<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::optional_voxel_size)] voxel_size: Option<f64>,
+    #[pyo3(from_py_with = args::optional_normals)] normals: Option<PyReadonlyArray2<'py, f64>>,
+    #[pyo3(from_py_with = args::towards)] towards: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::away_from)] away_from: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::normal_radius)] normal_radius: Option<f64>,
+    #[pyo3(from_py_with = args::normal_max_nn)] normal_max_nn: usize,
+    #[pyo3(from_py_with = args::feature_radius)] feature_radius: Option<f64>,
+    #[pyo3(from_py_with = args::feature_max_nn)] feature_max_nn: usize,
+    #[pyo3(from_py_with = args::variant)] variant: String,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<DescribedArrays<'py>> {
+    let orientation = match (towards, away_from) {
+        (None, None) => Orientation::Towards([0.0; 3]),
+        (Some(v), None) => Orientation::Towards(v),
+        (None, Some(v)) => Orientation::AwayFrom(v),
+        (Some(_), Some(_)) => {
+            return Err(InputError::new_err("give towards= or away_from=, not both"))
+        }
+    };
+    let by_voxel = |k: f64| voxel_size.map(|v| k * v);
+    let (normal_radius, feature_radius) = match (
+        normal_radius.or(by_voxel(2.0)),
+        feature_radius.or(by_voxel(5.0)),
+    ) {
+        (Some(n), Some(f)) => (n, f),
+        // Given normals need no normal radius: the value is not used.
+        (None, Some(f)) if normals.is_some() => (f, f),
+        _ => {
+            return Err(InputError::new_err(
+                "without voxel_size, give feature_radius (and normal_radius or normals)",
+            ))
+        }
+    };
+    let params = pointcloud::DescribeParams {
+        voxel_size,
+        normal_radius,
+        normal_max_nn,
+        feature_radius,
+        feature_max_nn,
+        variant: fpfh_variant(&variant)?,
+        orientation,
+    };
+    let p = rows3(&points, "points")?;
+    let n = normals.map(|a| rows3(&a, "normals")).transpose()?;
+    let threads = num_threads.map(pool).transpose()?;
+    let d = guarded(py, move || {
+        on_pool(threads, || pointcloud::describe(&p, n.as_deref(), &params))
+    })?;
+    let flat: Vec<f64> = (0..d.descriptors.len())
+        .flat_map(|i| d.descriptors.row(i).iter().copied())
+        .collect();
+    let descriptors = Array2::from_shape_vec((d.descriptors.len(), d.descriptors.dim()), flat)
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let timings = PyDict::new(py);
+    timings.set_item("downsample", d.timings.downsample)?;
+    timings.set_item("normals", d.timings.normals)?;
+    timings.set_item("fpfh", d.timings.fpfh)?;
+    Ok((
+        rows_to_py(py, &d.points)?,
+        rows_to_py(py, &d.normals)?,
+        descriptors.into_pyarray(py),
+        timings,
+    ))
+}
+
+/// `variant=`: "open3d" or "pcl".
+fn fpfh_variant(variant: &str) -> PyResult<FpfhVariant> {
+    match variant {
+        "open3d" => Ok(FpfhVariant::Open3d),
+        "pcl" => Ok(FpfhVariant::Pcl),
+        other => Err(InputError::new_err(format!(
+            "variant must be 'open3d' or 'pcl', got {other:?}"
+        ))),
+    }
 }

@@ -1,5 +1,7 @@
 //! The whole preprocessing of one cloud: downsample, index, normals, FPFH.
 
+use std::time::Instant;
+
 use super::fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 use super::normals::{estimate_normals, Orientation};
 use super::search::PointIndex;
@@ -43,68 +45,112 @@ impl DescribeParams {
     }
 }
 
+/// Seconds spent in each stage of [`describe`].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct DescribeTimings {
+    /// Downsampling (or copying the points as given).
+    pub downsample: f64,
+    /// The k-d tree and the normals (the tree alone when normals are given).
+    pub normals: f64,
+    pub fpfh: f64,
+}
+
 /// A described cloud: the (downsampled) points, their normals and FPFH descriptors.
 #[derive(Debug, Clone)]
 pub struct Described {
     pub points: Vec<[f64; 3]>,
     pub normals: Vec<[f64; 3]>,
     pub descriptors: Features,
+    pub timings: DescribeTimings,
 }
 
-/// Downsamples (if asked), estimates normals (unless given; given normals require no
-/// downsampling, since averaging points would leave them unaligned) and computes FPFH.
+/// Downsamples (if asked), builds one k-d tree, estimates normals (unless given; given normals
+/// require no downsampling, since averaging points would leave them unaligned) and computes
+/// FPFH over the same tree.
+///
+/// A neighbour count above the cloud's size is lowered to it (a point cannot have more
+/// neighbours; the neighbourhoods are the same), so that a huge count cannot size buffers.
 pub fn describe(
     points: &[[f64; 3]],
     normals: Option<&[[f64; 3]]>,
     params: &DescribeParams,
 ) -> Result<Described> {
+    let t0 = Instant::now();
     check_points(points, "points to describe", 1)?;
-    let points = match params.voxel_size {
-        Some(v) => {
-            check_positive("voxel_size", v)?;
-            if normals.is_some() {
-                return Err(Error::InvalidParameter {
-                    name: "voxel_size",
-                    value: v.to_string(),
-                    reason: "given normals cannot follow downsampling; pass one or the other",
-                });
-            }
-            voxel_downsample(points, v)?
-        }
-        None => points.to_vec(),
-    };
+    let points = downsampled(points, normals.is_some(), params.voxel_size)?;
+    let t1 = Instant::now();
     let index = PointIndex::new(&points)?;
     let normals = match normals {
-        Some(n) => {
-            if n.len() != points.len() {
-                return Err(Error::LengthMismatch {
-                    what: "normals (one per point)",
-                    expected: points.len(),
-                    got: n.len(),
-                });
-            }
-            n.to_vec()
-        }
+        Some(n) => given_normals(n, points.len())?,
         None => estimate_normals(
             &points,
             &index,
             params.normal_radius,
-            params.normal_max_nn,
+            at_most(params.normal_max_nn, points.len(), 3),
             params.orientation,
         )?,
     };
+    let t2 = Instant::now();
     let desc = fpfh(
         &points,
         &normals,
         &index,
         params.feature_radius,
-        params.feature_max_nn,
+        at_most(params.feature_max_nn, points.len(), 2),
         params.variant,
     )?;
     let flat: Vec<f64> = desc.iter().flat_map(|d| d.iter().copied()).collect();
+    let descriptors = Features::new(flat, FPFH_DIM)?;
+    let t3 = Instant::now();
     Ok(Described {
         points,
         normals,
-        descriptors: Features::new(flat, FPFH_DIM)?,
+        descriptors,
+        timings: DescribeTimings {
+            downsample: (t1 - t0).as_secs_f64(),
+            normals: (t2 - t1).as_secs_f64(),
+            fpfh: (t3 - t2).as_secs_f64(),
+        },
     })
 }
+
+/// The points downsampled to `voxel_size`, or as given; refuses downsampling with normals.
+fn downsampled(
+    points: &[[f64; 3]],
+    with_normals: bool,
+    voxel_size: Option<f64>,
+) -> Result<Vec<[f64; 3]>> {
+    let Some(v) = voxel_size else {
+        return Ok(points.to_vec());
+    };
+    check_positive("voxel_size", v)?;
+    if with_normals {
+        return Err(Error::InvalidParameter {
+            name: "voxel_size",
+            value: v.to_string(),
+            reason: "given normals cannot follow downsampling; pass one or the other",
+        });
+    }
+    voxel_downsample(points, v)
+}
+
+fn given_normals(normals: &[[f64; 3]], n_points: usize) -> Result<Vec<[f64; 3]>> {
+    if normals.len() != n_points {
+        return Err(Error::LengthMismatch {
+            what: "normals (one per point)",
+            expected: n_points,
+            got: normals.len(),
+        });
+    }
+    Ok(normals.to_vec())
+}
+
+/// `max_nn` lowered to the cloud's size, but not below `floor` (the smallest count the stage
+/// takes), so that a small cloud is not refused for its size.
+fn at_most(max_nn: usize, n_points: usize, floor: usize) -> usize {
+    max_nn.min(n_points.max(floor))
+}
+
+#[cfg(test)]
+#[path = "../tests/describe.rs"]
+mod tests;
