@@ -31,6 +31,7 @@ __all__ = [
     "compute_fpfh",
     "describe",
     "match_features",
+    "nearest_descriptors",
     "nearest_neighbours",
     "refine_poses",
 ]
@@ -176,7 +177,14 @@ def match_features(
     seed: int = 0,
     num_threads: int | None = None,
     k: int = 1,
+    nearest: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def nearest_descriptors(
+    source: npt.NDArray[np.float64],
+    target: npt.NDArray[np.float64],
+    k: int = 1,
+    num_threads: int | None = None,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
 def nearest_neighbours(
     reference: npt.NDArray[np.float64],
     queries: npt.NDArray[np.float64],

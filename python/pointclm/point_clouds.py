@@ -351,8 +351,11 @@ def register_point_clouds(
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
-    matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples, "k": k}
-    run = _Run(src_d, tgt_d, voxel, view, matching, normals, seed, embedding, num_threads)
+    matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples}
+    matcher = pp.DescriptorMatcher(
+        src_d.descriptors, tgt_d.descriptors, k=k, num_threads=num_threads
+    )
+    run = _Run(src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads)
     reg = _register(run, config, refine, peel)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
@@ -369,6 +372,9 @@ class _Run:
     #: The sensor position verification judges by; None: none known.
     viewpoint: tuple[float, float, float] | None
     matching: dict[str, Any]
+    #: Matches scan points to the model; finds each scan point's nearest model descriptors
+    #: once for every pass.
+    matcher: pp.DescriptorMatcher
     normals: bool
     seed: int
     #: The learned embedding, resolved once for every pass; None: training-free.
@@ -452,9 +458,7 @@ def _register(
     after the clouds are described."""
     t1 = time.perf_counter()
     everything = np.arange(len(run.tgt_d.points))
-    corr, pair_normals = _match(
-        run.src_d, run.tgt_d, everything, run.matching, run.normals, run.seed, run.num_threads
-    )
+    corr, pair_normals = _match(run, everything, run.seed)
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
@@ -606,22 +610,13 @@ def _rejected(run: _Run, first: Pass) -> str:
     )
 
 
-def _match(
-    src_d: Any,
-    tgt_d: Any,
-    rows: np.ndarray,
-    matching: dict[str, Any],
-    normals: bool,
-    seed: int,
-    num_threads: int | None,
-) -> tuple[np.ndarray, np.ndarray | None]:
+def _match(run: _Run, rows: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray | None]:
     """Correspondences between the model and the scan points `rows` (and the normals at
-    their ends when `normals`), by :func:`pointclm.preprocessing.match_features`."""
-    m = pp.match_features(
-        src_d.descriptors, tgt_d.descriptors[rows], seed=seed, num_threads=num_threads, **matching
-    )
-    corr = m.correspondences(src_d.points, tgt_d.points[rows])
-    return corr, m.normals(src_d.normals, tgt_d.normals[rows]) if normals else None
+    their ends when the run uses normals), by the run's
+    :class:`pointclm.preprocessing.DescriptorMatcher`."""
+    m = run.matcher.match(rows, seed=seed, **run.matching)
+    corr = m.correspondences(run.src_d.points, run.tgt_d.points)
+    return corr, m.normals(run.src_d.normals, run.tgt_d.normals) if run.normals else None
 
 
 def unexplained_points(
@@ -665,9 +660,7 @@ def _peel(
         if len(free) < 3:
             break
         seed = run.seed + round_
-        corr, pair_normals = _match(
-            run.src_d, run.tgt_d, free, run.matching, run.normals, seed, run.num_threads
-        )
+        corr, pair_normals = _match(run, free, seed)
         if len(corr) < 3:
             break
         features = run.features(corr, cfg)

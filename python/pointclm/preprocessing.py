@@ -28,6 +28,7 @@ from .registration import as_matrix, as_threads
 
 __all__ = [
     "DescribedCloud",
+    "DescriptorMatcher",
     "Matches",
     "FLIPPED_FPFH_BINS",
     "compute_fpfh",
@@ -365,23 +366,97 @@ def match_features(
     k > 1 matters for several copies of a model in one scan: each scan point proposes its k
     best model points, so every copy gets matches, not only the one a model point likes best.
     """
+    return DescriptorMatcher(source, target, k=k, num_threads=num_threads).match(
+        top_k=top_k, mutual=mutual, n_samples=n_samples, seed=seed
+    )
+
+
+def _descriptor_pair(source: ArrayLike, target: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     s = as_matrix(source, "source descriptors", None)
     t = as_matrix(target, "target descriptors", None)
     if len(s) == 0 or len(t) == 0:
         raise InputError("need at least one source and one target descriptor")
     if s.shape[1] != t.shape[1]:
         raise InputError(f"descriptor lengths differ: source {s.shape[1]}, target {t.shape[1]}")
-    n = None if n_samples is None else _count(n_samples, "n_samples", 1)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**64:
-        raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
-    src, tgt, dist = _core.match_features(
-        s,
-        t,
-        top_k=_count(top_k, "top_k", 1),
-        mutual=as_flag(mutual, "mutual"),
-        n_samples=n,
-        seed=int(seed),
-        num_threads=as_threads(num_threads),
-        k=_count(k, "k", 1),
-    )
-    return Matches(src, tgt, dist)
+    return s, t
+
+
+class DescriptorMatcher:
+    """:func:`match_features` for one model and one scan, matched whole or in parts.
+
+    Each target row's `k` nearest source rows do not depend on the other target rows, so the
+    matcher finds them once (on the first call that needs them) and every later
+    :meth:`match` of a subset of the target rows reuses them; only the mutual check, which
+    depends on which target rows take part, is redone. Peeling in
+    :func:`pointclm.register_point_clouds` matches the scan points no accepted copy explains,
+    pass after pass, this way. The results equal :func:`match_features` on the subset.
+    """
+
+    def __init__(
+        self, source: ArrayLike, target: ArrayLike, *, k: int = 1, num_threads: int | None = None
+    ) -> None:
+        self.source, self.target = _descriptor_pair(source, target)
+        self.k = _count(k, "k", 1)
+        self.num_threads = as_threads(num_threads)
+        self._nearest: tuple[np.ndarray, np.ndarray] | None = None
+
+    def match(
+        self,
+        rows: ArrayLike | None = None,
+        *,
+        top_k: int = 10_000,
+        mutual: bool = False,
+        n_samples: int | None = 1000,
+        seed: int = 0,
+    ) -> Matches:
+        """Matches of the target rows `rows` (None: all; indices into the target); the
+        returned target indices index the whole target."""
+        n = None if n_samples is None else _count(n_samples, "n_samples", 1)
+        if (
+            isinstance(seed, bool)
+            or not isinstance(seed, int | np.integer)
+            or not 0 <= seed < 2**64
+        ):
+            raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
+        kept, mutual_only = _count(top_k, "top_k", 1), as_flag(mutual, "mutual")
+        nearest = None
+        if rows is not None:
+            picked = self._rows(rows)
+            near, d2 = self._nearest_sources()
+            nearest = (near[picked], d2[picked])
+        src, tgt, dist = _core.match_features(
+            self.source,
+            self.target if rows is None else self.target[picked],
+            top_k=kept,
+            mutual=mutual_only,
+            n_samples=n,
+            seed=int(seed),
+            num_threads=self.num_threads,
+            k=self.k,
+            nearest=nearest,
+        )
+        return Matches(src, tgt if rows is None else picked[tgt], dist)
+
+    def _rows(self, rows: ArrayLike) -> np.ndarray:
+        picked = np.asarray(rows)
+        if picked.dtype == bool:
+            if picked.shape != (len(self.target),):
+                raise InputError(
+                    f"a boolean rows mask needs one entry per target row ({len(self.target)}), "
+                    f"got shape {picked.shape}"
+                )
+            picked = np.flatnonzero(picked)
+        if picked.ndim != 1 or not np.issubdtype(picked.dtype, np.integer):
+            raise InputError("rows must be a 1-D array of target row indices or a boolean mask")
+        if len(picked) == 0:
+            raise InputError("rows is empty: need at least one target row to match")
+        if picked.min() < 0 or picked.max() >= len(self.target):
+            raise InputError(f"rows must index the {len(self.target)} target rows")
+        return picked.astype(np.int64)
+
+    def _nearest_sources(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._nearest is None:
+            self._nearest = _core.nearest_descriptors(
+                self.source, self.target, k=self.k, num_threads=self.num_threads
+            )
+        return self._nearest

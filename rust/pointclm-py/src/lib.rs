@@ -289,6 +289,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(pointcloud::compute_fpfh, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::describe, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::match_features, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::nearest_descriptors, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::nearest_neighbours, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::refine_poses, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;

@@ -3,10 +3,12 @@
 
 use nalgebra::{Matrix3, Vector3};
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+};
 use pointclm::kabsch::RigidTransform;
 use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex, RefineParams};
-use pointclm::{Features, MatchingConfig};
+use pointclm::{Features, MatchingConfig, NearestSources};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -123,7 +125,7 @@ type MatchArrays<'py> = (
 /// (mutual only, if asked), then `n_samples` drawn with `seed`. Returns (source rows, target
 /// rows, descriptor distances), closest first.
 #[pyfunction]
-#[pyo3(signature = (source, target, top_k=10_000, mutual=false, n_samples=Some(1000), seed=0, num_threads=None, k=1))]
+#[pyo3(signature = (source, target, top_k=10_000, mutual=false, n_samples=Some(1000), seed=0, num_threads=None, k=1, nearest=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn match_features<'py>(
     py: Python<'py>,
@@ -135,6 +137,7 @@ pub fn match_features<'py>(
     #[pyo3(from_py_with = args::seed)] seed: u64,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
     #[pyo3(from_py_with = args::k)] k: usize,
+    #[pyo3(from_py_with = nearest_arg)] nearest: Option<NearestSources>,
 ) -> PyResult<MatchArrays<'py>> {
     let s = descriptors(&source, "source descriptors")?;
     let t = descriptors(&target, "target descriptors")?;
@@ -146,12 +149,75 @@ pub fn match_features<'py>(
     };
     let threads = num_threads.map(pool).transpose()?;
     let m = guarded(py, move || {
-        on_pool(threads, || pointclm::match_features(&s, &t, &cfg, seed))
+        on_pool(threads, || match &nearest {
+            Some(near) => pointclm::match_features_given(&s, &t, near, &cfg, seed),
+            None => pointclm::match_features(&s, &t, &cfg, seed),
+        })
     })?;
     Ok((
         indices(py, &m.source),
         indices(py, &m.target),
         m.distance.into_pyarray(py),
+    ))
+}
+
+/// `nearest` of `match_features`: (source rows, squared distances), two (n, k) arrays of
+/// int64 and float64, row for row with the target descriptors, as `nearest_descriptors`
+/// returns them.
+fn nearest_arg(obj: &Bound<'_, PyAny>) -> PyResult<Option<NearestSources>> {
+    if obj.is_none() {
+        return Ok(None);
+    }
+    let bad = || {
+        InputError::new_err(
+            "nearest must be None or (source rows, squared distances): an int64 and a float64 \
+             array of shape (target rows, k), as nearest_descriptors returns them",
+        )
+    };
+    let (rows, dist2): (Bound<'_, PyAny>, Bound<'_, PyAny>) = obj.extract().map_err(|_| bad())?;
+    let rows = rows.cast::<PyArray2<i64>>().map_err(|_| bad())?.readonly();
+    let dist2 = dist2.cast::<PyArray2<f64>>().map_err(|_| bad())?.readonly();
+    let (r, d) = (rows.as_array(), dist2.as_array());
+    if r.dim() != d.dim() || r.iter().any(|&v| v < 0) {
+        return Err(bad());
+    }
+    Ok(Some(NearestSources {
+        k: r.ncols(),
+        source: r.iter().map(|&v| v as usize).collect(),
+        dist2: d.iter().copied().collect(),
+    }))
+}
+
+type NearestDescriptors<'py> = (Bound<'py, PyArray2<i64>>, Bound<'py, PyArray2<f64>>);
+
+/// Each target descriptor's `k` nearest source descriptors (exact), nearest first: (source
+/// rows, squared distances), two (n, k) arrays; `k` is capped at the source's rows.
+#[pyfunction]
+#[pyo3(signature = (source, target, k=1, num_threads=None))]
+pub fn nearest_descriptors<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::k)] k: usize,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<NearestDescriptors<'py>> {
+    let s = descriptors(&source, "source descriptors")?;
+    let t = descriptors(&target, "target descriptors")?;
+    let n = t.len();
+    let threads = num_threads.map(pool).transpose()?;
+    let near = guarded(py, move || {
+        on_pool(threads, || pointclm::nearest_sources(&s, &t, k))
+    })?;
+    let rows: Vec<i64> = near.source.iter().map(|&v| v as i64).collect();
+    let shape = (n, near.k);
+    let to_err = |e: numpy::ndarray::ShapeError| PyRuntimeError::new_err(e.to_string());
+    Ok((
+        Array2::from_shape_vec(shape, rows)
+            .map_err(to_err)?
+            .into_pyarray(py),
+        Array2::from_shape_vec(shape, near.dist2)
+            .map_err(to_err)?
+            .into_pyarray(py),
     ))
 }
 
