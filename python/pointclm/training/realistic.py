@@ -8,7 +8,7 @@ what training reads: the correspondences, their labels and the voxel. It is save
 scenes.
 
 A sample is a bank scene in the network's units (lengths over ``3 voxels / sigma_d``, the
-ratio that ``scaled_config`` and ``embed_scaled`` use at inference), each side centred and
+ratio that ``Config.for_voxel`` and ``pointclm.embedding`` use at inference), each side centred and
 turned by its own random rotation: spatial consistency and labels are unchanged, and the
 network cannot learn a scene's frame instead of its geometry.
 """
