@@ -330,12 +330,12 @@ def modelnet40_shapes(
     ValueError
         If a file is malformed.
     """
+    # The files first: a missing folder is reported as missing whether or not h5py is there.
+    files = _modelnet_files(Path(folder), split)
     try:
         import h5py
     except ImportError as err:  # pragma: no cover - depends on the environment
         raise ImportError("reading ModelNet40 HDF5 files needs h5py: pip install h5py") from err
-    root = Path(folder)
-    files = _modelnet_files(root, split)
     clouds, labels = [], []
     for f in files:
         try:
