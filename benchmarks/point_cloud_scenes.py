@@ -75,9 +75,8 @@ def main() -> None:
                 sc.source_points,
                 sc.target_points,
                 voxel_size=sc.voxel_size,
-                viewpoint=sc.viewpoint,
                 num_threads=1,
-                **kw,
+                **{"viewpoint": sc.viewpoint, **kw},
             )
             times.append(time.perf_counter() - t)
             s = score_scene(r.transformations, sc.poses, 15.0, sc.max_translation)

@@ -88,7 +88,7 @@ SCENES_PER_SLOT = 1000
 SEED_RANGE = 1_000_000
 
 #: Bump when the cached arrays change meaning.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus")
 #: The N = 50,000 scenes: one held-out model with real scans, one mesh.
@@ -182,6 +182,8 @@ def save_scene(path: Path, scene: Any) -> None:
         seed=np.array(scene.seed, dtype=np.int64),
         timing_keys=np.array(list(scene.timings)),
         timing_values=np.array(list(scene.timings.values()), dtype=np.float64),
+        # The sensor's position: point-cloud benchmarks orient normals and verify by it.
+        viewpoint=np.full(3, np.nan) if scene.viewpoint is None else np.asarray(scene.viewpoint),
     )
     tmp.replace(path)  # atomic: a killed run leaves no half-written scene behind
 
@@ -197,7 +199,13 @@ def load_scene(path: Path) -> Any:
             model=str(z["model"]),
             seed=int(z["seed"]),
             timings=dict(zip(z["timing_keys"].tolist(), z["timing_values"].tolist(), strict=True)),
+            viewpoint=_viewpoint(z),
         )
+
+
+def _viewpoint(z: Any) -> np.ndarray | None:
+    v = np.asarray(z["viewpoint"], dtype=np.float64) if "viewpoint" in z.files else None
+    return None if v is None or not np.isfinite(v).all() else v
 
 
 def _build(job: tuple[str, int, Any, str]) -> str:
