@@ -140,6 +140,16 @@ class Config:
         return asdict(self)
 
     @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> Config:
+        """A Config from a dict of some of its fields; unknown keys are a ConfigError naming
+        them and the valid ones."""
+        known = set(cls.__dataclass_fields__)
+        unknown = [k for k in values if k not in known]
+        if unknown:
+            raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
+        return cls(**values)
+
+    @classmethod
     def for_voxel(cls, voxel_size: float, base: Config | None = None) -> Config:
         """`base` (default `Config()`, in the synthetic protocol's units) with its lengths in
         the units of clouds downsampled at `voxel_size`: sigma_d = `SIGMA_D_VOXELS` (3)

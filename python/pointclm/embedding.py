@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -180,11 +180,7 @@ def _config_from(values: Any) -> Config:
     """A metadata entry as a Config, naming unknown keys as `pointclm.register` does."""
     if not isinstance(values, dict):
         raise ConfigError(f"recommended thresholds must be a JSON object, got {values!r}")
-    known = {f.name for f in fields(Config)}
-    unknown = [k for k in values if k not in known]
-    if unknown:
-        raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
-    return Config(**values)
+    return Config.from_dict(values)
 
 
 def resolve(model: Any, backend: str | None = None, device: str | None = None) -> Embedding:

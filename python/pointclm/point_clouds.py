@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from . import _core
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
@@ -436,8 +437,8 @@ def _median_distance(reference: np.ndarray, queries: np.ndarray, num_threads: in
     """Median distance from (a stride of at most `pp.VIEWPOINT_SAMPLE` of) `queries` to their
     nearest `reference` descriptors."""
     rows = queries[:: max(1, -(-len(queries) // pp.VIEWPOINT_SAMPLE))]
-    m = pp.match_features(reference, rows, top_k=len(rows), n_samples=None, num_threads=num_threads)
-    return float(np.median(m.distance))
+    _, dist2 = _core.nearest_descriptors(reference, rows, k=1, num_threads=num_threads)
+    return float(np.median(np.sqrt(np.maximum(dist2, 0.0))))
 
 
 #: Scores only: `refine_poses` with these rejects nothing but duplicates (and keeps those

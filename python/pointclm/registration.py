@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import fields
 from typing import Any
 
 import numpy as np
@@ -101,11 +100,7 @@ def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
     if config is None:
         return Config().to_dict()
     if isinstance(config, dict):
-        known = {f.name for f in fields(Config)}
-        unknown = [k for k in config if k not in known]
-        if unknown:
-            raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
-        return Config(**config).to_dict()
+        return Config.from_dict(config).to_dict()
     if isinstance(config, Config):
         return config.to_dict()
     raise ConfigError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")

@@ -51,20 +51,26 @@ fn extract(field: &Field, v: &Bound<'_, PyAny>) -> Result<Value, String> {
 
 /// The name in `names` equal to `s`, or "expected 'a', 'b' or 'c', got \"s\"".
 fn choose(names: &'static [&'static str], s: &str) -> Result<&'static str, String> {
-    names.iter().copied().find(|n| *n == s).ok_or_else(|| {
-        let quoted: Vec<String> = names.iter().map(|n| format!("'{n}'")).collect();
-        let list = match quoted.split_last() {
-            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
-            _ => quoted.join(""),
-        };
-        format!("expected {list}, got {s:?}")
-    })
+    names
+        .iter()
+        .copied()
+        .find(|n| *n == s)
+        .ok_or_else(|| expected(names, s))
+}
+
+fn expected(names: &[&str], s: &str) -> String {
+    let quoted: Vec<String> = names.iter().map(|n| format!("'{n}'")).collect();
+    let list = match quoted.split_last() {
+        Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+        _ => quoted.join(""),
+    };
+    format!("expected {list}, got {s:?}")
 }
 
 /// An assignment by name, or `error` (InputError for `spectral_clustering`'s argument).
 pub fn assignment(s: &str, error: fn(String) -> PyErr) -> PyResult<Assignment> {
-    let name = choose(Assignment::NAMES, s).map_err(|e| error(format!("assignment: {e}")))?;
-    Ok(Assignment::from_name(name).expect("one of Assignment::NAMES"))
+    Assignment::from_name(s)
+        .ok_or_else(|| error(format!("assignment: {}", expected(Assignment::NAMES, s))))
 }
 
 fn to_py<'py>(py: Python<'py>, v: Value) -> PyResult<Bound<'py, PyAny>> {
@@ -84,8 +90,7 @@ pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
 
 pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    for f in Config::FIELDS {
-        let v = c.get(f.name).expect("FIELDS names fields");
+    for (f, v) in c.values() {
         d.set_item(f.name, to_py(py, v)?)?;
     }
     Ok(d)
@@ -95,9 +100,8 @@ pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>>
 /// "bool" or "choice"), choices (the names, or None), optional, default, length (whether
 /// `scaled` multiplies it) and doc.
 pub fn schema<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
-    let defaults = Config::default();
     let list = PyList::empty(py);
-    for f in Config::FIELDS {
+    for (f, default) in Config::default().values() {
         let d = PyDict::new(py);
         d.set_item("name", f.name)?;
         let (kind, choices) = match f.kind {
@@ -109,10 +113,7 @@ pub fn schema<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         d.set_item("kind", kind)?;
         d.set_item("choices", choices)?;
         d.set_item("optional", f.optional)?;
-        d.set_item(
-            "default",
-            to_py(py, defaults.get(f.name).expect("a field"))?,
-        )?;
+        d.set_item("default", to_py(py, default)?)?;
         d.set_item("length", f.unit == Unit::Length)?;
         d.set_item("doc", f.doc)?;
         list.append(d)?;

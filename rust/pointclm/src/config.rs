@@ -250,6 +250,14 @@ macro_rules! config {
                 },
             )+];
 
+            /// Every field with its value, in declaration order ([`Config::FIELDS`]).
+            pub fn values(&self) -> Vec<(&'static Field, Value)> {
+                Self::FIELDS
+                    .iter()
+                    .zip([$(self.$name.to_value()),+])
+                    .collect()
+            }
+
             /// The value of the field called `name`, if there is one.
             pub fn get(&self, name: &str) -> Option<Value> {
                 match name {
@@ -436,8 +444,8 @@ impl Config {
     /// The lengths are the fields of [`Unit::Length`] in [`Config::FIELDS`].
     pub fn scaled(&self, factor: f64) -> Self {
         let mut scaled = self.clone();
-        for field in Self::FIELDS.iter().filter(|f| f.unit == Unit::Length) {
-            if let Some(Value::Float(v)) = self.get(field.name) {
+        for (field, value) in self.values() {
+            if let (Unit::Length, Value::Float(v)) = (field.unit, value) {
                 let set = scaled.set(field.name, Value::Float(v * factor));
                 debug_assert!(set, "{} is a float field", field.name);
             }

@@ -361,6 +361,8 @@ fn screened_block<T: Screen>(
         Vec::with_capacity((hi - lo) * k),
         Vec::with_capacity((hi - lo) * k),
     );
+    // Reused by every query of the block: no allocation per query on this hot path.
+    let mut scratch = (Vec::with_capacity(k + 1), Vec::new());
     for i in 0..hi - lo {
         let query = queries.row(lo + i);
         let qn: f64 = query.iter().map(|v| v * v).sum();
@@ -376,7 +378,7 @@ fn screened_block<T: Screen>(
                 (f64::NEG_INFINITY, f64::INFINITY)
             }
         };
-        rank_query(query, base, k, bounds, &mut best);
+        rank_query(query, base, k, bounds, &mut scratch, &mut best);
     }
     best
 }
@@ -386,40 +388,45 @@ fn screened_block<T: Screen>(
 /// upper). One sweep: `top` keeps the k smallest upper bounds so far, whose largest only
 /// shrinks; a row whose lower bound exceeds it can never be among the k nearest, so only rows
 /// under the running cut are kept, the final cut prunes them, and direct distances rank the
-/// rest.
+/// rest. `scratch` holds `top` and the candidates (cleared here).
 fn rank_query(
     query: &[f64],
     base: &Features,
     k: usize,
     bounds: impl Fn(usize) -> (f64, f64),
+    scratch: &mut (Ranked, Ranked),
     out: &mut (Vec<usize>, Vec<f64>),
 ) {
-    let mut top: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
-    let mut cands: Vec<(f64, usize)> = Vec::new();
+    let (top, cands) = scratch;
+    top.clear();
+    cands.clear();
     for j in 0..base.len() {
         let (lower, upper) = bounds(j);
         if top.len() < k || lower <= top[k - 1].0 {
             cands.push((lower, j));
-            keep_smallest(&mut top, k, upper, j);
+            keep_smallest(top, k, upper, j);
         }
     }
     let cut = top[top.len() - 1].0;
     top.clear();
-    for &(lower, j) in &cands {
+    for &(lower, j) in cands.iter() {
         if lower <= cut {
             let d2: f64 = query
                 .iter()
                 .zip(base.row(j))
                 .map(|(a, b)| (a - b) * (a - b))
                 .sum();
-            keep_smallest(&mut top, k, d2, j);
+            keep_smallest(top, k, d2, j);
         }
     }
-    for &(d2, j) in &top {
+    for &(d2, j) in top.iter() {
         out.0.push(j);
         out.1.push(d2);
     }
 }
+
+/// `(value, row)` pairs.
+type Ranked = Vec<(f64, usize)>;
 
 /// Inserts `(v, j)` into `top`, sorted and at most `k` long; rows come in increasing order, so
 /// among equal values the lower row stays ahead.
