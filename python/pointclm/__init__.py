@@ -19,6 +19,7 @@ from .registration import register, register_batch
 
 if TYPE_CHECKING:
     from . import io
+    from .batch import register_files
 
 __all__ = [
     "CloudInstance",
@@ -32,6 +33,7 @@ __all__ = [
     "refine_poses",
     "register",
     "register_batch",
+    "register_files",
     "register_point_clouds",
 ]
 
@@ -39,12 +41,15 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # `pointclm.io` loads on first use (PEP 562): reachable after `import pointclm` alone,
     # without its readers' 30 ms in every `import pointclm` (measured: 176 -> 207 ms eager).
-    if name == "io":
+    # `register_files` too: it needs `pointclm.io` to list and read the scans.
+    if name in ("io", "register_files"):
         import importlib
 
-        return importlib.import_module(f"{__name__}.io")
+        if name == "io":
+            return importlib.import_module(f"{__name__}.io")
+        return importlib.import_module(f"{__name__}.batch").register_files
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), "io"})
+    return sorted({*globals(), "io", "register_files"})

@@ -1,4 +1,5 @@
-"""`pointclm` command line: `demo` on built-in data, `eval` on a benchmark, `register` files."""
+"""`pointclm` command line: `demo` on built-in data, `eval` on a benchmark, `register` files,
+`batch` many scans."""
 
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from .batch import registration_record
+from .batch.options import NO_VIEWPOINT, scan_viewpoint
 from .config import Config
 from .datasets import make_scenes
 from .evaluation import evaluate
@@ -25,9 +28,6 @@ from .registration import register
 
 #: Set to 1 to get the Python traceback of an unexpected error instead of one line.
 DEBUG_ENV = "POINTCLM_DEBUG"
-
-#: ``--viewpoint none``: no sensor position, not even the one a PCD file records.
-NO_VIEWPOINT = "none"
 
 #: The benchmarks' rule for a found copy: RE < 15 deg and TE < 10 % of the model's diagonal.
 MATCH_DEG = 15.0
@@ -257,7 +257,10 @@ def _pose_line(T: np.ndarray) -> str:
 def _diagnosis(reg: Any) -> str:
     """The result's diagnosis with `register_point_clouds`' argument names as this command's
     flags, so its advice can be followed as written."""
-    text = str(getattr(reg, "diagnosis", "") or "")
+    return _flag_names(str(getattr(reg, "diagnosis", "") or ""))
+
+
+def _flag_names(text: str) -> str:
     for argument, flag in _FLAGS_FOR_ARGUMENTS:
         text = text.replace(argument, flag)
     return text
@@ -417,28 +420,28 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
 
 
 def _register_files(args: argparse.Namespace, model: np.ndarray, scene: np.ndarray) -> Any:
-    from .point_clouds import file_viewpoint, register_point_clouds
+    from .point_clouds import register_point_clouds
 
-    if args.viewpoint == NO_VIEWPOINT:
-        viewpoint = None
-    elif args.viewpoint is not None:
-        viewpoint = args.viewpoint
-    else:
-        viewpoint = file_viewpoint(args.scene_file)
-    return register_point_clouds(
-        model,
-        scene,
-        voxel_size=args.voxel_size,
-        config=_config(args) if _has_config_flags(args) else None,
-        seed=args.seed,
-        model=args.model,
-        viewpoint=viewpoint,
-        mutual=not args.no_mutual,
-        n_samples=None if args.all_correspondences else args.correspondences,
-        refine=not args.no_refine,
-        peel=not args.no_peel,
-        num_threads=args.num_threads,
-    )
+    options = _method_options(args)
+    options["viewpoint"] = scan_viewpoint(options["viewpoint"], args.scene_file)
+    return register_point_clouds(model, scene, **options)
+
+
+def _method_options(args: argparse.Namespace) -> dict[str, Any]:
+    """`register_point_clouds`' options from the method flags `register` and `batch` share
+    (the viewpoint as given: a position, "none", or None for a PCD scan's own)."""
+    return {
+        "voxel_size": args.voxel_size,
+        "config": _config(args) if _has_config_flags(args) else None,
+        "seed": args.seed,
+        "model": args.model,
+        "viewpoint": args.viewpoint,
+        "mutual": not args.no_mutual,
+        "n_samples": None if args.all_correspondences else args.correspondences,
+        "refine": not args.no_refine,
+        "peel": not args.no_peel,
+        "num_threads": args.num_threads,
+    }
 
 
 def _write_pictures(
@@ -464,31 +467,21 @@ def _write_pictures(
 def _register_json(
     args: argparse.Namespace, reg: Any, truth: dict[str, Any] | None
 ) -> dict[str, Any]:
-    instances = []
-    for i, inst in enumerate(reg.instances):
-        entry = {
-            "T_target_source": inst.transformation.tolist(),
-            "inliers": len(inst),
-            "fitness": inst.fitness,
-            "inlier_rmse": inst.inlier_rmse,
-            "confidence": None if np.isnan(inst.confidence) else inst.confidence,
-            "pass": inst.pass_index,
-        }
-        if truth is not None:
-            entry["true_pose"] = truth["instance_truth"][i]
-        instances.append(entry)
+    """What `pointclm batch` writes per scan (`registration_record`), plus the files and the
+    ground truth's verdict."""
+    # The diagnosis is "" when there is nothing to say; otherwise why the result is empty
+    # or doubtful.
+    record = registration_record(reg, _diagnosis(reg))
+    if truth is not None:
+        for entry, j in zip(record["instances"], truth["instance_truth"], strict=True):
+            entry["true_pose"] = j
     return {
         "model": args.model_file,
         "scene": args.scene_file,
-        "voxel_size": reg.voxel_size,
-        "config": reg.config.to_dict(),
-        "instances": instances,
-        # "" when there is nothing to say; otherwise why the result is empty or doubtful.
-        "diagnosis": _diagnosis(reg),
+        **record,
         "ground_truth": None
         if truth is None
         else {k: v for k, v in truth.items() if k != "instance_truth"},
-        "timings_s": reg.timings,
     }
 
 
@@ -596,6 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_eval_parser(sub)
     _add_register_parser(sub)
+    _add_batch_parser(sub)
     _add_train_parser(sub)
     return p
 
@@ -641,28 +635,6 @@ def _add_register_parser(sub: Any) -> None:
     )
     r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
     r.add_argument("scene_file", metavar="SCENE", help="the scan holding its copies")
-    r.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
-    r.add_argument(
-        "--viewpoint",
-        type=_viewpoint,
-        help="sensor position x,y,z for scene normals and verification, or none (default: a "
-        "PCD scene's VIEWPOINT, else none: normals oriented without it)",
-    )
-    r.add_argument(
-        "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"
-    )
-    r.add_argument("--all-correspondences", action="store_true", help="keep all of the top-K")
-    r.add_argument("--no-mutual", action="store_true", help="skip mutual-NN filtering")
-    r.add_argument(
-        "--no-refine",
-        action="store_true",
-        help="keep the correspondence stage's poses (no ICP on the clouds, no verification)",
-    )
-    r.add_argument(
-        "--no-peel",
-        action="store_true",
-        help="one pass of the correspondence stage (no new passes over the unexplained scan)",
-    )
     r.add_argument(
         "--ground-truth",
         metavar="FILE",
@@ -674,8 +646,101 @@ def _add_register_parser(sub: Any) -> None:
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
     r.add_argument("--ply", help="coloured point cloud of the result")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_config_flags(r)
+    _add_method_flags(r)
     r.set_defaults(func=cmd_register)
+
+
+def _add_method_flags(p: argparse.ArgumentParser) -> None:
+    """The options of `register_point_clouds`, shared by `register` and `batch`."""
+    p.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
+    p.add_argument(
+        "--viewpoint",
+        type=_viewpoint,
+        help="sensor position x,y,z for scene normals and verification, or none (default: a "
+        "PCD scene's VIEWPOINT, else none: normals oriented without it)",
+    )
+    p.add_argument(
+        "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"
+    )
+    p.add_argument("--all-correspondences", action="store_true", help="keep all of the top-K")
+    p.add_argument("--no-mutual", action="store_true", help="skip mutual-NN filtering")
+    p.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="keep the correspondence stage's poses (no ICP on the clouds, no verification)",
+    )
+    p.add_argument(
+        "--no-peel",
+        action="store_true",
+        help="one pass of the correspondence stage (no new passes over the unexplained scan)",
+    )
+    _add_config_flags(p)
+
+
+def _add_batch_parser(sub: Any) -> None:
+    b = sub.add_parser(
+        "batch",
+        help="register one model in many scans: one JSON line per scan, resumable",
+        description="Find the copies of MODEL in every scan of SCANS (files, folders of "
+        "point-cloud files, or quoted glob patterns) and write one JSON line per scan to "
+        "--out as each completes, in the order of SCANS: its instances, diagnosis and "
+        "timings as `pointclm register --out` writes them, or the error for that scan (the "
+        "batch goes on). Every scan gets the same --seed, so its poses are the same whichever "
+        "worker or engine ran it.",
+    )
+    b.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
+    b.add_argument("scans", metavar="SCANS", nargs="+", help="scan files, folders or globs")
+    b.add_argument("--out", required=True, help="the JSON Lines file of results")
+    b.add_argument(
+        "--resume",
+        action="store_true",
+        help="skip the scans --out already holds and add the rest (without it an existing "
+        "non-empty --out is an error)",
+    )
+    b.add_argument(
+        "--workers",
+        type=_int_at_least(1),
+        default=1,
+        help="worker processes (default 1: this process); each uses --num-threads (default 1)",
+    )
+    b.add_argument(
+        "--engine",
+        choices=["local", "ray"],
+        default="local",
+        help="local processes, or Ray tasks (pip install 'pointclm[ray]')",
+    )
+    b.add_argument(
+        "--ray-address",
+        help="Ray cluster to join (as ray.init(address=...)); default: a local one of "
+        "--workers CPUs",
+    )
+    b.add_argument("--png-dir", help="a picture per scan in this folder (needs matplotlib)")
+    b.add_argument("--ply-dir", help="a coloured point cloud per scan in this folder")
+    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_method_flags(b)
+    b.set_defaults(func=cmd_batch)
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import run_batch
+
+    summary = run_batch(
+        args.model_file,
+        args.scans,
+        args.out,
+        options=_method_options(args),
+        resume=args.resume,
+        engine=args.engine,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        png_dir=args.png_dir,
+        ply_dir=args.ply_dir,
+        progress=not args.quiet,
+        diagnosis=_flag_names,
+    )
+    # Scans that failed are in the output and the count; the batch itself ran: exit 0.
+    print(f"pointclm batch: {summary}")
+    return 0
 
 
 def _add_train_parser(sub: Any) -> None:

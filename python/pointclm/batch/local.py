@@ -1,0 +1,113 @@
+"""The local engine: scans one after the other in this process, or spread over a pool of
+worker processes that each load the model and the network once.
+
+A worker process that dies (a crash, the OOM killer) breaks Python's process pool; the scans
+it held are run again in a new pool, and a scan whose worker dies `MAX_ATTEMPTS` times is
+recorded as failed, so one scan that crashes its worker cannot stop the batch.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections import Counter, deque
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+import numpy as np
+
+from ..errors import PointclmError
+from .options import BatchJob
+from .worker import failed_record, init_process, process_scan, resolve_cached, run_scan
+
+__all__ = ["MAX_ATTEMPTS", "Task", "run_in_pool", "run_in_process"]
+
+#: Tries a scan gets when its worker process dies under it (Ray's engine: the same).
+MAX_ATTEMPTS = 3
+
+#: (position in the scan list, scan path, picture name)
+Task = tuple[int, str, str]
+Done = Iterator[tuple[int, dict[str, Any]]]
+
+
+def run_in_process(job: BatchJob, model_points: np.ndarray, tasks: list[Task]) -> Done:
+    """Each scan in turn, here; yields (position, record)."""
+    embedding = resolve_cached(job.options["model"])
+    for position, scan, picture in tasks:
+        yield position, run_scan(job, model_points, embedding, scan, picture)
+
+
+def run_in_pool(job: BatchJob, model_points: np.ndarray, tasks: list[Task], workers: int) -> Done:
+    """The scans over `workers` processes (spawned: no state forked from the caller); yields
+    (position, record) as each completes, in any order."""
+    todo = deque(tasks)
+    attempts: Counter[int] = Counter()
+    context = multiprocessing.get_context("spawn")
+    while todo:
+        pool = ProcessPoolExecutor(
+            workers, mp_context=context, initializer=init_process, initargs=(job, model_points)
+        )
+        try:
+            _check_started(pool)
+            yield from _drain(pool, todo, 2 * workers, attempts, job)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _check_started(pool: ProcessPoolExecutor) -> None:
+    """Stop here if the workers cannot start at all: otherwise every scan would be tried
+    three times and recorded as failed for what is not the scan's fault."""
+    try:
+        pool.submit(int).result()
+    except BrokenProcessPool:
+        raise PointclmError(
+            "the batch's worker processes could not start (their error is above); a script "
+            "that runs a batch with workers > 1 must do so under "
+            "`if __name__ == '__main__':` (worker processes are spawned and import it)"
+        ) from None
+
+
+def _drain(
+    pool: ProcessPoolExecutor, todo: deque[Task], window: int, attempts: Counter[int], job: BatchJob
+) -> Done:
+    """Runs `todo` on `pool`, at most `window` scans submitted at a time (so results waiting
+    for an earlier one stay few); returns early, with the lost scans put back, if it breaks."""
+    running: dict[Future[dict[str, Any]], Task] = {}
+    while todo or running:
+        try:
+            while todo and len(running) < window:
+                running[pool.submit(process_scan, todo[0][1], todo[0][2])] = todo[0]
+                todo.popleft()
+        except BrokenProcessPool:  # a worker died since the last wait
+            yield from _requeue(running, todo, attempts, job)
+            return
+        done, _ = wait(running, return_when=FIRST_COMPLETED)
+        if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
+            yield from _requeue(running, todo, attempts, job)
+            return
+        for future in done:
+            yield running.pop(future)[0], future.result()
+
+
+def _requeue(
+    running: dict[Future[dict[str, Any]], Task],
+    todo: deque[Task],
+    attempts: Counter[int],
+    job: BatchJob,
+) -> Done:
+    """After a worker died: the finished scans' records, and every other scan in flight back
+    at the head of the queue (or failed, after `MAX_ATTEMPTS`)."""
+    lost = []
+    for future, task in running.items():
+        if future.done() and future.exception() is None:
+            yield task[0], future.result()
+        else:
+            lost.append(task)
+    for task in sorted(lost, reverse=True):
+        attempts[task[0]] += 1
+        if attempts[task[0]] < MAX_ATTEMPTS:
+            todo.appendleft(task)
+        else:
+            message = f"the worker process died while registering this scan ({MAX_ATTEMPTS} tries)"
+            yield task[0], failed_record(job, task[1], "WorkerCrashedError", message)

@@ -1,0 +1,53 @@
+"""The JSON content of one registration, shared by `pointclm register --out` and each line
+of a batch's output, so the two agree field for field."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+__all__ = ["TIMING_FIELDS", "error_record", "registration_record", "without_timings"]
+
+#: The fields of a batch line that change from run to run; everything else is fixed by the
+#: scan, the model, the options and the seed.
+TIMING_FIELDS = ("timings_s", "seconds")
+
+
+def _number(value: float) -> float | None:
+    # JSON has no NaN; a score that could not be measured is null.
+    return None if not math.isfinite(value) else float(value)
+
+
+def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
+    """Voxel, config, instances (``T_target_source`` 4x4 lists, surest first, with their
+    scores), `diagnosis` ("" when there is nothing to say) and timings of a
+    :class:`pointclm.point_clouds.PointCloudRegistration`."""
+    instances = [
+        {
+            "T_target_source": inst.transformation.tolist(),
+            "inliers": len(inst),
+            "fitness": _number(inst.fitness),
+            "inlier_rmse": _number(inst.inlier_rmse),
+            "confidence": _number(inst.confidence),
+            "pass": inst.pass_index,
+        }
+        for inst in reg.instances
+    ]
+    return {
+        "voxel_size": reg.voxel_size,
+        "config": reg.config.to_dict(),
+        "instances": instances,
+        "diagnosis": diagnosis,
+        "timings_s": dict(reg.timings),
+    }
+
+
+def error_record(error: BaseException) -> dict[str, Any]:
+    """Why a scan has no result: the exception's class and its one-line message."""
+    message = " ".join(str(error).split()) or type(error).__name__
+    return {"error": type(error).__name__, "message": message}
+
+
+def without_timings(record: dict[str, Any]) -> dict[str, Any]:
+    """`record` without the fields that differ between two runs of the same batch."""
+    return {k: v for k, v in record.items() if k not in TIMING_FIELDS}

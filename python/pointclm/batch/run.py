@@ -1,0 +1,225 @@
+"""`register_files`: one model against many scans, one JSON line per scan, resumable, on this
+machine's cores or a Ray cluster."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from .local import Done, Task, run_in_pool, run_in_process
+from .options import BatchJob, check_options, recorded_options
+from .ray_engine import run_on_ray
+from .results import OrderedWriter, open_results
+from .scans import expand_scans, picture_names
+
+__all__ = ["ENGINES", "BatchSummary", "register_files", "run_batch"]
+
+ENGINES = ("local", "ray")
+
+Paths = str | os.PathLike[str] | Iterable[str | os.PathLike[str]]
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a batch run did: scans registered (``done``), recorded with an error
+    (``failed``), already in the output and left alone (``skipped``), in ``seconds``."""
+
+    done: int
+    failed: int
+    skipped: int
+    seconds: float
+    out: str
+
+    def __str__(self) -> str:
+        ran = self.done + self.failed
+        rate = f", {ran / self.seconds:.2f} scans/s" if ran and self.seconds > 0 else ""
+        return (
+            f"{self.done} registered, {self.failed} failed, {self.skipped} skipped (already in "
+            f"{self.out}) in {self.seconds:.1f} s{rate}"
+        )
+
+
+def register_files(
+    model_file: str | os.PathLike[str],
+    scans: Paths,
+    out: str | os.PathLike[str],
+    *,
+    resume: bool = False,
+    engine: str = "local",
+    workers: int = 1,
+    ray_address: str | None = None,
+    png_dir: str | os.PathLike[str] | None = None,
+    ply_dir: str | os.PathLike[str] | None = None,
+    progress: bool = True,
+    **options: Any,
+) -> BatchSummary:
+    """Find the copies of the model in `model_file` in every scan of `scans`, writing one JSON
+    line per scan to `out` (JSON Lines) as each completes: ``status`` "ok" with its
+    ``instances`` (``T_target_source`` 4x4, scores), ``diagnosis`` and timings, as
+    ``pointclm register --out`` writes them, or "error" with the ``error`` class and
+    ``message`` (a bad scan is recorded and the batch goes on). Lines follow the order of
+    `scans` and each is synced to disk, so a killed batch loses only the scans in flight.
+
+    `scans`: files, folders (their point-cloud files, sorted) or glob patterns, repeats
+    dropped. `resume`: skip the scans `out` already holds (a line cut short by a kill is
+    written again); without it an existing non-empty `out` is an error. `engine` "local"
+    runs `workers` processes (1: in this process), "ray" one task per scan on the Ray
+    cluster at `ray_address` (default: the connected one, else a local one of `workers`
+    CPUs). `png_dir`, `ply_dir`: a picture or coloured cloud per scan, named by the scan.
+    `options`: :func:`pointclm.register_point_clouds`' keyword options (``voxel_size``,
+    ``config``, ``seed``, ``model``, ``viewpoint``, ...), the same for every scan; with no
+    ``viewpoint`` a PCD scan's ``VIEWPOINT`` is used, ``viewpoint="none"`` uses none. Every
+    scan gets the same seed, so its poses are the same bit for bit whichever engine, worker
+    or position ran it. Worker processes use ``num_threads=1`` unless given; they are
+    spawned, so a script calling this with ``workers > 1`` does so under
+    ``if __name__ == "__main__":``. Each line also records the model file, the network and
+    the options; `resume` refuses an `out` written with others.
+
+    Returns a :class:`BatchSummary`.
+    """
+    return run_batch(
+        model_file,
+        scans,
+        out,
+        resume=resume,
+        engine=engine,
+        workers=workers,
+        ray_address=ray_address,
+        png_dir=png_dir,
+        ply_dir=ply_dir,
+        progress=progress,
+        options=options,
+        diagnosis=_python_names,
+    )
+
+
+def _python_names(diagnosis: str) -> str:
+    # In a batch, viewpoint=None means "the PCD file's VIEWPOINT"; "none" means no viewpoint.
+    return diagnosis.replace("viewpoint=None", 'viewpoint="none"')
+
+
+def run_batch(
+    model_file: str | os.PathLike[str],
+    scans: Paths,
+    out: str | os.PathLike[str],
+    *,
+    options: dict[str, Any],
+    resume: bool = False,
+    engine: str = "local",
+    workers: int = 1,
+    ray_address: str | None = None,
+    png_dir: str | os.PathLike[str] | None = None,
+    ply_dir: str | os.PathLike[str] | None = None,
+    progress: bool = True,
+    diagnosis: Callable[[str], str] | None = None,
+) -> BatchSummary:
+    """`register_files` with its options as a dict; `diagnosis` rewrites each line's
+    diagnosis before it is written (the CLI names its flags there)."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    _check_engine(engine, workers, ray_address)
+    job = _job(model_file, png_dir, ply_dir, options)
+    scan_list = expand_scans(scans)
+    model_points = _load_model(job.model_file)
+    fh, present = open_results(out, resume, _identity(job))
+    names = picture_names(scan_list)
+    tasks = [(i, s, names[i]) for i, s in enumerate(scan_list) if s not in present]
+    writer = OrderedWriter(fh, [t[0] for t in tasks])
+    counts = {"ok": 0, "error": 0}
+    bar = tqdm(total=len(tasks), desc="batch", unit="scan", disable=not (progress and tasks))
+    try:
+        for position, record in _engine(engine, job, model_points, tasks, workers, ray_address):
+            if diagnosis is not None and "diagnosis" in record:
+                record["diagnosis"] = diagnosis(record["diagnosis"])
+            writer.add(position, record)
+            counts["ok" if record["status"] == "ok" else "error"] += 1
+            bar.set_postfix(failed=counts["error"], refresh=False)
+            bar.update()
+    finally:
+        bar.close()
+        writer.close()
+    skipped = len(scan_list) - len(tasks)
+    elapsed = time.perf_counter() - t0
+    return BatchSummary(counts["ok"], counts["error"], skipped, elapsed, os.fspath(out))
+
+
+def _check_engine(engine: str, workers: int, ray_address: str | None) -> None:
+    if engine not in ENGINES:
+        raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError(f"workers must be an int >= 1, got {workers!r}")
+    if ray_address is not None and engine != "ray":
+        raise InputError("ray_address (--ray-address) needs engine='ray' (--engine ray)")
+
+
+def _job(
+    model_file: str | os.PathLike[str],
+    png_dir: str | os.PathLike[str] | None,
+    ply_dir: str | os.PathLike[str] | None,
+    options: dict[str, Any],
+) -> BatchJob:
+    if png_dir is not None:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise ImportError(
+                "png_dir (--png-dir) needs matplotlib: pip install 'pointclm[viz]'"
+            ) from None
+    checked = check_options(options)
+    return BatchJob(
+        os.fspath(model_file),
+        checked,
+        recorded_options(checked),
+        None if png_dir is None else _output_folder(png_dir, "png_dir"),
+        None if ply_dir is None else _output_folder(ply_dir, "ply_dir"),
+    )
+
+
+def _identity(job: BatchJob) -> dict[str, Any]:
+    """What every line of one batch shares (a resumed batch must match it), as read back
+    from JSON (tuples as lists)."""
+    identity = {"model": job.model_file, "network": job.options["model"], "options": job.recorded}
+    return dict(json.loads(json.dumps(identity)))
+
+
+def _output_folder(path: str | os.PathLike[str], what: str) -> str:
+    """`path` made (with its parents) if missing, and checked writable."""
+    folder = os.fspath(path)
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise InputError(f"{what} {folder} exists and is not a folder")
+    os.makedirs(folder, exist_ok=True)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"{what} {folder} is not writable")
+    return folder
+
+
+def _load_model(model_file: str) -> np.ndarray:
+    from ..io import load_points
+
+    return load_points(model_file)
+
+
+def _engine(
+    engine: str,
+    job: BatchJob,
+    model_points: np.ndarray,
+    tasks: list[Task],
+    workers: int,
+    ray_address: str | None,
+) -> Done:
+    if engine == "local" and workers == 1:
+        return run_in_process(job, model_points, tasks)
+    # Worker processes share the cores: one thread each unless the caller says otherwise.
+    threads = job.options.get("num_threads") or 1
+    job = replace(job, options={**job.options, "num_threads": threads})
+    if engine == "local":
+        return run_in_pool(job, model_points, tasks, workers)
+    return run_on_ray(job, model_points, tasks, workers, ray_address)

@@ -1,0 +1,150 @@
+"""One scan of a batch, as every engine runs it: load, register, optional pictures, and one
+record (the result or the error) — never an exception, so one bad scan never stops a batch.
+
+Worker processes (process pool or Ray) keep the model's points and the loaded network in
+this module between scans: both are loaded once per process, not once per scan.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .options import BatchJob, scan_viewpoint
+from .records import error_record, registration_record
+
+__all__ = [
+    "CRASH_ENV",
+    "failed_record",
+    "init_process",
+    "process_scan",
+    "resolve_cached",
+    "run_scan",
+]
+
+#: Test only: "NAME:MARKER" makes a worker process die abruptly (as a segfault or an OOM kill
+#: would) when it starts the scan whose file name is NAME, the first time only (it creates
+#: MARKER; once MARKER exists the scan runs). The tests use it to check that a batch outlives
+#: a dead worker; never acted on in the caller's own process.
+CRASH_ENV = "POINTCLM_TEST_CRASH_ONCE"
+
+#: Per worker process: the networks loaded so far, by name or path.
+_NETWORKS: dict[str, Any] = {}
+#: Per pool worker process: the job and the model's points, set by `init_process`.
+_PROCESS: dict[str, Any] = {}
+
+
+def resolve_cached(model: str | None) -> Any:
+    """The embedding `model` names, loaded once per process."""
+    from ..embedding import resolve
+
+    if model is None:
+        return None
+    if model not in _NETWORKS:
+        _NETWORKS[model] = resolve(model)
+    return _NETWORKS[model]
+
+
+def init_process(job: BatchJob, model_points: np.ndarray) -> None:
+    """Process-pool initializer: what every scan of this worker shares, loaded once."""
+    _PROCESS.update(
+        job=job, model_points=model_points, embedding=resolve_cached(job.options["model"])
+    )
+
+
+def process_scan(scan: str, picture: str) -> dict[str, Any]:
+    """`run_scan` in a pool worker, with what `init_process` loaded."""
+    crash_for_tests(scan)
+    return run_scan(_PROCESS["job"], _PROCESS["model_points"], _PROCESS["embedding"], scan, picture)
+
+
+def run_scan(
+    job: BatchJob, model_points: np.ndarray, embedding: Any, scan: str, picture: str
+) -> dict[str, Any]:
+    """The record of one scan: ``status`` "ok" with the registration, or "error" with the
+    exception's class and message. `picture` is the file name (no suffix) of its PNG/PLY."""
+    t0 = time.perf_counter()
+    try:
+        body = _register_scan(job, model_points, embedding, scan, picture)
+    except Exception as e:  # recorded for this scan; the batch goes on
+        body = {"status": "error", **error_record(e)}
+    return {**_head(job, scan), **body, "seconds": time.perf_counter() - t0}
+
+
+def failed_record(job: BatchJob, scan: str, error: str, message: str) -> dict[str, Any]:
+    """The record of a scan that an engine could not run (its worker kept dying)."""
+    return {
+        **_head(job, scan),
+        "status": "error",
+        "error": error,
+        "message": message,
+        "seconds": 0.0,
+    }
+
+
+def _head(job: BatchJob, scan: str) -> dict[str, Any]:
+    return {
+        "scan": scan,
+        "model": job.model_file,
+        "network": job.options.get("model"),
+        "options": job.recorded,
+    }
+
+
+def _register_scan(
+    job: BatchJob, model_points: np.ndarray, embedding: Any, scan: str, picture: str
+) -> dict[str, Any]:
+    from ..io import load_points
+    from ..point_clouds import register_point_clouds
+
+    t0 = time.perf_counter()
+    points = load_points(scan)
+    options = {**job.options, "model": embedding}
+    options["viewpoint"] = scan_viewpoint(options.get("viewpoint"), scan)
+    t_load = time.perf_counter() - t0
+    reg = register_point_clouds(model_points, points, **options)
+    record = registration_record(reg, reg.diagnosis)
+    # The scan was read here, not by register_point_clouds: its load time is this one.
+    record["timings_s"]["load"] = t_load
+    record["timings_s"]["total"] = record["timings_s"].get("total", 0.0) + t_load
+    return {"status": "ok", **record, **_pictures(job, reg, scan, picture)}
+
+
+def _pictures(job: BatchJob, reg: Any, scan: str, picture: str) -> dict[str, str]:
+    from ..io.files import atomic_path
+    from ..visualize import save_ply, save_registration_png
+
+    written = {}
+    if job.png_dir is not None:
+        path = os.path.join(job.png_dir, picture + ".png")
+        title = f"{Path(job.model_file).name} in {Path(scan).name}"
+        with atomic_path(path) as tmp:
+            save_registration_png(tmp, reg, title=title)
+        written["png"] = path
+    if job.ply_dir is not None:
+        path = os.path.join(job.ply_dir, picture + ".ply")
+        with atomic_path(path) as tmp:
+            save_ply(
+                tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
+            )
+        written["ply"] = path
+    return written
+
+
+def crash_for_tests(scan: str) -> None:
+    """Exit the process at once where `CRASH_ENV` asks it to (worker processes only)."""
+    spec = os.environ.get(CRASH_ENV)
+    if not spec:
+        return
+    name, _, marker = spec.partition(":")
+    if Path(scan).name != name:
+        return
+    try:
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return
+    os._exit(70)
