@@ -124,8 +124,8 @@ def test_bad_inputs_are_value_errors(kwargs: dict, match: str) -> None:
 
 
 def test_register_point_clouds_refines_by_default() -> None:
-    # Packaged coarse bunny, 7 copies: FPFH poses get 1 of them within 15 deg / 10 %; ICP
-    # and verification turn that into 4 of 4.
+    # Packaged coarse bunny, 7 copies, no sensor position: FPFH poses get 1 of them within
+    # 15 deg / 10 %; point-to-plane ICP and verification find all 7 (and one wrong pose).
     scene = make_realistic_scene(0, SceneParams(model="bunny", data_dir=None))
     kw = {"voxel_size": scene.voxel_size}
     ref = pointclm.register_point_clouds(scene.source_points, scene.target_points, **kw)
@@ -140,7 +140,7 @@ def test_register_point_clouds_refines_by_default() -> None:
     np.testing.assert_allclose(raw.transformations, raw.result.transformations, atol=1e-12)
     good = score_scene(ref.transformations, scene.poses, 15.0, scene.max_translation)
     base = score_scene(raw.transformations, scene.poses, 15.0, scene.max_translation)
-    assert good.n_matched >= 3 and good.precision == 1.0
+    assert good.n_matched >= 5 and good.precision >= 0.85
     assert base.n_matched <= good.n_matched
 
 

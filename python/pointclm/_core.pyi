@@ -203,6 +203,7 @@ def refine_poses(
     min_fitness: float,
     min_relative_fitness: float,
     max_shared: float,
+    target_normals: npt.NDArray[np.float64] | None = None,
     num_threads: int | None = None,
 ) -> tuple[
     npt.NDArray[np.float64],

@@ -523,6 +523,7 @@ def _verify(
         viewpoint=run.viewpoint,
         icp=refine,
         **({} if refine else {**_KEEP_ALL, "max_shared": 1.0}),
+        target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
     )
     tags = [(0, int(o)) for o in refined.origin]
@@ -590,6 +591,7 @@ def _rejected(run: _Run, first: Pass) -> str:
         viewpoint=run.viewpoint,
         **_KEEP_ALL,
         max_shared=1.0,
+        target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
     )
     n = len(first.result)
@@ -676,6 +678,7 @@ def _peel(
             run.voxel,
             viewpoint=run.viewpoint,
             max_shared=1.0,
+            target_normals=run.tgt_d.normals,
             num_threads=run.num_threads,
         )
         if len(new.origin) and new.by_visibility and refined.by_visibility:
@@ -735,6 +738,7 @@ def _reverify(
         run.voxel,
         viewpoint=run.viewpoint,
         icp=False,
+        target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
     )
     return both, [pool_tags[int(o)] for o in both.origin]

@@ -48,7 +48,10 @@ __all__ = [
 MIN_VISIBLE_FITNESS = 0.85
 #: With a viewpoint: at most this share of what the sensor could see of the model at a pose
 #: may lie where the sensor saw free space (its first return clearly behind the surface).
-MAX_CONTRADICTION = 0.05
+#: Point-to-plane ICP settles a right pose on the surface, leaving almost none (chosen on the
+#: validation models: 0.05 under point-to-point ICP; 0.03, 0.02 and 0.01 tried, see
+#: BENCHMARKS.md).
+MAX_CONTRADICTION = 0.02
 #: With a viewpoint: the sensor must be able to see at least this share of the model at a
 #: pose (below it there is too little to judge).
 MIN_SEEN = 0.05
@@ -104,10 +107,11 @@ def refine_poses(
     min_fitness: float = MIN_FITNESS,
     min_relative_fitness: float = MIN_RELATIVE_FITNESS,
     max_shared: float = 0.5,
+    target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
 ) -> RefinedPoses:
-    """Refine poses of `source_points` in `target_points` by ICP and keep those the scan
-    supports, surest first.
+    """Refine poses of `source_points` in `target_points` by point-to-plane ICP and keep
+    those the scan supports, surest first.
 
     Parameters
     ----------
@@ -133,6 +137,10 @@ def refine_poses(
     max_shared : float in [0, 1]
         The share of a pose's explained scan points a surer pose may also explain before it
         is a duplicate; 1 keeps duplicates.
+    target_normals : (M, 3) array_like, optional
+        Unit normals of `target_points` (either sign), e.g. those
+        :func:`pointclm.register_point_clouds` computed; estimated within 2 voxels when
+        omitted (pass them when refining against the same scan repeatedly).
     """
     src = pp.as_points(source_points, "source_points")
     tgt = pp.as_points(target_points, "target_points")
@@ -140,7 +148,8 @@ def refine_poses(
     poses, eye = _as_poses(transformations), _as_viewpoint(viewpoint)
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
     flag = pp.as_flag(icp, "icp")
-    return _refine(src, tgt, poses, voxel, flag, eye, (*rules, max_shared), num_threads)
+    normals = None if target_normals is None else pp.as_points(target_normals, "target_normals")
+    return _refine(src, tgt, poses, voxel, flag, eye, (*rules, max_shared), normals, num_threads)
 
 
 #: The rules' names, in the order the core takes them.
@@ -162,13 +171,22 @@ def _refine(
     icp: bool,
     eye: tuple[float, float, float] | None,
     rules: tuple[float, ...],
+    normals: np.ndarray | None,
     num_threads: int | None,
 ) -> RefinedPoses:
     """The core's refinement and verification, its columns named."""
     numbers: Any = [_number(value, name) for value, name in zip(rules, _RULES, strict=True)]
     core: Any = _core  # the rules pass as one list, which the stub cannot count
     mats, columns, origin, by_visibility = core.refine_poses(
-        src, tgt, poses, voxel, icp, eye, *numbers, num_threads=as_threads(num_threads)
+        src,
+        tgt,
+        poses,
+        voxel,
+        icp,
+        eye,
+        *numbers,
+        target_normals=normals,
+        num_threads=as_threads(num_threads),
     )
     confidence, fitness, visible, contradiction, seen, rmse = columns
     return RefinedPoses(

@@ -213,6 +213,12 @@ pub fn optional_normals<'py>(
     optional(obj, |o| matrix(o, "normals"))
 }
 
+pub fn optional_target_normals<'py>(
+    obj: &Bound<'py, PyAny>,
+) -> PyResult<Option<PyReadonlyArray2<'py, f64>>> {
+    optional(obj, |o| matrix(o, "target_normals"))
+}
+
 pub fn features<'py>(obj: &Bound<'py, PyAny>) -> PyResult<Option<PyReadonlyArray2<'py, f64>>> {
     optional(obj, |o| matrix(o, "features"))
 }

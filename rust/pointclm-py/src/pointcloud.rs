@@ -310,7 +310,7 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
 /// per pose [confidence, fitness, visible fitness, contradiction, seen share, inlier RMSE]; the
 /// index of the input pose each came from; and whether the viewpoint judged them.
 #[pyfunction]
-#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
+#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, target_normals=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
@@ -326,10 +326,16 @@ pub fn refine_poses<'py>(
     #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
     #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
     #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
+    #[pyo3(from_py_with = args::optional_target_normals)] target_normals: Option<
+        PyReadonlyArray2<'py, f64>,
+    >,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<RefinedArrays<'py>> {
     let s = rows3(&source, "source")?;
     let t = rows3(&target, "target")?;
+    let n = target_normals
+        .map(|a| rows3(&a, "target_normals"))
+        .transpose()?;
     let poses = rigid_poses(&transformations)?;
     let defaults = RefineParams::for_voxel(voxel_size);
     let params = RefineParams {
@@ -345,7 +351,7 @@ pub fn refine_poses<'py>(
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, move || {
         on_pool(threads, || {
-            pointcloud::refine_poses(&s, &t, &poses, viewpoint, &params)
+            pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
         })
     })?;
     let poses = &out.poses;

@@ -9,6 +9,7 @@
 
 pub mod describe;
 pub mod fpfh;
+pub mod icp;
 pub mod normals;
 pub mod refine;
 pub mod search;

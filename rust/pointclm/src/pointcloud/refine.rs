@@ -14,11 +14,15 @@
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 
+use super::icp::icp;
+use super::normals::{estimate_normals, Orientation};
 use super::visibility::{DepthMap, Sight};
 use super::{check_points, check_positive, PointIndex};
-use crate::correspondences::Correspondences;
 use crate::error::{Error, Result};
-use crate::kabsch::{kabsch, RigidTransform};
+use crate::kabsch::RigidTransform;
+
+/// Neighbours a scan normal is fitted to, as `describe`'s default.
+const NORMAL_MAX_NN: usize = 30;
 
 /// Lengths (in the clouds' units) and acceptance rules of [`refine_poses`].
 #[derive(Debug, Clone, PartialEq)]
@@ -29,6 +33,9 @@ pub struct RefineParams {
     /// At most this many ICP iterations per stage (a stage ends early once the pose stops
     /// moving).
     pub iterations: usize,
+    /// The scan's normals for point-to-plane ICP are fitted to its points within this
+    /// distance (at most 30 of them).
+    pub normal_radius: f64,
     /// A model point is explained when a scan point lies within this distance.
     pub fit_radius: f64,
     /// With a viewpoint: poses explaining a smaller share of what the sensor could see of
@@ -71,9 +78,10 @@ impl RefineParams {
         Self {
             radii: vec![3.0 * voxel, 2.0 * voxel, 1.5 * voxel],
             iterations: 10,
+            normal_radius: 2.0 * voxel,
             fit_radius: 1.5 * voxel,
             min_visible_fitness: 0.85,
-            max_contradiction: 0.05,
+            max_contradiction: 0.02,
             min_seen: 0.05,
             depth_cell: 1.5 * voxel,
             depth_tolerance: 3.0 * voxel,
@@ -91,6 +99,7 @@ impl RefineParams {
             check_positive("radii", r)?;
         }
         check_positive("fit_radius", self.fit_radius)?;
+        check_positive("normal_radius", self.normal_radius)?;
         check_positive("depth_cell", self.depth_cell)?;
         check_positive("depth_tolerance", self.depth_tolerance)?;
         check_positive("trust_cell", self.trust_cell)?;
@@ -150,8 +159,10 @@ pub struct Refined {
     pub by_visibility: bool,
 }
 
-/// Refines every pose by ICP against `target` (in parallel on the current rayon pool), then
-/// keeps the poses that pass [`RefineParams`]' rules, surest first (ties: input order).
+/// Refines every pose by point-to-plane ICP against `target` (in parallel on the current rayon
+/// pool), then keeps the poses that pass [`RefineParams`]' rules, surest first (ties: input
+/// order). `target_normals` are the scan's unit normals (either sign; e.g. those FPFH used);
+/// without them they are estimated within `normal_radius`.
 ///
 /// With `viewpoint` (the sensor's position, when `target` is one view from it) each pose is
 /// judged by what the sensor could see of the model at that pose; without it, or when the
@@ -161,12 +172,14 @@ pub struct Refined {
 pub fn refine_poses(
     source: &[[f64; 3]],
     target: &[[f64; 3]],
+    target_normals: Option<&[[f64; 3]]>,
     poses: &[RigidTransform],
     viewpoint: Option<[f64; 3]>,
     params: &RefineParams,
 ) -> Result<Refined> {
     check_inputs(source, target, poses, viewpoint, params)?;
     let index = PointIndex::new(target)?;
+    let normals = scan_normals(target, target_normals, &index, params)?;
     let trusted = viewpoint.filter(|&v| {
         DepthMap::new(target, v, params.trust_cell, params.trust_tolerance).hidden_share(target)
             <= params.max_hidden_scan
@@ -176,7 +189,15 @@ pub fn refine_poses(
     let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
         .map(|pose| {
-            let refined = icp(source, target, &index, *pose, params);
+            let refined = icp(
+                source,
+                target,
+                &normals,
+                &index,
+                *pose,
+                &params.radii,
+                params.iterations,
+            );
             let judged = judge(source, &index, depth.as_ref(), &refined, params.fit_radius);
             (refined, judged)
         })
@@ -187,6 +208,32 @@ pub fn refine_poses(
         poses: kept,
         by_visibility: depth.is_some(),
     })
+}
+
+/// The normals ICP needs: the given ones (checked), else estimated (none without ICP).
+fn scan_normals<'a>(
+    target: &[[f64; 3]],
+    given: Option<&'a [[f64; 3]]>,
+    index: &PointIndex,
+    params: &RefineParams,
+) -> Result<std::borrow::Cow<'a, [[f64; 3]]>> {
+    if let Some(normals) = given {
+        if normals.len() != target.len() {
+            return Err(Error::LengthMismatch {
+                what: "target normals (one per target point)",
+                expected: target.len(),
+                got: normals.len(),
+            });
+        }
+        check_points(normals, "target normals", 0)?;
+        return Ok(normals.into());
+    }
+    if params.radii.is_empty() {
+        return Ok(Vec::new().into());
+    }
+    // The sign does not matter to point-to-plane distances.
+    let towards = Orientation::Towards([0.0; 3]);
+    Ok(estimate_normals(target, index, params.normal_radius, NORMAL_MAX_NN, towards)?.into())
 }
 
 fn check_inputs(
@@ -384,48 +431,6 @@ fn sensor_verdict(depth: &DepthMap, posed: &[[f64; 3]], explained: &[bool]) -> (
         }
     }
     (seen, contradicted)
-}
-
-/// Point-to-point ICP over shrinking radii; a step that cannot be fitted (fewer than 3 model
-/// points near the scan, or all on a line) keeps the pose it has.
-fn icp(
-    source: &[[f64; 3]],
-    target: &[[f64; 3]],
-    index: &PointIndex,
-    mut pose: RigidTransform,
-    params: &RefineParams,
-) -> RigidTransform {
-    // How far a rotation change can move a model point: rotations turn about the origin.
-    let reach = source
-        .iter()
-        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
-        .fold(0.0, f64::max);
-    for &radius in &params.radii {
-        for _ in 0..params.iterations {
-            let (mut from, mut to) = (Vec::new(), Vec::new());
-            for p in source {
-                if let Some((j, _)) = index.nearest_within(&pose.apply(*p), radius) {
-                    from.push(*p);
-                    to.push(target[j]);
-                }
-            }
-            let Ok(pairs) = Correspondences::new(&from, &to) else {
-                break;
-            };
-            let all: Vec<usize> = (0..pairs.len()).collect();
-            let Some(next) = kabsch(&pairs, &all) else {
-                break;
-            };
-            let moved = (next.rotation - pose.rotation).amax() * reach
-                + (next.translation - pose.translation).amax();
-            pose = next;
-            // Converged: the last step moved no model point by more than a sliver of the radius.
-            if moved < 1e-4 * radius {
-                break;
-            }
-        }
-    }
-    pose
 }
 
 #[cfg(test)]
