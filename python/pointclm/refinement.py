@@ -48,10 +48,10 @@ __all__ = [
 MIN_VISIBLE_FITNESS = 0.85
 #: With a viewpoint: at most this share of what the sensor could see of the model at a pose
 #: may lie where the sensor saw free space (its first return clearly behind the surface).
-#: Point-to-plane ICP settles a right pose on the surface, leaving almost none (chosen on the
-#: validation models: 0.05 under point-to-point ICP; 0.03, 0.02 and 0.01 tried, see
-#: BENCHMARKS.md).
-MAX_CONTRADICTION = 0.02
+#: Point-to-plane ICP settles a right pose on the surface, and model points the sensor would
+#: see nearly edge-on (over 75 degrees) are not judged, so a right pose leaves almost none
+#: (chosen on the validation models, see BENCHMARKS.md; 0.05 under point-to-point ICP).
+MAX_CONTRADICTION = 0.01
 #: With a viewpoint: the sensor must be able to see at least this share of the model at a
 #: pose (below it there is too little to judge).
 MIN_SEEN = 0.05

@@ -44,6 +44,11 @@ pub struct RefineParams {
     /// With a viewpoint: poses putting more than this share of their visible points where
     /// the sensor saw free space are rejected.
     pub max_contradiction: f64,
+    /// With a viewpoint: a model point the scan does not explain is judged (seen or
+    /// contradicted) only where its surface faces the sensor within this angle, in degrees
+    /// (90: everywhere). A range sensor rarely returns from surfaces seen nearly edge-on, so
+    /// unexplained points there say nothing about the pose; flat-faced parts have many.
+    pub max_incidence_deg: f64,
     /// With a viewpoint: poses of which the sensor could see less than this share of the
     /// model are rejected (too little to judge).
     pub min_seen: f64,
@@ -81,7 +86,8 @@ impl RefineParams {
             normal_radius: 2.0 * voxel,
             fit_radius: 1.5 * voxel,
             min_visible_fitness: 0.85,
-            max_contradiction: 0.02,
+            max_contradiction: 0.01,
+            max_incidence_deg: 75.0,
             min_seen: 0.05,
             depth_cell: 1.5 * voxel,
             depth_tolerance: 3.0 * voxel,
@@ -100,6 +106,13 @@ impl RefineParams {
         }
         check_positive("fit_radius", self.fit_radius)?;
         check_positive("normal_radius", self.normal_radius)?;
+        if !(0.0..=90.0).contains(&self.max_incidence_deg) {
+            return Err(Error::InvalidParameter {
+                name: "max_incidence_deg",
+                value: self.max_incidence_deg.to_string(),
+                reason: "must lie in [0, 90] degrees",
+            });
+        }
         check_positive("depth_cell", self.depth_cell)?;
         check_positive("depth_tolerance", self.depth_tolerance)?;
         check_positive("trust_cell", self.trust_cell)?;
@@ -186,6 +199,31 @@ pub fn refine_poses(
     });
     let depth =
         trusted.map(|v| DepthMap::new(target, v, params.depth_cell, params.depth_tolerance));
+    let model_normals = match depth {
+        Some(_) => {
+            // The sign does not matter to the incidence test.
+            let model_index = PointIndex::new(source)?;
+            let towards = Orientation::Towards([0.0; 3]);
+            estimate_normals(
+                source,
+                &model_index,
+                params.normal_radius,
+                NORMAL_MAX_NN,
+                towards,
+            )?
+        }
+        None => Vec::new(),
+    };
+    let min_cos = params.max_incidence_deg.to_radians().cos();
+    let sensor = depth
+        .as_ref()
+        .zip(trusted)
+        .map(|(depth, viewpoint)| Sensor {
+            depth,
+            viewpoint,
+            model_normals: &model_normals,
+            min_cos,
+        });
     let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
         .map(|pose| {
@@ -198,7 +236,7 @@ pub fn refine_poses(
                 &params.radii,
                 params.iterations,
             );
-            let judged = judge(source, &index, depth.as_ref(), &refined, params.fit_radius);
+            let judged = judge(source, &index, sensor.as_ref(), &refined, params.fit_radius);
             (refined, judged)
         })
         .collect();
@@ -353,10 +391,19 @@ struct Judged {
     targets: Vec<usize>,
 }
 
+/// The sensor that judges poses: its depth map and position, and the model's normals with the
+/// incidence beyond which an unexplained model point is not judged (empty normals: none).
+struct Sensor<'a> {
+    depth: &'a DepthMap,
+    viewpoint: [f64; 3],
+    model_normals: &'a [[f64; 3]],
+    min_cos: f64,
+}
+
 fn judge(
     source: &[[f64; 3]],
     index: &PointIndex,
-    depth: Option<&DepthMap>,
+    sensor: Option<&Sensor>,
     pose: &RigidTransform,
     radius: f64,
 ) -> Judged {
@@ -383,7 +430,7 @@ fn judge(
     } else {
         0.0
     };
-    let Some(depth) = depth else {
+    let Some(sensor) = sensor else {
         return Judged {
             fitness,
             visible_fitness: f64::NAN,
@@ -394,7 +441,8 @@ fn judge(
             targets,
         };
     };
-    let (seen, contradicted) = sensor_verdict(depth, &posed, &explained);
+    let grazing = grazing(sensor, pose, &posed);
+    let (seen, contradicted) = sensor_verdict(sensor.depth, &posed, &explained, &grazing);
     let share = |k: usize| {
         if seen > 0 {
             k as f64 / seen as f64
@@ -417,12 +465,18 @@ fn judge(
 /// How many posed model points the sensor could see, and how many of those lie where it saw
 /// free space. A point the scan explains was evidently seen, whatever its depth cell says
 /// (cells straddle occlusion edges); the others count by the sensor's verdict.
-fn sensor_verdict(depth: &DepthMap, posed: &[[f64; 3]], explained: &[bool]) -> (usize, usize) {
+fn sensor_verdict(
+    depth: &DepthMap,
+    posed: &[[f64; 3]],
+    explained: &[bool],
+    grazing: &[bool],
+) -> (usize, usize) {
     let hits = explained.iter().filter(|&&e| e).count();
     let (mut seen, mut contradicted) = (hits, 0usize);
-    for (sight, hit) in depth.judge(posed).into_iter().zip(explained) {
+    for ((sight, hit), graze) in depth.judge(posed).into_iter().zip(explained).zip(grazing) {
         match (sight, hit) {
             (_, true) | (Sight::Hidden, _) => {}
+            _ if *graze => {}
             (Sight::Seen, false) => seen += 1,
             (Sight::Contradicted, false) => {
                 seen += 1;
@@ -431,6 +485,24 @@ fn sensor_verdict(depth: &DepthMap, posed: &[[f64; 3]], explained: &[bool]) -> (
         }
     }
     (seen, contradicted)
+}
+
+/// Which posed model points the sensor sees at grazing incidence (their surface within
+/// `acos(min_cos)` of edge-on): a range sensor rarely returns there.
+fn grazing(sensor: &Sensor, pose: &RigidTransform, posed: &[[f64; 3]]) -> Vec<bool> {
+    if sensor.model_normals.is_empty() {
+        return vec![false; posed.len()];
+    }
+    let eye = nalgebra::Vector3::from(sensor.viewpoint);
+    posed
+        .iter()
+        .zip(sensor.model_normals)
+        .map(|(p, n)| {
+            let n = pose.rotation * nalgebra::Vector3::from(*n);
+            let to_eye = (eye - nalgebra::Vector3::from(*p)).normalize();
+            n.dot(&to_eye).abs() < sensor.min_cos
+        })
+        .collect()
 }
 
 #[cfg(test)]
