@@ -171,3 +171,34 @@ def test_viewpoint_none_overrides_the_file(
     _register(capsys, bunnies["model"], bunnies["scene"])
     assert seen[0] is None and seen[1] == (1.0, 2.0, 3.0)
     np.testing.assert_array_equal(seen[2], np.ones(3))
+
+
+def test_method_flags_are_in_synthetic_units_over_the_path_defaults(
+    bunnies: dict[str, Any], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A method flag changes only its own field of `register_point_clouds`' default config,
+    and lengths are scaled to the voxel as `pointclm eval` scales them."""
+    seen: list[Any] = []
+    real = pointclm.point_clouds.register_point_clouds
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        seen.append(kwargs["config"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pointclm.point_clouds, "register_point_clouds", spy)
+    voxel = bunnies["d"] / 20
+    common = (bunnies["model"], bunnies["scene"], "--voxel-size", str(voxel))
+    _register(capsys, *common, "--ransac-iterations", "77")
+    _register(capsys, *common, "--sigma-d", "0.2")
+    _register(capsys, *common)
+    default = pointclm.point_clouds.cloud_config(voxel, peel=True)
+    only_iterations, only_sigma, none = seen
+    assert none is None
+    assert only_iterations == pointclm.Config.from_dict(
+        {**default.to_dict(), "ransac_iterations": 77}
+    )
+    assert only_sigma.sigma_d == pytest.approx(
+        pointclm.Config.for_voxel(voxel, pointclm.Config(sigma_d=0.2)).sigma_d
+    )
+    assert only_sigma.cluster_level == default.cluster_level is not None
+    assert only_sigma.tau_n == default.tau_n != pointclm.Config().tau_n

@@ -112,19 +112,27 @@ def _check_folder_creatable(path: str, what: str) -> None:
         raise ValueError(f"{what} {folder} cannot be created: {parent} is not a writable folder")
 
 
+#: The method flags: `Config` fields, in synthetic units (lengths relative to the bunny of
+#: the paper's protocol); on clouds every path scales them to the voxel (`Config.for_voxel`).
+CONFIG_FLAGS = ("pruning", "assignment", "ransac_iterations", "sigma_d", "inlier_threshold")
+
+
+def _config_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The method flags given (no flags: the defaults of each path apply: `Config()`, a
+    network's recommended thresholds, or on clouds those for refined or raw poses)."""
+    return {n: getattr(args, n) for n in CONFIG_FLAGS if getattr(args, n, None) is not None}
+
+
 def _config(args: argparse.Namespace) -> Config | None:
-    kw = {}
-    for name in ("pruning", "assignment", "ransac_iterations", "sigma_d", "inlier_threshold"):
-        value = getattr(args, name, None)
-        if value is not None:
-            kw[name] = value
-    # No flags: the defaults of each path apply (`Config()`, a network's recommended
-    # thresholds, or on realistic scenes those for refined or raw poses).
+    kw = _config_overrides(args)
     return Config(**kw) if kw else None
 
 
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("method (defaults: pointclm.Config())")
+    g = p.add_argument_group(
+        "method (defaults: pointclm.Config(); lengths in its synthetic units, scaled to the "
+        "voxel on point clouds)"
+    )
     g.add_argument("--pruning", choices=["paper", "authors", "none"])
     g.add_argument("--assignment", choices=["kmeans", "discretize"])
     g.add_argument("--ransac-iterations", type=_int_at_least(0), dest="ransac_iterations")
@@ -422,17 +430,17 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
 def _register_files(args: argparse.Namespace, model: np.ndarray, scene: np.ndarray) -> Any:
     from .point_clouds import register_point_clouds
 
-    options = _method_options(args)
+    options = _method_options(args, model)
     options["viewpoint"] = scan_viewpoint(options["viewpoint"], args.scene_file)
     return register_point_clouds(model, scene, **options)
 
 
-def _method_options(args: argparse.Namespace) -> dict[str, Any]:
+def _method_options(args: argparse.Namespace, model: np.ndarray) -> dict[str, Any]:
     """`register_point_clouds`' options from the method flags `register` and `batch` share
     (the viewpoint as given: a position, "none", or None for a PCD scan's own)."""
     return {
         "voxel_size": args.voxel_size,
-        "config": _config(args) if _has_config_flags(args) else None,
+        "config": _cloud_config(args, model),
         "seed": args.seed,
         "model": args.model,
         "viewpoint": args.viewpoint,
@@ -485,9 +493,18 @@ def _register_json(
     }
 
 
-def _has_config_flags(args: argparse.Namespace) -> bool:
-    names = ("pruning", "assignment", "ransac_iterations", "sigma_d", "inlier_threshold")
-    return any(getattr(args, n, None) is not None for n in names)
+def _cloud_config(args: argparse.Namespace, model: np.ndarray) -> Config | None:
+    """With method flags: `register_point_clouds`' own default config with the flags applied,
+    scaled to the voxel as `pointclm eval` scales them (so --sigma-d means the same in both);
+    None without flags (its default)."""
+    from .point_clouds import cloud_config, default_voxel_size
+
+    overrides = _config_overrides(args)
+    if not overrides:
+        return None
+    voxel = default_voxel_size(model) if args.voxel_size is None else args.voxel_size
+    refine = not args.no_refine
+    return cloud_config(voxel, args.model, refine, refine and not args.no_peel, overrides)
 
 
 def _demo_scene(args: argparse.Namespace) -> None:
@@ -721,6 +738,13 @@ def _add_batch_parser(sub: Any) -> None:
     b.set_defaults(func=cmd_batch)
 
 
+def _batch_model(args: argparse.Namespace) -> np.ndarray:
+    """The model's points, read here only when the method flags need its voxel."""
+    from .io import load_points
+
+    return load_points(args.model_file) if _config_overrides(args) else np.empty((0, 3))
+
+
 def cmd_batch(args: argparse.Namespace) -> int:
     from .batch import run_batch
 
@@ -728,7 +752,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         args.model_file,
         args.scans,
         args.out,
-        options=_method_options(args),
+        options=_method_options(args, _batch_model(args)),
         resume=args.resume,
         engine=args.engine,
         workers=args.workers,

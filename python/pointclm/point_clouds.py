@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -94,11 +95,19 @@ def scaled_config(voxel_size: float, base: Config | None = None) -> Config:
     return Config.for_voxel(voxel_size, base)
 
 
-def cloud_config(voxel_size: float, model: Any = None, refine: bool = True) -> Config:
+def cloud_config(
+    voxel_size: float,
+    model: Any = None,
+    refine: bool = True,
+    peel: bool = False,
+    overrides: Mapping[str, Any] | None = None,
+) -> Config:
     """`register_point_clouds`' config when none is given, in the clouds' units: the
     thresholds for refined poses (`REFINED_THRESHOLDS`) or raw ones (`Config()`), or those
-    recommended with `model` (:meth:`pointclm.embedding.Embedding.recommended_config`),
-    scaled by :meth:`Config.for_voxel`. `evaluate` uses the same on realistic scenes."""
+    recommended with `model` (:meth:`pointclm.embedding.Embedding.recommended_config`), with
+    `peel` a cluster count of at least `PEEL_CLUSTER_LEVEL`'s, then `overrides` (field values
+    in synthetic units, as the CLI's method flags give them), all scaled by
+    :meth:`Config.for_voxel`. `evaluate` uses the same on realistic scenes."""
     base = Config(**REFINED_THRESHOLDS) if refine else Config()
     if model is not None:
         emb = resolve(model)
@@ -110,6 +119,10 @@ def cloud_config(voxel_size: float, model: Any = None, refine: bool = True) -> C
         # drop copies before they are looked at (on the validation scenes it left one
         # candidate where verification keeps several).
         base = replace(base, max_nfa=None)
+        if peel and base.cluster_level is None:
+            base = replace(base, cluster_level=PEEL_CLUSTER_LEVEL)
+    if overrides:
+        base = Config(**as_config({**base.to_dict(), **overrides}))
     return Config.for_voxel(voxel_size, base)
 
 
@@ -466,9 +479,7 @@ def _register(
             f"only {len(corr)} correspondences survived matching: the clouds share too few "
             "similar local shapes (try mutual=False, a smaller voxel_size, or check the units)"
         )
-    cfg = _config(config, run.voxel, run.model, refine)
-    if config is None and refine and peel and cfg.cluster_level is None:
-        cfg = replace(cfg, cluster_level=PEEL_CLUSTER_LEVEL)
+    cfg = _config(config, run.voxel, run.model, refine, peel)
     features = run.features(corr, cfg)
     t3 = time.perf_counter()
     result = register(
@@ -790,7 +801,7 @@ def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | N
 
 
 def _config(
-    config: Config | dict[str, Any] | None, voxel: float, model: Any, refine: bool
+    config: Config | dict[str, Any] | None, voxel: float, model: Any, refine: bool, peel: bool
 ) -> Config:
     """The caller's config as given (already in the clouds' units), else `cloud_config`."""
     if isinstance(config, Config):
@@ -799,4 +810,4 @@ def _config(
         return Config(**as_config(config))  # unknown keys: a ValueError naming them
     if config is not None:
         raise ValueError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
-    return cloud_config(voxel, model, refine)
+    return cloud_config(voxel, model, refine, peel)
