@@ -354,6 +354,11 @@ pub fn refine_poses<'py>(
             pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
         })
     })?;
+    Ok(refined_arrays(py, &out))
+}
+
+/// `refine_poses`' result as arrays (see its documentation).
+fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArrays<'py> {
     let poses = &out.poses;
     let mats = Array3::from_shape_fn((poses.len(), 4, 4), |(k, i, j)| {
         poses[k].pose.to_matrix()[i][j]
@@ -361,7 +366,7 @@ pub fn refine_poses<'py>(
     let column = |f: fn(&pointcloud::RefinedPose) -> f64| {
         poses.iter().map(f).collect::<Vec<_>>().into_pyarray(py)
     };
-    Ok((
+    (
         mats.into_pyarray(py),
         [
             column(|r| r.confidence),
@@ -373,7 +378,7 @@ pub fn refine_poses<'py>(
         ],
         indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
         out.by_visibility,
-    ))
+    )
 }
 
 type DescribedArrays<'py> = (
@@ -408,14 +413,7 @@ pub fn describe<'py>(
     #[pyo3(from_py_with = args::variant)] variant: String,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<DescribedArrays<'py>> {
-    let orientation = match (towards, away_from) {
-        (None, None) => Orientation::Towards([0.0; 3]),
-        (Some(v), None) => Orientation::Towards(v),
-        (None, Some(v)) => Orientation::AwayFrom(v),
-        (Some(_), Some(_)) => {
-            return Err(InputError::new_err("give towards= or away_from=, not both"))
-        }
-    };
+    let orientation = orientation(towards, away_from)?;
     let by_voxel = |k: f64| voxel_size.map(|v| k * v);
     let (normal_radius, feature_radius) = match (
         normal_radius.or(by_voxel(2.0)),
@@ -460,6 +458,16 @@ pub fn describe<'py>(
         descriptors.into_pyarray(py),
         timings,
     ))
+}
+
+/// `towards=` / `away_from=`: at most one (neither: towards the origin).
+fn orientation(towards: Option<[f64; 3]>, away_from: Option<[f64; 3]>) -> PyResult<Orientation> {
+    match (towards, away_from) {
+        (None, None) => Ok(Orientation::Towards([0.0; 3])),
+        (Some(v), None) => Ok(Orientation::Towards(v)),
+        (None, Some(v)) => Ok(Orientation::AwayFrom(v)),
+        (Some(_), Some(_)) => Err(InputError::new_err("give towards= or away_from=, not both")),
+    }
 }
 
 /// `variant=`: "open3d" or "pcl".

@@ -200,21 +200,9 @@ pub fn refine_poses(
     let depth =
         trusted.map(|v| DepthMap::new(target, v, params.depth_cell, params.depth_tolerance));
     let model_normals = match depth {
-        Some(_) => {
-            // The sign does not matter to the incidence test.
-            let model_index = PointIndex::new(source)?;
-            let towards = Orientation::Towards([0.0; 3]);
-            estimate_normals(
-                source,
-                &model_index,
-                params.normal_radius,
-                NORMAL_MAX_NN,
-                towards,
-            )?
-        }
+        Some(_) => incidence_normals(source, params)?,
         None => Vec::new(),
     };
-    let min_cos = params.max_incidence_deg.to_radians().cos();
     let sensor = depth
         .as_ref()
         .zip(trusted)
@@ -222,7 +210,7 @@ pub fn refine_poses(
             depth,
             viewpoint,
             model_normals: &model_normals,
-            min_cos,
+            min_cos: params.max_incidence_deg.to_radians().cos(),
         });
     let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
@@ -246,6 +234,13 @@ pub fn refine_poses(
         poses: kept,
         by_visibility: depth.is_some(),
     })
+}
+
+/// The model's normals for the incidence test (their sign does not matter to it).
+fn incidence_normals(source: &[[f64; 3]], params: &RefineParams) -> Result<Vec<[f64; 3]>> {
+    let index = PointIndex::new(source)?;
+    let towards = Orientation::Towards([0.0; 3]);
+    estimate_normals(source, &index, params.normal_radius, NORMAL_MAX_NN, towards)
 }
 
 /// The normals ICP needs: the given ones (checked), else estimated (none without ICP).
@@ -408,28 +403,9 @@ fn judge(
     radius: f64,
 ) -> Judged {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    let (mut sum, mut targets) = (0.0, Vec::new());
-    let explained: Vec<bool> = posed
-        .iter()
-        .map(|q| match index.nearest_within(q, radius) {
-            Some((j, d_sq)) => {
-                sum += d_sq;
-                targets.push(j);
-                true
-            }
-            None => false,
-        })
-        .collect();
-    let hits = targets.len();
-    targets.sort_unstable();
-    targets.dedup();
+    let (explained, targets, hits, rmse) = explain(index, &posed, radius);
     let n = source.len() as f64;
     let fitness = hits as f64 / n;
-    let rmse = if hits > 0 {
-        (sum / hits as f64).sqrt()
-    } else {
-        0.0
-    };
     let Some(sensor) = sensor else {
         return Judged {
             fitness,
@@ -460,6 +436,36 @@ fn judge(
         rmse,
         targets,
     }
+}
+
+/// Which posed model points have a scan point within `radius`; the scan points that explain
+/// them (sorted, distinct), how many are explained, and their RMS distance.
+fn explain(
+    index: &PointIndex,
+    posed: &[[f64; 3]],
+    radius: f64,
+) -> (Vec<bool>, Vec<usize>, usize, f64) {
+    let (mut sum, mut targets) = (0.0, Vec::new());
+    let explained: Vec<bool> = posed
+        .iter()
+        .map(|q| match index.nearest_within(q, radius) {
+            Some((j, d_sq)) => {
+                sum += d_sq;
+                targets.push(j);
+                true
+            }
+            None => false,
+        })
+        .collect();
+    let hits = targets.len();
+    targets.sort_unstable();
+    targets.dedup();
+    let rmse = if hits > 0 {
+        (sum / hits as f64).sqrt()
+    } else {
+        0.0
+    };
+    (explained, targets, hits, rmse)
 }
 
 /// How many posed model points the sensor could see, and how many of those lie where it saw
