@@ -2,15 +2,17 @@
 the same CPUs, Ray's overhead per scan, and a batch killed half way then resumed.
 
     python benchmarks/batch.py [--scans 200] [--workers 2] [--cache out/batch_scans]
-                               [--out benchmarks/results/batch.md] [--no-ray]
+                               [--out benchmarks/results/batch.md] [--no-ray] [--chunks 4]
 
 The scans (realistic scenes of the bundled bunny among clutter, seen by a virtual range
 sensor: `pointclm.datasets.scenes`) are written once into ``--cache`` as binary PCD files
 whose ``VIEWPOINT`` is the sensor's position, with the model as PLY. Each run then registers
-them all through `pointclm.register_files` (one thread per worker, the batch default), and
-checks that every run wrote the same lines (timings aside). The kill test runs the command in
-a subprocess on the first ``--scans``/5 scans, kills its process group once half the lines
-are written, resumes it, and compares with the uninterrupted 1-worker run.
+them all through `pointclm.register_files` (one thread per worker, the batch default), the
+runs interleaved chunk by chunk (``--chunks``) so that other jobs on a shared machine slow
+them alike, and checks that every run wrote the same lines (timings aside). The kill test
+runs the command in a subprocess on the first ``--scans``/5 scans, kills its process group
+once half the lines are written, resumes it, and compares with the uninterrupted 1-worker
+run.
 """
 
 from __future__ import annotations
@@ -80,48 +82,82 @@ def lines(path: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def timed_run(name: str, model: Path, scans: list[str], out: Path, **kw: Any) -> dict[str, Any]:
-    """One batch over `scans`; its wall time, scans/s, and the mean seconds a worker spent
-    inside one scan (what is left of wall x workers per scan is the engine's overhead)."""
+def timed_run(model: Path, scans: list[str], out: Path, **kw: Any) -> dict[str, Any]:
+    """One batch over `scans`: its wall time, and its lines (with their timings)."""
     out.unlink(missing_ok=True)
     t0 = time.perf_counter()
-    summary = register_files(model, scans, out, progress=True, **kw)
-    wall = time.perf_counter() - t0
-    records = lines(out)
-    inside = float(np.mean([r["seconds"] for r in records]))
-    cpus = kw.get("workers", 1) * (kw.get("num_threads") or 1)
-    row = {
-        "name": name,
-        "wall": wall,
-        "rate": len(scans) / wall,
-        "inside": inside,
-        "overhead": wall * cpus / len(scans) - inside,
-        "failed": summary.failed,
-        "records": [without_timings(r) for r in records],
+    summary = register_files(model, scans, out, progress=False, **kw)
+    return {"wall": time.perf_counter() - t0, "failed": summary.failed, "records": lines(out)}
+
+
+def configs(workers: int, ray: bool) -> list[tuple[str, int, dict[str, Any]]]:
+    """(name, CPUs used, register_files arguments) of each timed run."""
+    out = [
+        ("local, 1 worker", 1, {"num_threads": 1}),
+        (f"local, {workers} workers", workers, {"workers": workers}),
+    ]
+    if ray:
+        out.append((f"Ray, {workers} CPUs", workers, {"engine": "ray", "workers": workers}))
+    return out
+
+
+def run_all(args: argparse.Namespace, model: Path, scans: list[str]) -> list[dict[str, Any]]:
+    """Every configuration over every scan, interleaved: the scans in `args.chunks` chunks,
+    each chunk run by every configuration in turn (order reversed on every other chunk), so
+    that other jobs on a shared machine slow them alike. Scans/s, and the mean seconds a
+    worker spent inside a scan: what is left of wall x CPUs per scan is the engine's
+    overhead (scheduling, transfers, idle workers)."""
+    ray_start = None if args.no_ray else start_ray(args.workers)
+    runs = configs(args.workers, ray_start is not None)
+    acc: dict[str, dict[str, Any]] = {
+        n: {"wall": 0.0, "failed": 0, "records": []} for n, *_ in runs
     }
-    print(f"{name}: {row['rate']:.3f} scans/s ({wall:.0f} s), {summary}", file=sys.stderr)
-    return row
+    size = -(-len(scans) // args.chunks)
+    try:
+        order = list(enumerate(runs))
+        for c, first in enumerate(range(0, len(scans), size)):
+            for k, (name, _, kw) in order if c % 2 == 0 else order[::-1]:
+                out = Path(args.cache) / f"run{k}_chunk{c}.jsonl"
+                got = timed_run(model, scans[first : first + size], out, **kw)
+                acc[name] = {key: acc[name][key] + got[key] for key in got}
+                print(f"chunk {c}: {name} {got['wall']:.0f} s", file=sys.stderr)
+    finally:
+        if ray_start is not None:
+            import ray
+
+            ray.shutdown()
+    return [row(name, cpus, acc[name], len(scans), ray_start) for name, cpus, _ in runs]
 
 
-def ray_rows(model: Path, scans: list[str], cache: Path, workers: int) -> list[dict[str, Any]]:
-    """Ray on a local cluster of `workers` CPUs, started before the timed batch (its start
-    is reported apart: a long-lived cluster pays it once)."""
+def row(
+    name: str, cpus: int, acc: dict[str, Any], n: int, ray_start: float | None
+) -> dict[str, Any]:
+    inside = float(np.mean([r["seconds"] for r in acc["records"]]))
+    return {
+        "name": name,
+        "wall": acc["wall"],
+        "rate": n / acc["wall"],
+        "inside": inside,
+        "overhead": acc["wall"] * cpus / n - inside,
+        "failed": acc["failed"],
+        "records": [without_timings(r) for r in acc["records"]],
+        "start": ray_start,
+    }
+
+
+def start_ray(workers: int) -> float | None:
+    """A local Ray cluster of `workers` CPUs, started once (a long-lived cluster pays its
+    start once; `register_files` uses the connected one); its start-up seconds, or None
+    without ray."""
     try:
         import ray
     except ImportError:
         print("ray is not installed: no Ray row (pip install '.[ray]')", file=sys.stderr)
-        return []
+        return None
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a throwaway local cluster
     t0 = time.perf_counter()
     ray.init(num_cpus=workers, include_dashboard=False, logging_level="warning")
-    start = time.perf_counter() - t0
-    try:
-        name, out = f"Ray, {workers} CPUs", cache / "ray.jsonl"
-        row = timed_run(name, model, scans, out, engine="ray", workers=workers)
-    finally:
-        ray.shutdown()
-    row["start"] = start
-    return [row]
+    return time.perf_counter() - t0
 
 
 def kill_and_resume(model: Path, scans: list[str], out: Path, workers: int) -> dict[str, Any]:
@@ -216,17 +252,6 @@ def pcd_points(path: str) -> int:
     return 0
 
 
-def run_all(args: argparse.Namespace, model: Path, scans: list[str]) -> list[dict[str, Any]]:
-    cache, w = Path(args.cache), args.workers
-    rows = [
-        timed_run("local, 1 worker", model, scans, cache / "one.jsonl", num_threads=1),
-        timed_run(f"local, {w} workers", model, scans, cache / "pool.jsonl", workers=w),
-    ]
-    if not args.no_ray:
-        rows += ray_rows(model, scans, cache, w)
-    return rows
-
-
 def notes(args: argparse.Namespace, rows: list[dict[str, Any]], kill: dict[str, Any]) -> list[str]:
     base, pool = rows[0], rows[1]
     same = all(row["records"] == base["records"] for row in rows)
@@ -244,7 +269,8 @@ def notes(args: argparse.Namespace, rows: list[dict[str, Any]], kill: dict[str, 
             f"- Ray / local on the same {args.workers} CPUs: {ratio:.2f} (target within 15 %: "
             f"{'met' if ratio >= TARGET_RAY_RATIO else 'missed'}); Ray's overhead per scan "
             f"{ray['overhead'] - pool['overhead']:+.3f} s over the local pool's; starting the "
-            f"local Ray cluster took {ray['start']:.1f} s (not in its wall time)."
+            f"local Ray cluster took {ray['start']:.1f} s (not in its wall time; the local pools' "
+            f"include starting their workers, once per chunk)."
         )
     k = len(kill["records"])
     expected = [as_command_writes(r) for r in base["records"][:k]]
@@ -265,6 +291,9 @@ def main() -> None:
     ap.add_argument("--cache", default="out/batch_scans", help="folder of the scans and runs")
     ap.add_argument("--out", default=str(HERE / "results" / "batch.md"), help="markdown report")
     ap.add_argument("--no-ray", action="store_true", help="skip the Ray row")
+    ap.add_argument(
+        "--chunks", type=int, default=4, help="interleave the runs over this many chunks"
+    )
     args = ap.parse_args()
     load_before = load_average()
     model, scans = build_scans(Path(args.cache), args.scans)
