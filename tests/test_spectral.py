@@ -119,9 +119,13 @@ def test_spectral_clustering_agrees_with_sklearn(seed: int, assignment: str) -> 
     ari = sklearn_metrics.adjusted_rand_score
     assert ari(labels, ref) >= 0.99
     assert ari(labels, truth) >= 0.99
-    np.testing.assert_allclose(
-        eigenvalues, np.linalg.eigvalsh(numpy_laplacian(affinity)), rtol=1e-9, atol=1e-10
-    )
+    exact = np.linalg.eigvalsh(numpy_laplacian(affinity))
+    if len(eigenvalues) == len(exact):  # the dense decomposition, below 150 rows
+        np.testing.assert_allclose(eigenvalues, exact, rtol=1e-9, atol=1e-10)
+    else:  # the lowest eigenpairs only: the groups' and the first past the gap, to 1e-2 of
+        # the norm bound (2); the dense rest of the spectrum is only roughly resolved
+        assert k < len(eigenvalues) < len(exact)
+        np.testing.assert_allclose(eigenvalues[: k + 1], exact[: k + 1], rtol=0, atol=2e-2)
 
 
 @pytest.mark.parametrize("assignment", ["kmeans", "discretize"])

@@ -22,8 +22,9 @@ pub struct SpectralLabels {
     /// The number of clusters used (the eigengap's choice unless given).
     pub n_clusters: usize,
     /// Eigenvalues of the normalised Laplacian, ascending: all of them below
-    /// [`PARTIAL_ROWS`] rows, from there the lowest ones the count needed
-    /// ([`suffices`]; in f32 arithmetic from [`SINGLE_PRECISION_ROWS`] rows).
+    /// [`PARTIAL_ROWS`] rows (in f32 arithmetic from [`SINGLE_PRECISION_ROWS`] rows), from
+    /// there the lowest ones the partial solver found ([`suffices`]): right to its tolerance
+    /// up to the eigengap, only roughly in the dense rest of the spectrum.
     pub eigenvalues: Vec<f64>,
 }
 
