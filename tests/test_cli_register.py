@@ -153,17 +153,23 @@ def test_the_png_is_the_registration_picture_with_the_ground_truth(
     assert len(drawn["reg"].instances) == 2 and "model.ply in scene.ply" in drawn["title"]
 
 
-def test_viewpoint_none_overrides_the_file(
-    bunnies: dict[str, Any], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
+def _spy_on_register(monkeypatch: pytest.MonkeyPatch, option: str) -> list[Any]:
+    """The values of `option` that `register_point_clouds` receives, call by call."""
     seen: list[Any] = []
     real = pointclm.point_clouds.register_point_clouds
 
     def spy(*args: Any, **kwargs: Any) -> Any:
-        seen.append(kwargs["viewpoint"])
+        seen.append(kwargs[option])
         return real(*args, **kwargs)
 
     monkeypatch.setattr(pointclm.point_clouds, "register_point_clouds", spy)
+    return seen
+
+
+def test_viewpoint_none_overrides_the_file(
+    bunnies: dict[str, Any], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seen = _spy_on_register(monkeypatch, "viewpoint")
     # A PCD scene would otherwise lend its VIEWPOINT; "none" means no sensor position at all.
     monkeypatch.setattr(pointclm.point_clouds, "file_viewpoint", lambda path: np.ones(3))
     _register(capsys, bunnies["model"], bunnies["scene"], "--viewpoint", "none")
@@ -178,14 +184,7 @@ def test_method_flags_are_in_synthetic_units_over_the_path_defaults(
 ) -> None:
     """A method flag changes only its own field of `register_point_clouds`' default config,
     and lengths are scaled to the voxel as `pointclm eval` scales them."""
-    seen: list[Any] = []
-    real = pointclm.point_clouds.register_point_clouds
-
-    def spy(*args: Any, **kwargs: Any) -> Any:
-        seen.append(kwargs["config"])
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(pointclm.point_clouds, "register_point_clouds", spy)
+    seen = _spy_on_register(monkeypatch, "config")
     voxel = bunnies["d"] / 20
     common = (bunnies["model"], bunnies["scene"], "--voxel-size", str(voxel))
     _register(capsys, *common, "--ransac-iterations", "77")

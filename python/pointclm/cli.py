@@ -10,7 +10,7 @@ import math
 import os
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -430,14 +430,15 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
 def _register_files(args: argparse.Namespace, model: np.ndarray, scene: np.ndarray) -> Any:
     from .point_clouds import register_point_clouds
 
-    options = _method_options(args, model)
+    options = _method_options(args, lambda: model)
     options["viewpoint"] = scan_viewpoint(options["viewpoint"], args.scene_file)
     return register_point_clouds(model, scene, **options)
 
 
-def _method_options(args: argparse.Namespace, model: np.ndarray) -> dict[str, Any]:
+def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -> dict[str, Any]:
     """`register_point_clouds`' options from the method flags `register` and `batch` share
-    (the viewpoint as given: a position, "none", or None for a PCD scan's own)."""
+    (the viewpoint as given: a position, "none", or None for a PCD scan's own). `model`
+    gives the model's points, asked only when a method flag needs the default voxel."""
     return {
         "voxel_size": args.voxel_size,
         "config": _cloud_config(args, model),
@@ -493,7 +494,7 @@ def _register_json(
     }
 
 
-def _cloud_config(args: argparse.Namespace, model: np.ndarray) -> Config | None:
+def _cloud_config(args: argparse.Namespace, model: Callable[[], np.ndarray]) -> Config | None:
     """With method flags: `register_point_clouds`' own default config with the flags applied,
     scaled to the voxel as `pointclm eval` scales them (so --sigma-d means the same in both);
     None without flags (its default)."""
@@ -502,7 +503,7 @@ def _cloud_config(args: argparse.Namespace, model: np.ndarray) -> Config | None:
     overrides = _config_overrides(args)
     if not overrides:
         return None
-    voxel = default_voxel_size(model) if args.voxel_size is None else args.voxel_size
+    voxel = default_voxel_size(model()) if args.voxel_size is None else args.voxel_size
     refine = not args.no_refine
     return cloud_config(voxel, args.model, refine, refine and not args.no_peel, overrides)
 
@@ -738,21 +739,15 @@ def _add_batch_parser(sub: Any) -> None:
     b.set_defaults(func=cmd_batch)
 
 
-def _batch_model(args: argparse.Namespace) -> np.ndarray:
-    """The model's points, read here only when the method flags need its voxel."""
-    from .io import load_points
-
-    return load_points(args.model_file) if _config_overrides(args) else np.empty((0, 3))
-
-
 def cmd_batch(args: argparse.Namespace) -> int:
     from .batch import run_batch
+    from .io import load_points
 
     summary = run_batch(
         args.model_file,
         args.scans,
         args.out,
-        options=_method_options(args, _batch_model(args)),
+        options=_method_options(args, lambda: load_points(args.model_file)),
         resume=args.resume,
         engine=args.engine,
         workers=args.workers,

@@ -122,7 +122,7 @@ def cloud_config(
         if peel and base.cluster_level is None:
             base = replace(base, cluster_level=PEEL_CLUSTER_LEVEL)
     if overrides:
-        base = Config(**as_config({**base.to_dict(), **overrides}))
+        base = Config.from_dict({**base.to_dict(), **overrides})
     return Config.for_voxel(voxel_size, base)
 
 

@@ -192,7 +192,12 @@ pub fn refine_poses(
 ) -> Result<Refined> {
     check_inputs(source, target, poses, viewpoint, params)?;
     let index = PointIndex::new(target)?;
-    let normals = scan_normals(target, target_normals, &index, params)?;
+    let normals = match target_normals {
+        Some(given) => checked_normals(target, given)?.into(),
+        // Point-to-plane ICP needs them; without ICP, none.
+        None if params.radii.is_empty() => Vec::new().into(),
+        None => std::borrow::Cow::Owned(unsigned_normals(target, &index, params)?),
+    };
     let trusted = viewpoint.filter(|&v| {
         DepthMap::new(target, v, params.trust_cell, params.trust_tolerance).hidden_share(target)
             <= params.max_hidden_scan
@@ -200,18 +205,14 @@ pub fn refine_poses(
     let depth =
         trusted.map(|v| DepthMap::new(target, v, params.depth_cell, params.depth_tolerance));
     let model_normals = match depth {
-        Some(_) => incidence_normals(source, params)?,
+        Some(_) => unsigned_normals(source, &PointIndex::new(source)?, params)?,
         None => Vec::new(),
     };
-    let sensor = depth
-        .as_ref()
-        .zip(trusted)
-        .map(|(depth, viewpoint)| Sensor {
-            depth,
-            viewpoint,
-            model_normals: &model_normals,
-            min_cos: params.max_incidence_deg.to_radians().cos(),
-        });
+    let sensor = depth.as_ref().map(|depth| Sensor {
+        depth,
+        model_normals: &model_normals,
+        min_cos: params.max_incidence_deg.to_radians().cos(),
+    });
     let fitted: Vec<(RigidTransform, Judged)> = poses
         .par_iter()
         .map(|pose| {
@@ -236,37 +237,28 @@ pub fn refine_poses(
     })
 }
 
-/// The model's normals for the incidence test (their sign does not matter to it).
-fn incidence_normals(source: &[[f64; 3]], params: &RefineParams) -> Result<Vec<[f64; 3]>> {
-    let index = PointIndex::new(source)?;
-    let towards = Orientation::Towards([0.0; 3]);
-    estimate_normals(source, &index, params.normal_radius, NORMAL_MAX_NN, towards)
-}
-
-/// The normals ICP needs: the given ones (checked), else estimated (none without ICP).
-fn scan_normals<'a>(
-    target: &[[f64; 3]],
-    given: Option<&'a [[f64; 3]]>,
+/// Normals within `normal_radius`, of either sign: neither point-to-plane distances nor the
+/// incidence test depend on it.
+fn unsigned_normals(
+    points: &[[f64; 3]],
     index: &PointIndex,
     params: &RefineParams,
-) -> Result<std::borrow::Cow<'a, [[f64; 3]]>> {
-    if let Some(normals) = given {
-        if normals.len() != target.len() {
-            return Err(Error::LengthMismatch {
-                what: "target normals (one per target point)",
-                expected: target.len(),
-                got: normals.len(),
-            });
-        }
-        check_points(normals, "target normals", 0)?;
-        return Ok(normals.into());
-    }
-    if params.radii.is_empty() {
-        return Ok(Vec::new().into());
-    }
-    // The sign does not matter to point-to-plane distances.
+) -> Result<Vec<[f64; 3]>> {
     let towards = Orientation::Towards([0.0; 3]);
-    Ok(estimate_normals(target, index, params.normal_radius, NORMAL_MAX_NN, towards)?.into())
+    estimate_normals(points, index, params.normal_radius, NORMAL_MAX_NN, towards)
+}
+
+/// Given target normals, one per target point and finite.
+fn checked_normals<'a>(target: &[[f64; 3]], normals: &'a [[f64; 3]]) -> Result<&'a [[f64; 3]]> {
+    if normals.len() != target.len() {
+        return Err(Error::LengthMismatch {
+            what: "target normals (one per target point)",
+            expected: target.len(),
+            got: normals.len(),
+        });
+    }
+    check_points(normals, "target normals", 0)?;
+    Ok(normals)
 }
 
 fn check_inputs(
@@ -386,11 +378,10 @@ struct Judged {
     targets: Vec<usize>,
 }
 
-/// The sensor that judges poses: its depth map and position, and the model's normals with the
-/// incidence beyond which an unexplained model point is not judged (empty normals: none).
+/// The sensor that judges poses: its depth map, and the model's normals with the incidence
+/// beyond which an unexplained model point is not judged (empty normals: none).
 struct Sensor<'a> {
     depth: &'a DepthMap,
-    viewpoint: [f64; 3],
     model_normals: &'a [[f64; 3]],
     min_cos: f64,
 }
@@ -499,7 +490,7 @@ fn grazing(sensor: &Sensor, pose: &RigidTransform, posed: &[[f64; 3]]) -> Vec<bo
     if sensor.model_normals.is_empty() {
         return vec![false; posed.len()];
     }
-    let eye = nalgebra::Vector3::from(sensor.viewpoint);
+    let eye = nalgebra::Vector3::from(sensor.depth.viewpoint());
     posed
         .iter()
         .zip(sensor.model_normals)

@@ -85,6 +85,11 @@ impl DepthMap {
         out
     }
 
+    /// The sensor's position.
+    pub fn viewpoint(&self) -> [f64; 3] {
+        self.viewpoint
+    }
+
     /// The share of scan points that lie clearly behind another scan point on their ray. A
     /// single view taken from this viewpoint has almost none (only grazing surfaces and
     /// edges); a scan merged from several views, or a wrong viewpoint, has many.

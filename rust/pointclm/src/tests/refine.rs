@@ -397,30 +397,21 @@ fn given_normals_must_match_the_scan() {
 fn model_points_seen_edge_on_are_not_judged() {
     let flat = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     let up = vec![[0.0, 0.0, 1.0]; 3];
-    let depth = DepthMap::new(&flat, [0.0, 0.0, 10.0], 0.1, 0.3);
-    let sensor = |viewpoint| Sensor {
-        depth: &depth,
-        viewpoint,
+    let above = DepthMap::new(&flat, [0.3, 0.3, 10.0], 0.1, 0.3);
+    let side = DepthMap::new(&flat, [60.0, 0.0, 0.5], 0.1, 0.3);
+    let sensor = |depth| Sensor {
+        depth,
         model_normals: &up,
         min_cos: 75f64.to_radians().cos(),
     };
     let id = RigidTransform::identity();
     // From above the plane faces the sensor; from its side, at 0.5 degrees, it is edge-on.
-    assert_eq!(
-        grazing(&sensor([0.3, 0.3, 10.0]), &id, &flat),
-        vec![false; 3]
-    );
-    assert_eq!(
-        grazing(&sensor([60.0, 0.0, 0.5]), &id, &flat),
-        vec![true; 3]
-    );
+    assert_eq!(grazing(&sensor(&above), &id, &flat), vec![false; 3]);
+    assert_eq!(grazing(&sensor(&side), &id, &flat), vec![true; 3]);
     // Turned by the pose, the same normals face the side sensor.
     let turned = motion([0.0, 1.0, 0.0], 90.0, [0.0; 3]);
     let posed: Vec<[f64; 3]> = flat.iter().map(|p| turned.apply(*p)).collect();
-    assert_eq!(
-        grazing(&sensor([60.0, 0.0, 0.5]), &turned, &posed),
-        vec![false; 3]
-    );
+    assert_eq!(grazing(&sensor(&side), &turned, &posed), vec![false; 3]);
     let bad = RefineParams {
         max_incidence_deg: 91.0,
         ..params()
