@@ -24,7 +24,7 @@ from .datasets import make_scenes
 from .evaluation import evaluate
 from .io.files import atomic_path, check_output_path
 from .metrics import Summary, rotation_error_deg, score_scene, summarize
-from .registration import register
+from .registration import default_config, register
 
 #: Set to 1 to get the Python traceback of an unexpected error instead of one line.
 DEBUG_ENV = "POINTCLM_DEBUG"
@@ -123,15 +123,14 @@ def _config_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return {n: getattr(args, n) for n in CONFIG_FLAGS if getattr(args, n, None) is not None}
 
 
-def _config(args: argparse.Namespace) -> Config | None:
-    kw = _config_overrides(args)
-    return Config(**kw) if kw else None
-
-
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
-        "method (defaults: pointclm.Config(); lengths in its synthetic units, scaled to the "
-        "voxel on point clouds)"
+        "method (overrides of the path's defaults)",
+        "Each flag replaces its own field of the config the path uses without flags: "
+        "pointclm.Config(), the --model network's recommended thresholds, or on point clouds "
+        "and realistic scenes those for refined or raw poses; the other fields keep their "
+        "defaults. Lengths are in Config()'s synthetic units, scaled to the voxel on point "
+        "clouds.",
     )
     g.add_argument("--pruning", choices=["paper", "authors", "none"])
     g.add_argument("--assignment", choices=["kmeans", "discretize"])
@@ -152,7 +151,10 @@ def _add_config_flags(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    config = _config(args)
+    overrides = _config_overrides(args)
+    # The flags over `register`'s own default (the network's recommended thresholds, else
+    # Config()); no flags: None, that default itself.
+    config = default_config(args.model, overrides) if overrides else None
     method = (
         f"PointCLM with the {args.model!r} embedding" if args.model else ("training-free PointCLM")
     )
@@ -189,14 +191,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print()
     print(Summary.table_header())
     print(summarize(scores).as_row(f"pointclm ({args.model or 'training-free'})"))
-    _demo_scene(args)
+    _demo_scene(args, overrides)
     return 0
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    config = _config(args)
+    overrides = _config_overrides(args)
     if args.json:
         check_output_path(args.json, "--json")
     if args.data_dir is not None and not Path(args.data_dir).is_dir():
@@ -224,12 +226,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     ev = evaluate(
         scenes,
-        config,
         seed=args.seed,
         num_threads=args.num_threads,
         progress=bar,
         model=args.model,
         refine=not args.no_refine,
+        config_overrides=overrides or None,
     )
     print(f"{Summary.table_header()} {'med ms':>7} {'p90 ms':>7}")
     name = f"pointclm ({args.model})" if args.model else "pointclm"
@@ -238,7 +240,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         _write_json(
             args.json,
             {
-                "config": config.to_dict() if config else None,
+                # The flags given, and the config they gave (synthetic units; on realistic
+                # scenes scaled to each scene's voxel).
+                "config_overrides": overrides,
+                "config": ev.config.to_dict() if ev.config else None,
                 "model": args.model,
                 "dataset": args.dataset,
                 "scenes": args.scenes,
@@ -508,14 +513,21 @@ def _cloud_config(args: argparse.Namespace, model: Callable[[], np.ndarray]) -> 
     return cloud_config(voxel, args.model, refine, refine and not args.no_peel, overrides)
 
 
-def _demo_scene(args: argparse.Namespace) -> None:
+def _demo_scene(args: argparse.Namespace, overrides: dict[str, Any]) -> None:
     """One realistic scene from bundled data only: the coarse bunny among procedural clutter,
     seen by a virtual range sensor, registered from FPFH matches."""
     from .datasets.scenes import SceneParams, make_realistic_scene
 
     scene = make_realistic_scene(args.seed, SceneParams(model="bunny", data_dir=None))
-    # Registered, refined and scored as `pointclm eval` does a realistic scene.
-    ev = evaluate([scene], seed=args.seed, num_threads=args.num_threads, model=args.model)
+    # Registered, refined and scored as `pointclm eval` does a realistic scene (the method
+    # flags over its defaults for refined poses).
+    ev = evaluate(
+        [scene],
+        seed=args.seed,
+        num_threads=args.num_threads,
+        model=args.model,
+        config_overrides=overrides or None,
+    )
     score = ev.scores[0]
     print(
         f"\nrealistic scene: {scene.n_instances} bunnies among clutter, seen by a range sensor "

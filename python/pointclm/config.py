@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal
 
@@ -148,6 +149,13 @@ class Config:
         if unknown:
             raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
         return cls(**values)
+
+    def with_overrides(self, overrides: Mapping[str, Any] | None) -> Config:
+        """This config with `overrides` (some of its fields by name, in its units) in place of
+        its values; unknown keys are a ConfigError naming them. None or empty: itself."""
+        if not overrides:
+            return self
+        return self.from_dict({**self.to_dict(), **overrides})
 
     @classmethod
     def for_voxel(cls, voxel_size: float, base: Config | None = None) -> Config:

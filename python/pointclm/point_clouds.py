@@ -23,6 +23,7 @@ from . import _core
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
+from .docstrings import fill
 from .embedding import Embedding, resolve
 from .refinement import (
     MAX_CONTRADICTION,
@@ -42,6 +43,7 @@ __all__ = [
     "PEEL_CLUSTER_LEVEL",
     "PEEL_RADIUS_VOXELS",
     "Pass",
+    "cloud_base_config",
     "cloud_config",
     "default_voxel_size",
     "file_viewpoint",
@@ -102,12 +104,23 @@ def cloud_config(
     peel: bool = False,
     overrides: Mapping[str, Any] | None = None,
 ) -> Config:
-    """`register_point_clouds`' config when none is given, in the clouds' units: the
+    """`register_point_clouds`' config when none is given, in the clouds' units:
+    :func:`cloud_base_config` (synthetic units) scaled by :meth:`Config.for_voxel`. `evaluate`
+    uses the same on realistic scenes."""
+    return Config.for_voxel(voxel_size, cloud_base_config(model, refine, peel, overrides))
+
+
+def cloud_base_config(
+    model: Any = None,
+    refine: bool = True,
+    peel: bool = False,
+    overrides: Mapping[str, Any] | None = None,
+) -> Config:
+    """:func:`cloud_config` before its scaling to the voxel, in synthetic units: the
     thresholds for refined poses (`REFINED_THRESHOLDS`) or raw ones (`Config()`), or those
     recommended with `model` (:meth:`pointclm.embedding.Embedding.recommended_config`), with
     `peel` a cluster count of at least `PEEL_CLUSTER_LEVEL`'s, then `overrides` (field values
-    in synthetic units, as the CLI's method flags give them), all scaled by
-    :meth:`Config.for_voxel`. `evaluate` uses the same on realistic scenes."""
+    in synthetic units, as the CLI's method flags give them)."""
     base = Config(**REFINED_THRESHOLDS) if refine else Config()
     if model is not None:
         emb = resolve(model)
@@ -121,9 +134,7 @@ def cloud_config(
         base = replace(base, max_nfa=None)
         if peel and base.cluster_level is None:
             base = replace(base, cluster_level=PEEL_CLUSTER_LEVEL)
-    if overrides:
-        base = Config.from_dict({**base.to_dict(), **overrides})
-    return Config.for_voxel(voxel_size, base)
+    return base.with_overrides(overrides)
 
 
 @dataclass(frozen=True)
@@ -269,6 +280,7 @@ def file_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
     return read_pcd_viewpoint(path)
 
 
+@fill
 def register_point_clouds(
     source: ArrayLike | str | os.PathLike[str],
     target: ArrayLike | str | os.PathLike[str],
@@ -293,74 +305,26 @@ def register_point_clouds(
     ----------
     source, target : array_like or path
         (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are sampled).
-    voxel_size : float, optional
-        Downsampling voxel, in the clouds' units; default: the model's bounding-box diagonal
-        / 40. Normals use 2 voxels, FPFH 5 voxels.
-    config : Config or dict, optional
-        Pipeline settings in the clouds' units, used as given (``Config.for_voxel(voxel,
-        base)`` makes one from synthetic-unit settings). Default: :meth:`Config.for_voxel`,
-        with the thresholds chosen for refined poses (`REFINED_THRESHOLDS`, or a `model`'s
-        ``recommended_point_cloud_config``), and with `peel` a cluster count of at least
-        `PEEL_CLUSTER_LEVEL`'s; with ``refine=False``, `Config()`'s (or the model's
-        ``recommended_point_cloud_config_no_refine``).
-    seed : int
-        Seeds the sampling of correspondences, clustering and RANSAC.
-    model : str, path, pointclm.Network or torch module, optional
-        The learned embedding ("default", "paper", a weight file, a loaded network):
-        PointCLM proper (:func:`pointclm.embedding.resolve`). The correspondences are
-        converted to the network's training units (by sigma_d) first.
-    viewpoint : array_like, optional
-        The scan's sensor position: scan normals point towards it, and verification judges
-        each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
-        `target` file records (:func:`file_viewpoint`); else none: the scan's normals are
-        oriented without it (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point
-        that orients them consistently, and of the two signs the one whose descriptors are
-        nearer the model's is kept) and poses are judged by the share of the model they
-        explain. Pass it for scenes where copies hide one another. The model's normals point
-        away from its centroid.
-    top_k, mutual, n_samples, k
-        Correspondence building (paper appendix): each scan point's `k` most similar model
-        points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
-        then `n_samples` sampled (None: all); see :func:`pointclm.preprocessing.match_features`.
-    normals : bool
-        Give the pipeline the clouds' normals at both ends of each correspondence, so spatial
-        consistency also checks the angles a rigid motion preserves (`register`'s
-        ``normals=``).
-    refine : bool
-        Refine each pose by ICP on the clouds and keep those the scan supports, judged by
-        what the sensor at `viewpoint` could see of each (:func:`pointclm.refinement.
-        refine_poses` with its defaults; without a viewpoint, or when the scan does not look
-        like one view from it, by the share of the model explained). False: the
-        correspondence stage's poses as they are (their fitness is still measured).
-    peel : bool
-        With `refine`: after the first pass, set aside the scan points the accepted copies
-        explain (within 2 voxels), run the correspondence stage again on the rest, and verify
-        the new poses with the accepted ones; repeat until a pass adds no copy (at most
-        `MAX_PEEL_ROUNDS`). This finds the copies of a heap whose matches the first copies
-        crowd out of the sample. False: one pass (the paper's pipeline).
-    num_threads : int, optional
-        Threads (default: all cores).
+    %(voxel_size)s
+    %(cloud_config)s
+    %(cloud_seed)s
+    %(cloud_model)s
+    %(viewpoint)s
+    %(matching)s
+    %(cloud_normals)s
+    %(refine)s
+    %(peel)s
+    %(num_threads)s
 
-    The result's ``diagnosis`` says why nothing was found (or why a result is doubtful) and
-    what to try; ``print(result)`` shows a summary.
+    %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    as_threads(num_threads)  # argument errors before the files are read
-    pp.as_flag(refine, "refine")
-    pp.as_flag(mutual, "mutual")
-    embedding = None if model is None else resolve(model)  # a bad model fails before the work
-    view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
+    embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint)
     src = _load(source, "source")
     tgt = _load(target, "target")
-    if view is None and isinstance(target, str | os.PathLike):
-        found = file_viewpoint(target)
-        view = None if found is None else pp.as_point(found, "viewpoint")
+    view = _recorded_viewpoint(target) if view is None else view
     t_load = time.perf_counter() - t0
-    voxel = (
-        default_voxel_size(src) if voxel_size is None else pp.as_positive(voxel_size, "voxel_size")
-    )
-    if not voxel > 0:
-        raise ValueError("the source model has zero extent: give voxel_size")
+    voxel = _voxel_size(src, voxel_size)
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
@@ -374,6 +338,37 @@ def register_point_clouds(
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
     return replace(reg, orientation=orientation)
+
+
+def _checked_arguments(
+    num_threads: int | None, refine: bool, mutual: bool, model: Any, viewpoint: ArrayLike | None
+) -> tuple[Embedding | None, tuple[float, float, float] | None]:
+    """What of `register_point_clouds`' arguments can be checked before the files are read:
+    the model resolved (a bad model fails before the work) and the viewpoint as a point."""
+    as_threads(num_threads)
+    pp.as_flag(refine, "refine")
+    pp.as_flag(mutual, "mutual")
+    embedding = None if model is None else resolve(model)
+    view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
+    return embedding, view
+
+
+def _recorded_viewpoint(target: Any) -> tuple[float, float, float] | None:
+    """The sensor position a `target` file records (:func:`file_viewpoint`), or None."""
+    if not isinstance(target, str | os.PathLike):
+        return None
+    found = file_viewpoint(target)
+    return None if found is None else pp.as_point(found, "viewpoint")
+
+
+def _voxel_size(src: np.ndarray, voxel_size: float | None) -> float:
+    """The given voxel, checked, or the model's default (:func:`default_voxel_size`)."""
+    voxel = (
+        default_voxel_size(src) if voxel_size is None else pp.as_positive(voxel_size, "voxel_size")
+    )
+    if not voxel > 0:
+        raise ValueError("the source model has zero extent: give voxel_size")
+    return voxel
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -11,10 +11,11 @@ from numpy.typing import ArrayLike
 from . import _core
 from ._core import RegistrationResult
 from .config import Config
+from .docstrings import fill
 from .embedding import check_backend, resolve
 from .errors import ConfigError, InputError
 
-__all__ = ["register", "register_batch"]
+__all__ = ["default_config", "register", "register_batch"]
 
 MIN_CORRESPONDENCES = 3
 
@@ -106,6 +107,16 @@ def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
     raise ConfigError(f"config must be a pointclm.Config, a dict or None, got {type(config)}")
 
 
+def default_config(model: Any = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """The config `register` and `register_batch` use when given none: the thresholds
+    recommended with `model` (:meth:`pointclm.embedding.Embedding.recommended_config`), else
+    (no model, or one that carries none) `Config()`; then `overrides` (field values in the
+    same, synthetic, units: the command line's method flags) in place of its own."""
+    recommended = None if model is None else resolve(model).recommended_config()
+    return (recommended or Config()).with_overrides(overrides)
+
+
+@fill
 def register(
     correspondences: ArrayLike,
     features: ArrayLike | None = None,
@@ -131,34 +142,13 @@ def register(
         them pruning and clustering use ``S = S^F * beta`` instead of ``S = beta``. When the
         first argument holds points, the second positional argument is the target; to give
         features with points, pass ``register(source, target=target, features=f)``.
-    config : Config or dict, optional
-        Thresholds, lengths in the units of the correspondences; `Config()` by default (the
-        synthetic protocol's units; ``Config().scaled(f)`` for coordinates `f` times larger).
-    seed : int
-        Seeds clustering and RANSAC; the same seed gives the same result whatever
-        `num_threads`.
-    num_threads : int, optional
-        Threads for this call (default: all cores).
-    model : str, path, pointclm.Network or torch module, optional
-        The learned embedding computes `features` (PointCLM proper): "default" (compact,
-        shipped), "paper" (paper-size, shipped), a weight file (``.safetensors`` with its
-        ``.json``), a loaded `pointclm.Network`, or (with ``backend="torch"``) a torch module.
-        Without a `config`, the pruning thresholds chosen with that network on its validation
-        shapes are used. The network sees the correspondences in the units it was trained in
-        (converted when the config's ``sigma_d`` differs from the network's; see
-        :mod:`pointclm.embedding`). None (default) is the training-free pipeline.
-    backend : {"rust", "torch"}
-        Where the embedding is computed: "rust" (default; the core's own forward pass on the
-        CPU, no torch needed, its time in ``timings["embedding"]``) or "torch" (needs torch;
-        runs on `device`).
-    device : str, optional
-        The torch device of ``backend="torch"`` (default "cpu"), e.g. "cuda".
-    normals : array_like, optional
-        (N, 6) rows ``(source normal | target normal)``: a surface normal at both ends of each
-        correspondence (any length, any sign). A rigid motion preserves the angle between two
-        normals and each point's distance from the other's tangent plane, so spatial
-        consistency also asks these to agree, which makes pruning and clustering far sharper.
-        :func:`pointclm.register_point_clouds` passes its clouds' normals.
+    %(config)s
+    %(seed)s
+    %(num_threads)s
+    %(model)s
+    %(backend)s
+    %(device)s
+    %(normals)s
 
     Returns
     -------
@@ -222,7 +212,7 @@ def _embedding(
     """
     emb = resolve(model, backend, device)
     if config is None:
-        config = emb.recommended_config()
+        config = default_config(emb)
     sigma_d = as_config(config)["sigma_d"]
     if not emb.in_training_units(sigma_d):
         threads = as_threads(num_threads)

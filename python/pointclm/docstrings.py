@@ -1,0 +1,169 @@
+"""The parameter descriptions of the public registration functions, written once (issue 15).
+
+`pointclm.register` and `pointclm.register_point_clouds` take many parameters, some of them
+the same (``num_threads``), and the point-cloud options are the ones `register_files` and the
+command line forward. Their numpydoc entries live here, in :data:`PARAMETERS`; a function's
+docstring names each by a placeholder line ``%(name)s``, and :func:`fill` (a decorator) puts
+the entry there at import, indented as the placeholder, so ``help(pointclm.register)`` and IDEs
+show the whole documentation while each function's source stays short.
+
+Entries whose meaning differs between the paths keep separate names: a correspondence
+``seed`` seeds clustering and RANSAC, a point-cloud one (``cloud_seed``) the sampling of
+correspondences too; a correspondence ``config`` is in the correspondences' units, a
+point-cloud one (``cloud_config``) in the clouds'.
+"""
+
+from __future__ import annotations
+
+import re
+import textwrap
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+__all__ = ["PARAMETERS", "fill"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _entries(**texts: str) -> dict[str, str]:
+    return {name: textwrap.dedent(text).strip("\n") for name, text in texts.items()}
+
+
+#: Numpydoc entries by placeholder name: a ``name : type`` line, then its description
+#: indented by four spaces (more lines may follow the placeholder at that indentation).
+PARAMETERS: dict[str, str] = _entries(
+    # --- shared ---------------------------------------------------------------------------
+    num_threads="""
+        num_threads : int, optional
+            Threads for this call (default: all cores).
+        """,
+    # --- `register`: correspondences -------------------------------------------------------
+    config="""
+        config : Config or dict, optional
+            Thresholds, lengths in the units of the correspondences; `Config()` by default (the
+            synthetic protocol's units; ``Config().scaled(f)`` for coordinates `f` times larger).
+        """,
+    seed="""
+        seed : int
+            Seeds clustering and RANSAC; the same seed gives the same result whatever
+            `num_threads`.
+        """,
+    model="""
+        model : str, path, pointclm.Network or torch module, optional
+            The learned embedding computes `features` (PointCLM proper): "default" (compact,
+            shipped), "paper" (paper-size, shipped), a weight file (``.safetensors`` with its
+            ``.json``), a loaded `pointclm.Network`, or (with ``backend="torch"``) a torch module.
+            Without a `config`, the pruning thresholds chosen with that network on its validation
+            shapes are used. The network sees the correspondences in the units it was trained in
+            (converted when the config's ``sigma_d`` differs from the network's; see
+            :mod:`pointclm.embedding`). None (default) is the training-free pipeline.
+        """,
+    backend="""
+        backend : {"rust", "torch"}
+            Where the embedding is computed: "rust" (default; the core's own forward pass on the
+            CPU, no torch needed, its time in ``timings["embedding"]``) or "torch" (needs torch;
+            runs on `device`).
+        """,
+    device="""
+        device : str, optional
+            The torch device of ``backend="torch"`` (default "cpu"), e.g. "cuda".
+        """,
+    normals="""
+        normals : array_like, optional
+            (N, 6) rows ``(source normal | target normal)``: a surface normal at both ends of each
+            correspondence (any length, any sign). A rigid motion preserves the angle between two
+            normals and each point's distance from the other's tangent plane, so spatial
+            consistency also asks these to agree, which makes pruning and clustering far sharper.
+            :func:`pointclm.register_point_clouds` passes its clouds' normals.
+        """,
+    # --- `register_point_clouds`: a model and a scan (also `register_files`' options) -------
+    voxel_size="""
+        voxel_size : float, optional
+            Downsampling voxel, in the clouds' units; default: the model's bounding-box diagonal
+            / 40. Normals use 2 voxels, FPFH 5 voxels.
+        """,
+    cloud_config="""
+        config : Config or dict, optional
+            Pipeline settings in the clouds' units, used as given (``Config.for_voxel(voxel,
+            base)`` makes one from synthetic-unit settings). Default: :meth:`Config.for_voxel`,
+            with the thresholds chosen for refined poses (`REFINED_THRESHOLDS`, or a `model`'s
+            ``recommended_point_cloud_config``), and with `peel` a cluster count of at least
+            `PEEL_CLUSTER_LEVEL`'s; with ``refine=False``, `Config()`'s (or the model's
+            ``recommended_point_cloud_config_no_refine``).
+        """,
+    cloud_seed="""
+        seed : int
+            Seeds the sampling of correspondences, clustering and RANSAC.
+        """,
+    cloud_model="""
+        model : str, path, pointclm.Network or torch module, optional
+            The learned embedding ("default", "paper", a weight file, a loaded network):
+            PointCLM proper (:func:`pointclm.embedding.resolve`). The correspondences are
+            converted to the network's training units (by sigma_d) first.
+        """,
+    viewpoint="""
+        viewpoint : array_like, optional
+            The scan's sensor position: scan normals point towards it, and verification judges
+            each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
+            `target` file records (:func:`file_viewpoint`); else none: the scan's normals are
+            oriented without it (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point
+            that orients them consistently, and of the two signs the one whose descriptors are
+            nearer the model's is kept) and poses are judged by the share of the model they
+            explain. Pass it for scenes where copies hide one another. The model's normals point
+            away from its centroid.
+        """,
+    matching="""
+        top_k, mutual, n_samples, k
+            Correspondence building (paper appendix): each scan point's `k` most similar model
+            points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
+            then `n_samples` sampled (None: all); see :func:`pointclm.preprocessing.match_features`.
+        """,
+    cloud_normals="""
+        normals : bool
+            Give the pipeline the clouds' normals at both ends of each correspondence, so spatial
+            consistency also checks the angles a rigid motion preserves (`register`'s
+            ``normals=``).
+        """,
+    refine="""
+        refine : bool
+            Refine each pose by ICP on the clouds and keep those the scan supports, judged by
+            what the sensor at `viewpoint` could see of each (:func:`pointclm.refinement.
+            refine_poses` with its defaults; without a viewpoint, or when the scan does not look
+            like one view from it, by the share of the model explained). False: the
+            correspondence stage's poses as they are (their fitness is still measured).
+        """,
+    peel="""
+        peel : bool
+            With `refine`: after the first pass, set aside the scan points the accepted copies
+            explain (within 2 voxels), run the correspondence stage again on the rest, and verify
+            the new poses with the accepted ones; repeat until a pass adds no copy (at most
+            `MAX_PEEL_ROUNDS`). This finds the copies of a heap whose matches the first copies
+            crowd out of the sample. False: one pass (the paper's pipeline).
+        """,
+    cloud_returns="""
+        Returns
+        -------
+        PointCloudRegistration
+            Its ``instances`` are the refined and verified copies, surest first. The result's
+            ``diagnosis`` says why nothing was found (or why a result is doubtful) and what to
+            try; ``print(result)`` shows a summary.
+        """,
+)
+
+#: A line holding only a placeholder, and its indentation.
+_PLACEHOLDER = re.compile(r"^(?P<indent>[ ]*)%\((?P<name>\w+)\)s[ ]*$", re.M)
+
+
+def fill(func: F) -> F:
+    """`func` with each placeholder line ``%(name)s`` of its docstring replaced by
+    ``PARAMETERS[name]``, every line indented as the placeholder (a KeyError at import names
+    an unknown one). Nothing else of the docstring changes; under ``python -OO`` (no
+    docstrings) nothing does."""
+    if func.__doc__ is not None:
+
+        def entry(m: re.Match[str]) -> str:
+            text = PARAMETERS[m["name"]]
+            return "\n".join(m["indent"] + line if line else line for line in text.split("\n"))
+
+        func.__doc__ = _PLACEHOLDER.sub(entry, func.__doc__)
+    return func
