@@ -1,8 +1,10 @@
-//! Criterion benchmarks of the whole pipeline and of its O(N^2) pruning stage.
+//! Criterion benchmarks of the whole pipeline, of its O(N^2) pruning stage and of the
+//! a-contrario test's null probability (one radius count per correspondence and pose).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use pointclm::pruning::density_counts;
-use pointclm::{register, Config, Correspondences};
+use pointclm::validation::NullModel;
+use pointclm::{register, Config, Correspondences, RigidTransform};
 
 /// `instances` copies with `per` noise-free inliers each, the rest uniform outliers in
 /// [0, 6)^3, from a fixed linear congruential sequence.
@@ -49,6 +51,11 @@ fn bench(c: &mut Criterion) {
     let corr = scene(1000, 7, 20);
     c.bench_function("density_counts_1000_1_thread", |b| {
         b.iter(|| pool.install(|| density_counts(&corr, None, &config).expect("counts")))
+    });
+    let null = NullModel::new(&corr, config.inlier_threshold);
+    let pose = RigidTransform::identity();
+    c.bench_function("null_probability_1000", |b| {
+        b.iter(|| null.null_probability(&corr, &pose))
     });
 }
 

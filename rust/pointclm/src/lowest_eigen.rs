@@ -18,7 +18,7 @@ use faer::linalg::evd::{
     self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors, SelfAdjointEvdParams,
 };
 use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, MatRef, Par, Spec};
+use faer::{Accum, Mat, MatMut, MatRef, Par, Spec};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
@@ -180,10 +180,6 @@ impl Basis {
         }
     }
 
-    fn col(&self, j: usize) -> &[f64] {
-        &self.q[j * self.n..(j + 1) * self.n]
-    }
-
     /// Orthonormalises `block` (column-major, `n` rows) against the basis and appends it,
     /// with its products and projection; returns the number of columns added.
     fn extend(&mut self, single: &Mat<f32>, block: Vec<f64>, rng: &mut ChaCha8Rng) -> usize {
@@ -259,11 +255,14 @@ impl Basis {
     /// within the new block and mirrored into the rows of the old one.
     fn project_new(&mut self, start: usize, total: usize) {
         let n = self.n;
+        // One product `Q^T W_new` rather than a serial dot product per entry.
+        let q = MatRef::from_column_major_slice(&self.q[..n * total], n, total);
+        let w = MatRef::from_column_major_slice(&self.w[start * n..total * n], n, total - start);
+        let mut qw = Mat::<f64>::zeros(total, total - start);
+        matmul(qw.as_mut(), Accum::Replace, q.transpose(), w, 1.0, Par::Seq);
         for c in start..total {
-            let wc = &self.w[c * n..(c + 1) * n];
             for r in 0..total {
-                let v = dot(&self.q[r * n..(r + 1) * n], wc);
-                self.t[c * self.cap + r] = v;
+                self.t[c * self.cap + r] = qw[(r, c - start)];
             }
         }
         for c in start..total {
@@ -302,18 +301,29 @@ impl Basis {
     }
 
     /// Classical Gram-Schmidt twice against the first `upto` columns, then normalisation;
-    /// false when less than 1e-8 of `v` is new.
+    /// false when less than 1e-8 of `v` is new. Each pass is two matrix-vector products
+    /// (`p = Q^T v`, `v -= Q p`): vectorised, where one dot product per column runs at the
+    /// latency of a serial sum.
     fn orthonormalize(&self, v: &mut [f64], upto: usize) -> bool {
         let before = norm(v);
         if before == 0.0 || !before.is_finite() {
             return false;
         }
+        let n = self.n;
+        let q = MatRef::from_column_major_slice(&self.q[..n * upto], n, upto);
+        let mut p = Mat::<f64>::zeros(upto, 1);
         for _ in 0..2 {
-            for j in 0..upto {
-                let q = self.col(j);
-                let p = dot(q, v);
-                v.iter_mut().zip(q).for_each(|(x, &qi)| *x -= p * qi);
-            }
+            let col = MatRef::from_column_major_slice(v, n, 1);
+            matmul(
+                p.as_mut(),
+                Accum::Replace,
+                q.transpose(),
+                col,
+                1.0,
+                Par::Seq,
+            );
+            let col = MatMut::from_column_major_slice_mut(v, n, 1);
+            matmul(col, Accum::Add, q, p.as_ref(), -1.0, Par::Seq);
         }
         let after = norm(v);
         if after <= 1e-8 * before {

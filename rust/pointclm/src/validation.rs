@@ -14,16 +14,14 @@
 //! of the minimal sample that fixed the pose are inliers for free), and an instance is kept
 //! when `NFA <= max_nfa`.
 
-use kiddo::immutable::float::kdtree::ImmutableKdTree;
-use kiddo::SquaredEuclidean;
-
 use crate::correspondences::Correspondences;
 use crate::kabsch::RigidTransform;
 
 /// The target ends of a scene, indexed once for every pose's null probability.
 pub struct NullModel {
-    tree: ImmutableKdTree<f64, u64, 3, 32>,
+    grid: CountingGrid,
     n: usize,
+    radius: f64,
     radius_sq: f64,
 }
 
@@ -32,8 +30,9 @@ impl NullModel {
     pub fn new(c: &Correspondences, radius: f64) -> Self {
         let targets: Vec<[f64; 3]> = (0..c.len()).map(|i| c.target(i)).collect();
         Self {
-            tree: ImmutableKdTree::new_from_slice(&targets),
+            grid: CountingGrid::new(&targets, radius),
             n: c.len(),
+            radius,
             radius_sq: radius * radius,
         }
     }
@@ -44,10 +43,7 @@ impl NullModel {
         let (mut pairs, mut own) = (0usize, 0usize);
         for a in 0..self.n {
             let q = pose.apply(c.source(a));
-            pairs += self
-                .tree
-                .within_unsorted::<SquaredEuclidean>(&q, self.radius_sq)
-                .len();
+            pairs += self.grid.count_within(q, self.radius, self.radius_sq);
             if pose.residual_sq(c.source(a), c.target(a)) < self.radius_sq {
                 own += 1;
             }
@@ -64,6 +60,111 @@ impl NullModel {
     pub fn log10_nfa(&self, c: &Correspondences, pose: &RigidTransform, n_tests: usize) -> f64 {
         let (p, k) = self.null_probability(c, pose);
         (n_tests.max(1) as f64).log10() + log10_binomial_tail(self.n, k.saturating_sub(3), p)
+    }
+}
+
+/// Points bucketed in a uniform grid whose cells are at least twice the query radius, stored
+/// cell by cell, so that counting the points of a ball visits at most four contiguous runs
+/// (two cells along each axis).
+///
+/// Why not the k-d tree used elsewhere: every candidate pose asks one radius count per
+/// correspondence (thousands of small queries on a few thousand points); a tree query that
+/// collects its hits into a vector cost most of the pose stage on synthetic scenes.
+struct CountingGrid {
+    origin: [f64; 3],
+    inv_cell: f64,
+    dims: [usize; 3],
+    /// `start[c]..start[c + 1]` are the points of cell `c` in `points`.
+    start: Vec<usize>,
+    points: Vec<[f64; 3]>,
+}
+
+impl CountingGrid {
+    /// At most this many cells per point: a finer grid than the radius allows would only add
+    /// empty cells, a sparse scene with a tiny radius is given coarser cells instead.
+    const CELLS_PER_POINT: usize = 8;
+
+    fn new(points: &[[f64; 3]], radius: f64) -> Self {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in points {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        if points.is_empty() {
+            (lo, hi) = ([0.0; 3], [0.0; 3]);
+        }
+        let limit = (Self::CELLS_PER_POINT * points.len()).max(64);
+        let mut cell = (2.0 * radius).max(f64::MIN_POSITIVE);
+        let dims = loop {
+            let dims = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / cell) as usize + 1);
+            if dims
+                .iter()
+                .try_fold(1usize, |m, &d| m.checked_mul(d))
+                .is_some_and(|m| m <= limit)
+            {
+                break dims;
+            }
+            cell *= 1.5;
+        };
+        let inv_cell = 1.0 / cell;
+        let cell_of = |p: &[f64; 3]| {
+            let i = [0, 1, 2].map(|a| (((p[a] - lo[a]) * inv_cell) as usize).min(dims[a] - 1));
+            i[0] + dims[0] * (i[1] + dims[1] * i[2])
+        };
+        let mut start = vec![0usize; dims[0] * dims[1] * dims[2] + 1];
+        for p in points {
+            start[cell_of(p) + 1] += 1;
+        }
+        for c in 1..start.len() {
+            start[c] += start[c - 1];
+        }
+        let mut next = start.clone();
+        let mut sorted = vec![[0.0; 3]; points.len()];
+        for p in points {
+            let c = cell_of(p);
+            sorted[next[c]] = *p;
+            next[c] += 1;
+        }
+        Self {
+            origin: lo,
+            inv_cell,
+            dims,
+            start,
+            points: sorted,
+        }
+    }
+
+    /// How many points lie strictly within `radius` (squared: `radius_sq`) of `q`.
+    fn count_within(&self, q: [f64; 3], radius: f64, radius_sq: f64) -> usize {
+        let mut span = [(0usize, 0usize); 3];
+        for a in 0..3 {
+            // Cell indices by truncation, which is the floor on the non-negative side kept
+            // (`floor` is a library call on baseline x86-64).
+            let first = (q[a] - radius - self.origin[a]) * self.inv_cell;
+            let last = (q[a] + radius - self.origin[a]) * self.inv_cell;
+            if last < 0.0 || first >= self.dims[a] as f64 {
+                return 0;
+            }
+            span[a] = (
+                first.max(0.0) as usize,
+                (last as usize).min(self.dims[a] - 1),
+            );
+        }
+        let mut count = 0;
+        for k in span[2].0..=span[2].1 {
+            for j in span[1].0..=span[1].1 {
+                let row = self.dims[0] * (j + self.dims[1] * k);
+                let run = self.start[row + span[0].0]..self.start[row + span[0].1 + 1];
+                for p in &self.points[run] {
+                    let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+                    count += usize::from(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < radius_sq);
+                }
+            }
+        }
+        count
     }
 }
 

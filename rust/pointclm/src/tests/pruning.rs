@@ -98,6 +98,17 @@ fn f32_paper_counts_equal_f64_counts_near_the_threshold_and_far_from_the_origin(
             let dense = density_counts_dense(&beta, n, None, &config);
             let fast = density_counts(&corr, None, &config).unwrap();
             assert_eq!(fast, dense, "offset {offset} tau_s {tau_s}");
+            // Both builds of the row loop, whichever the CPU picks above.
+            let inv = inv_sigma_sq(config.sigma_d).unwrap();
+            let narrow = paper_counts_f32(&corr, tau_s, inv, false);
+            assert_eq!(
+                narrow, dense,
+                "baseline build, offset {offset} tau_s {tau_s}"
+            );
+            if wide_lanes() {
+                let wide = paper_counts_f32(&corr, tau_s, inv, true);
+                assert_eq!(wide, dense, "AVX2 build, offset {offset} tau_s {tau_s}");
+            }
         }
     }
     // Points on a line whose pairs k apart differ in length by exactly D = sigma sqrt(1 - tau).

@@ -55,3 +55,42 @@ fn a_true_pose_is_significant_and_a_random_one_is_not() {
     // most, never a detection.
     assert!(model.log10_nfa(&scene.corr, &RigidTransform::identity(), 10) > -1.0);
 }
+
+#[test]
+fn grid_counts_equal_brute_force() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    // A spread cloud, a flat one, a single repeated point and an empty one: cells from the
+    // radius, coarsened cells (tiny radius) and degenerate extents.
+    let spread: Vec<[f64; 3]> = (0..500)
+        .map(|_| [0, 1, 2].map(|_| rng.random_range(-2.0..3.0)))
+        .collect();
+    let flat: Vec<[f64; 3]> = spread.iter().map(|p| [p[0], p[1], 0.5]).collect();
+    let same = vec![[1.0, 1.0, 1.0]; 50];
+    for (points, radius) in [
+        (&spread, 0.3),
+        (&spread, 1e-4),
+        (&spread, 10.0),
+        (&flat, 0.2),
+        (&same, 0.1),
+        (&vec![], 0.1),
+    ] {
+        let grid = CountingGrid::new(points, radius);
+        for _ in 0..300 {
+            let q = [0, 1, 2].map(|_| rng.random_range(-3.0..4.0));
+            let q = if rng.random_bool(0.2) && !points.is_empty() {
+                points[rng.random_range(0..points.len())]
+            } else {
+                q
+            };
+            let want = points
+                .iter()
+                .filter(|p| {
+                    let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < radius * radius
+                })
+                .count();
+            assert_eq!(grid.count_within(q, radius, radius * radius), want);
+        }
+    }
+}

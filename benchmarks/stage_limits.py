@@ -1,0 +1,193 @@
+"""Each stage's time against the arithmetic it needs (issue 19).
+
+    python benchmarks/stage_limits.py [--synthetic 100] [--realistic-cache DIR] [--out FILE]
+
+For every stage of the training-free correspondence pipeline (`register`, one thread) this
+prints the measured median time, a count of the floating-point operations the stage cannot do
+without (a lower bound of its arithmetic, below), the time that arithmetic takes at this
+machine's measured peak, and the ratio between the two. The peak is measured in the same run
+(numpy's single-threaded matrix product, f32 and f64), so the ratio stays meaningful on a
+shared, noisy machine.
+
+The arithmetic models (operations per unit, counted on the formulas the code evaluates):
+
+- pruning: every ordered pair (i, j) of the N correspondences: two squared lengths (10), two
+  square roots (2), a difference, a square and two comparisons (4): 16 f32 operations.
+- clustering: the affinity of the k kept rows (k^2 pairs at about 16 f64 operations), plus the
+  tridiagonal reduction a dense symmetric eigensolver needs (4/3 k^3); a partial solver may
+  need less, so the bound is loose from `clustering::PARTIAL_ROWS` rows.
+- poses: every candidate pose (one per cluster) applied to all N correspondences with its
+  residual (about 20 operations per correspondence), twice (inliers and the a-contrario
+  test's own count), plus the test's radius count (about 10 per visited point, at least one
+  per correspondence); RANSAC's hypotheses are not counted (their number is data-dependent).
+
+A ratio of 10 means the stage runs ten times longer than its arithmetic at peak: the distance
+left to the limit. Memory traffic is not the limit for any stage at these sizes (N = 1000
+rows of 6 doubles is 48 KB; everything stays in cache).
+"""
+
+from __future__ import annotations
+
+import os
+
+# The reference (numpy's BLAS) and pointclm both on one thread; before numpy is imported.
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_v] = "1"
+
+import argparse  # noqa: E402
+import datetime  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+PAIR_FLOPS = 16
+AFFINITY_FLOPS = 16
+POSE_FLOPS = 20
+RADIUS_FLOPS = 10
+REPEATS = 3
+
+
+def peak_gflops(dtype: type, n: int = 1024, repeats: int = 5) -> float:
+    """Single-threaded matrix-product speed in GFLOP/s: the machine's attainable peak."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((n, n)).astype(dtype)
+    b = rng.standard_normal((n, n)).astype(dtype)
+    a @ b
+    best = min(_timed(lambda: a @ b) for _ in range(repeats))
+    return 2 * n**3 / best / 1e9
+
+
+def _timed(fn: Callable[[], Any]) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def stage_flops(n: int, kept: int, clusters: int) -> dict[str, tuple[float, str]]:
+    """The lower-bound operation counts of each stage and the precision they run in."""
+    return {
+        "pruning": (PAIR_FLOPS * n * n, "f32"),
+        "clustering": (AFFINITY_FLOPS * kept**2 + 4 / 3 * kept**3, "f64"),
+        "poses": (clusters * n * (2 * POSE_FLOPS + RADIUS_FLOPS), "f64"),
+    }
+
+
+def measure(scenes: Sequence[Any], config_for: Callable[[Any], Any]) -> list[dict[str, Any]]:
+    """Per scene: the fastest of `REPEATS` runs' stage times, and the sizes the models need."""
+    import pointclm
+
+    rows = []
+    for sc in scenes:
+        cfg = config_for(sc)
+        best: tuple[float, Any] | None = None
+        for _ in range(REPEATS):
+            t = time.perf_counter()
+            r = pointclm.register(sc.correspondences, None, cfg, 0, num_threads=1)
+            wall = time.perf_counter() - t
+            if best is None or wall < best[0]:
+                best = (wall, r)
+        assert best is not None
+        wall, r = best
+        rows.append(
+            {
+                "wall": wall,
+                "timings": dict(r.timings),
+                "n": len(sc.correspondences),
+                "kept": len(r.kept),
+                "clusters": r.n_clusters,
+            }
+        )
+    return rows
+
+
+def table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float]) -> list[str]:
+    """Markdown rows: per stage, median time, median lower-bound arithmetic and the ratio."""
+    out = [
+        f"### {name}: {len(rows)} scenes, median N = {np.median([r['n'] for r in rows]):.0f}, "
+        f"median kept rows = {np.median([r['kept'] for r in rows]):.0f}",
+        "",
+        "| stage | median ms | arithmetic (MFLOP) | at peak (ms) | time / limit |",
+        "|---|---|---|---|---|",
+    ]
+    for stage in ("pruning", "clustering", "poses"):
+        ms = [1e3 * r["timings"][stage] for r in rows]
+        flops = [stage_flops(r["n"], r["kept"], r["clusters"])[stage] for r in rows]
+        limit = [1e3 * f / (peak[p] * 1e9) for f, p in flops]
+        ratio = [m / max(lim, 1e-9) for m, lim in zip(ms, limit, strict=True)]
+        out.append(
+            f"| {stage} | {np.median(ms):.3f} | {np.median([f for f, _ in flops]) / 1e6:.2f} "
+            f"| {np.median(limit):.4f} | {np.median(ratio):.1f} |"
+        )
+    wall = [1e3 * r["wall"] for r in rows]
+    out.append(f"| whole call | {np.median(wall):.3f} | | | |")
+    return out + [""]
+
+
+def synthetic(count: int) -> tuple[list[Any], Callable[[Any], Any]]:
+    import pointclm
+    from pointclm.datasets.synthetic import make_scenes
+
+    return list(make_scenes(count, seed=0)), lambda _: pointclm.Config()
+
+
+def realistic(cache: Path, per_model: int) -> tuple[list[Any], Callable[[Any], Any]]:
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
+    from pointclm.point_clouds import cloud_config
+    from realistic_models import benchmark_seeds, load_scenes, scene_params
+
+    dd = str(default_data_dir())
+    jobs = [
+        (m, s, scene_params(m, 1000, dd))
+        for m in HELDOUT_MODELS
+        for s in benchmark_seeds(m, per_model)
+    ]
+    scenes = load_scenes(jobs, cache, 2, progress=False)
+    return scenes, lambda sc: cloud_config(sc.voxel_size, None, False)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--synthetic", type=int, default=100, help="synthetic scenes (0: none)")
+    ap.add_argument(
+        "--realistic-cache",
+        type=Path,
+        help="realistic_models.py's scene cache (held-out models, N = 1000); omitted: none",
+    )
+    ap.add_argument("--realistic-per-model", type=int, default=4)
+    ap.add_argument("--out", type=Path, help="also write the report here (markdown)")
+    args = ap.parse_args(argv)
+    import pointclm
+
+    peak = {"f32": peak_gflops(np.float32), "f64": peak_gflops(np.float64)}
+    lines = [
+        "# Stage times against their arithmetic (one thread)",
+        "",
+        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; pointclm "
+        f"{pointclm.__version__}; {platform.machine()}, {os.cpu_count()} cores "
+        f"({platform.processor() or 'cpu'}).",
+        f"- Command: `python benchmarks/stage_limits.py {' '.join(argv or sys.argv[1:])}`",
+        f"- Peak (numpy matrix product, one thread, same run): f32 {peak['f32']:.1f} GFLOP/s, "
+        f"f64 {peak['f64']:.1f} GFLOP/s.",
+        f"- Each scene: the fastest of {REPEATS} calls; the arithmetic models are in the "
+        "script's docstring.",
+        "",
+    ]
+    if args.synthetic:
+        scenes, cfg = synthetic(args.synthetic)
+        lines += table("synthetic (paper protocol)", measure(scenes, cfg), peak)
+    if args.realistic_cache:
+        scenes, cfg = realistic(args.realistic_cache, args.realistic_per_model)
+        lines += table("realistic, held-out models, N = 1000", measure(scenes, cfg), peak)
+    print("\n".join(lines))
+    if args.out:
+        args.out.write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
