@@ -133,3 +133,19 @@ fn f32_paper_counts_equal_f64_counts_near_the_threshold_and_far_from_the_origin(
         );
     }
 }
+
+#[test]
+fn f32_paper_counts_span_column_tiles() {
+    // More rows than one column tile, and a ragged last tile.
+    let n = COLUMN_TILE + 77;
+    let scene = random_scene(n, 5, 0.05, 11);
+    let config = Config::default();
+    let beta = spatial_consistency(&scene.corr, config.sigma_d).unwrap();
+    let dense = density_counts_dense(&beta, n, None, &config);
+    let inv = inv_sigma_sq(config.sigma_d).unwrap();
+    assert_eq!(
+        paper_counts_f32(&scene.corr, config.tau_s, inv, false),
+        dense
+    );
+    assert_eq!(density_counts(&scene.corr, None, &config).unwrap(), dense);
+}
