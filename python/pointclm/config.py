@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -138,7 +138,9 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         """Fields as a plain dict (what the Rust core receives)."""
-        return asdict(self)
+        # Every field is a scalar, a string or None: a shallow dict equals `asdict`'s deep
+        # copy, at a tenth of its cost (this runs on every `register` call).
+        return {name: getattr(self, name) for name in self.__dataclass_fields__}
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> Config:

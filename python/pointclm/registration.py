@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -97,9 +99,16 @@ def as_features(features: ArrayLike | None, n: int) -> np.ndarray | None:
     return f
 
 
+@functools.cache
+def _default_config_dict() -> dict[str, Any]:
+    """`Config()` as the core's dict, built once: the defaults never change, and building
+    and validating a Config costs about as much as pruning a small scene."""
+    return Config().to_dict()
+
+
 def as_config(config: Config | dict[str, Any] | None) -> dict[str, Any]:
     if config is None:
-        return Config().to_dict()
+        return _default_config_dict().copy()
     if isinstance(config, dict):
         return Config.from_dict(config).to_dict()
     if isinstance(config, Config):

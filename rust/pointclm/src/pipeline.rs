@@ -170,7 +170,9 @@ fn propose(
             first_count = n_clusters;
         }
         let round_fits = fit_groups(c, &groups, config, seed, fits.len() as u64);
-        let Some(null) = null else {
+        // The last round's validation would only feed a round that does not run (`finalize`
+        // validates the final poses).
+        let Some(null) = null.filter(|_| round + 1 < rounds) else {
             fits.extend(round_fits);
             break;
         };
