@@ -27,8 +27,18 @@ pub fn density_counts(
         return Ok(vec![0; n]);
     }
     let inv = inv_sigma_sq(config.sigma_d)?;
-    if config.pruning == Pruning::Paper && features.is_none() && c.pair_normals().is_none() {
-        return Ok(paper_counts_f32(c, config.tau_s, inv, wide_lanes()));
+    if c.pair_normals().is_none() {
+        match (config.pruning, features) {
+            (Pruning::Paper, None) => {
+                return Ok(paper_counts_f32(c, config.tau_s, inv, wide_lanes()));
+            }
+            (_, Some(f)) => {
+                if let Some(rule) = FeatureRule::of(config) {
+                    return Ok(feature_counts_f32(c, f, rule, inv, wide_lanes()));
+                }
+            }
+            _ => {}
+        }
     }
     let mut counts = vec![0u32; n];
     counts
@@ -68,6 +78,7 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64, wide: bool) -> Ve
         hi2,
         tau_s,
         inv,
+        features: None,
     };
     let mut counts = vec![0u32; n];
     counts
@@ -82,6 +93,90 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64, wide: bool) -> Ve
 /// all columns instead runs from the shared cache once N passes about 20,000 (N = 50,000:
 /// three times the time per pair of N = 1000).
 const COLUMN_TILE: usize = 2048;
+
+/// A rule with features, `beta_ij` and the feature similarity `s_ij`, that only pairs with
+/// `beta_ij > geometric` can pass: such pairs are a small share (well under 1 % on the
+/// synthetic scenes), found by the f32 length test and decided exactly in f64.
+#[derive(Clone, Copy, Debug)]
+enum FeatureRule {
+    /// The paper's `beta * s > tau_s` (needs `beta > 0` when `tau_s >= 0`).
+    Paper { tau_s: f64 },
+    /// The authors' code: `beta > beta_threshold` and `s > feature_threshold`.
+    Authors {
+        beta_threshold: f64,
+        feature_threshold: f64,
+    },
+}
+
+impl FeatureRule {
+    /// The rule of `config`, or `None` where a pair with `beta = 0` could pass it (a
+    /// negative threshold), which the f64 path then decides.
+    fn of(config: &Config) -> Option<Self> {
+        match config.pruning {
+            Pruning::Paper if config.tau_s >= 0.0 => Some(Self::Paper {
+                tau_s: config.tau_s,
+            }),
+            Pruning::AuthorsCode if config.beta_threshold >= 0.0 => Some(Self::Authors {
+                beta_threshold: config.beta_threshold,
+                feature_threshold: config.feature_threshold,
+            }),
+            _ => None,
+        }
+    }
+
+    /// The `beta` a pair must exceed before its features matter.
+    fn geometric(self) -> f64 {
+        match self {
+            Self::Paper { .. } => 0.0,
+            Self::Authors { beta_threshold, .. } => beta_threshold,
+        }
+    }
+
+    /// [`count_row`]'s decision for one pair, from the f64 `beta` and similarity.
+    fn passes(self, beta: f64, similarity: f64) -> bool {
+        match self {
+            Self::Paper { tau_s } => beta > 0.0 && beta * similarity > tau_s,
+            Self::Authors {
+                beta_threshold,
+                feature_threshold,
+            } => beta > beta_threshold && similarity > feature_threshold,
+        }
+    }
+}
+
+/// Counts under a rule with features: the pairs within the f32 bound of the rule's length
+/// test ([`FeatureRule::geometric`]) get the f64 `beta` of [`beta_value`] and the feature
+/// similarity, exactly as [`count_row`] computes them; every other pair has `beta` at or
+/// below that level and fails the rule. The counts equal the f64 path's exactly.
+fn feature_counts_f32(
+    c: &Correspondences,
+    f: &Features,
+    rule: FeatureRule,
+    inv: f64,
+    wide: bool,
+) -> Vec<u32> {
+    let n = c.len();
+    let (s, ms) = centred_f32(c.source_columns(), n);
+    let (t, mt) = centred_f32(c.target_columns(), n);
+    let (_, hi2) = undecided_band(rule.geometric(), inv, ms.max(mt));
+    let kernel = PaperRuleF32 {
+        s,
+        t,
+        src: c.source_columns(),
+        dst: c.target_columns(),
+        lo2: 0.0,
+        hi2,
+        tau_s: 0.0,
+        inv,
+        features: Some((f, rule)),
+    };
+    let mut counts = vec![0u32; n];
+    counts
+        .par_chunks_mut(BLOCK_ROWS)
+        .enumerate()
+        .for_each(|(block, out)| kernel.count_block_dispatched(block * BLOCK_ROWS, out, wide));
+    counts
+}
 
 /// Whether the CPU runs 8-lane f32 vectors (AVX2), checked once per pruning. A wheel is built for
 /// baseline x86-64 (SSE2, 4 lanes), where the row loop runs at about half the speed.
@@ -150,6 +245,8 @@ struct PaperRuleF32<'a> {
     hi2: f32,
     tau_s: f64,
     inv: f64,
+    /// With features: candidates are the pairs with `q <= hi2`, decided by the rule.
+    features: Option<(&'a Features, FeatureRule)>,
 }
 
 impl PaperRuleF32<'_> {
@@ -170,35 +267,81 @@ impl PaperRuleF32<'_> {
     fn count_block(&self, first: usize, out: &mut [u32]) {
         let n = self.s[0].len();
         out.fill(0);
+        let mut lengths = Vec::new();
         for start in (0..n).step_by(COLUMN_TILE) {
             let cols = start..(start + COLUMN_TILE).min(n);
             for (k, slot) in out.iter_mut().enumerate() {
-                *slot += self.count(first + k, cols.clone());
+                *slot += match self.features {
+                    None => self.count(first + k, cols.clone()),
+                    Some((f, rule)) => {
+                        self.count_featured(first + k, cols.clone(), f, rule, &mut lengths)
+                    }
+                };
             }
         }
+    }
+
+    /// The squared f32 length differences of row `i` against `cols`, in an order the
+    /// compiler vectorises (zipped slices, no bounds checks).
+    #[inline(always)]
+    fn length_diffs(
+        &self,
+        i: usize,
+        cols: std::ops::Range<usize>,
+    ) -> impl Iterator<Item = f32> + '_ {
+        let (s, t) = (&self.s, &self.t);
+        let (si, ti) = ([s[0][i], s[1][i], s[2][i]], [t[0][i], t[1][i], t[2][i]]);
+        let c = cols;
+        let (s0, s1, s2) = (&s[0][c.clone()], &s[1][c.clone()], &s[2][c.clone()]);
+        let (t0, t1, t2) = (&t[0][c.clone()], &t[1][c.clone()], &t[2][c]);
+        s0.iter()
+            .zip(s1)
+            .zip(s2)
+            .zip(t0)
+            .zip(t1.iter().zip(t2))
+            .map(move |((((&a0, &a1), &a2), &b0), (&b1, &b2))| {
+                length_diff_sq([a0, a1, a2], [b0, b1, b2], si, ti)
+            })
+    }
+
+    /// How many `j` in `cols` pass `rule`: the lengths go to `buf` in one vectorised pass,
+    /// then the few within `hi2` are decided in f64.
+    #[inline(always)]
+    fn count_featured(
+        &self,
+        i: usize,
+        cols: std::ops::Range<usize>,
+        f: &Features,
+        rule: FeatureRule,
+        buf: &mut Vec<f32>,
+    ) -> u32 {
+        buf.clear();
+        buf.extend(self.length_diffs(i, cols.clone()));
+        let hi2 = self.hi2;
+        let mut count = 0;
+        for (chunk, block) in buf.chunks(8).enumerate() {
+            if block.iter().all(|&q| q > hi2) {
+                continue;
+            }
+            for (k, &q) in block.iter().enumerate() {
+                if q <= hi2 {
+                    let j = cols.start + 8 * chunk + k;
+                    let ds = std::array::from_fn(|a| self.src[a][j] - self.src[a][i]);
+                    let dt = std::array::from_fn(|a| self.dst[a][j] - self.dst[a][i]);
+                    let beta = beta_value(ds, dt, self.inv);
+                    count += u32::from(rule.passes(beta, f.similarity(i, j)));
+                }
+            }
+        }
+        count
     }
 
     /// How many `j` in `cols` have `beta_ij > tau_s`.
     #[inline(always)]
     fn count(&self, i: usize, cols: std::ops::Range<usize>) -> u32 {
-        let (s, t, src, dst) = (&self.s, &self.t, self.src, self.dst);
+        let (src, dst) = (self.src, self.dst);
         let (lo2, hi2) = (self.lo2, self.hi2);
-        let (si, ti) = ([s[0][i], s[1][i], s[2][i]], [t[0][i], t[1][i], t[2][i]]);
-        let c = cols.clone();
-        let (s0, s1, s2) = (&s[0][c.clone()], &s[1][c.clone()], &s[2][c.clone()]);
-        let (t0, t1, t2) = (&t[0][c.clone()], &t[1][c.clone()], &t[2][c]);
-        // The squared f32 length differences, in an order the compiler vectorises (zipped
-        // slices, no bounds checks).
-        let row = || {
-            s0.iter()
-                .zip(s1)
-                .zip(s2)
-                .zip(t0)
-                .zip(t1.iter().zip(t2))
-                .map(move |((((&a0, &a1), &a2), &b0), (&b1, &b2))| {
-                    length_diff_sq([a0, a1, a2], [b0, b1, b2], si, ti)
-                })
-        };
+        let row = || self.length_diffs(i, cols.clone());
         // Branch-free over the tile: sure and undecided counts.
         let (mut sure, mut near) = (0u32, 0u32);
         for q in row() {
@@ -206,7 +349,7 @@ impl PaperRuleF32<'_> {
             near += u32::from((q >= lo2) & (q <= hi2));
         }
         if near > 0 {
-            for (j, qj) in cols.zip(row()) {
+            for (j, qj) in cols.clone().zip(row()) {
                 if qj >= lo2 && qj <= hi2 {
                     let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
                     let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);

@@ -149,3 +149,43 @@ fn f32_paper_counts_span_column_tiles() {
     );
     assert_eq!(density_counts(&scene.corr, None, &config).unwrap(), dense);
 }
+
+#[test]
+fn f32_feature_counts_equal_f64_counts_for_every_threshold() {
+    // Over a column tile, at several thresholds (negative ones take the f64 path), in both
+    // builds of the row loop.
+    let n = COLUMN_TILE + 31;
+    let scene = random_scene(n, 4, 0.05, 13);
+    let feats = features_for(n, 2);
+    for (pruning, tau_s, beta_threshold) in [
+        (Pruning::Paper, 0.0, 0.9),
+        (Pruning::Paper, 0.5, 0.9),
+        (Pruning::Paper, -0.1, 0.9),
+        (Pruning::AuthorsCode, 0.85, 0.0),
+        (Pruning::AuthorsCode, 0.85, 0.9),
+        (Pruning::AuthorsCode, 0.85, -0.5),
+    ] {
+        let config = Config {
+            pruning,
+            tau_s,
+            beta_threshold,
+            sigma_d: 0.3,
+            ..Config::default()
+        };
+        let beta = spatial_consistency(&scene.corr, config.sigma_d).unwrap();
+        let dense = density_counts_dense(&beta, n, Some(&feats), &config);
+        let label = format!("{pruning:?} tau_s {tau_s} beta_threshold {beta_threshold}");
+        assert_eq!(
+            density_counts(&scene.corr, Some(&feats), &config).unwrap(),
+            dense,
+            "{label}"
+        );
+        if let Some(rule) = FeatureRule::of(&config) {
+            let inv = inv_sigma_sq(config.sigma_d).unwrap();
+            for wide in [false, wide_lanes()] {
+                let got = feature_counts_f32(&scene.corr, &feats, rule, inv, wide);
+                assert_eq!(got, dense, "{label} wide {wide}");
+            }
+        }
+    }
+}
