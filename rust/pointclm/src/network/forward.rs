@@ -12,6 +12,7 @@ use faer::MatRef;
 use rayon::prelude::*;
 
 use super::layers::{attention_rows, AttentionScratch, Geometry};
+use super::sparse_attention::{attention_rows_sparse, SparseBeta, Strided, MAX_SPARSE_SHARE};
 use super::{Block, Network};
 use crate::correspondences::{Correspondences, Features};
 use crate::error::{checked_elements, try_filled, Error, Result};
@@ -39,10 +40,23 @@ pub(crate) fn embed(
     parallel: bool,
     block_rows: usize,
 ) -> Result<Features> {
+    embed_with(net, c, parallel, block_rows, MAX_SPARSE_SHARE)
+}
+
+/// [`embed`], with the sparse attention used up to `max_sparse_share` of consistent pairs
+/// (0: always the dense one).
+pub(crate) fn embed_with(
+    net: &Network,
+    c: &Correspondences,
+    parallel: bool,
+    block_rows: usize,
+    max_sparse_share: f64,
+) -> Result<Features> {
     let n = c.len();
     let w = net.architecture.width;
     let input = centred_input(c)?;
     let geometry = Geometry::new(c, net.architecture.sigma_d);
+    let sparse = SparseBeta::new(&geometry, parallel, max_sparse_share);
     let scale = (w as f64).powf(-0.5) as f32;
 
     // `feat` is the running feature (N x w). `act` holds, per row, the pointcn output then
@@ -75,11 +89,27 @@ pub(crate) fn embed(
         });
         let keys = MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, aw);
         let values = MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, aw);
+        let strided = |offset| Strided {
+            data: &act,
+            offset,
+            stride: aw,
+            width: w,
+        };
+        let v_total = sparse.as_ref().map(|_| strided(3 * w).column_sums(n));
         let all = AllRows {
             keys,
             values,
             geometry: &geometry,
             scale,
+            sparse: sparse
+                .as_ref()
+                .zip(v_total.as_deref())
+                .map(|(sp, total)| Sparse {
+                    beta: sp,
+                    keys: strided(2 * w),
+                    values: strided(3 * w),
+                    v_total: total,
+                }),
         };
         for_blocks(&mut feat, block_rows * w, &|k, out, s| {
             let first = k * block_rows;
@@ -125,6 +155,16 @@ struct AllRows<'a> {
     values: MatRef<'a, f32>,
     geometry: &'a Geometry,
     scale: f32,
+    /// The consistent pairs and what the sparse attention reads, where they are few enough.
+    sparse: Option<Sparse<'a>>,
+}
+
+/// The sparse attention's view of a layer ([`attention_rows_sparse`]).
+struct Sparse<'a> {
+    beta: &'a SparseBeta,
+    keys: Strided<'a>,
+    values: Strided<'a>,
+    v_total: &'a [f64],
 }
 
 /// Sweep (B) of the block of rows starting at row `first`: `rows` are its sweep (A) outputs
@@ -142,16 +182,34 @@ fn non_local(
     let count = out.len() / w;
     let queries = MatRef::from_row_major_slice_with_stride(&rows[w..], count, w, aw);
     s.message.resize(count * w, 0.0);
-    attention_rows(
-        queries,
-        all.keys,
-        all.values,
-        all.geometry,
-        first,
-        all.scale,
-        &mut s.attention,
-        &mut s.message,
-    );
+    match &all.sparse {
+        Some(sp) => {
+            let q = Strided {
+                data: rows,
+                offset: w,
+                stride: aw,
+                width: w,
+            };
+            attention_rows_sparse(
+                q,
+                (sp.keys, sp.values),
+                sp.v_total,
+                sp.beta,
+                (first, all.keys.nrows(), all.scale),
+                &mut s.message,
+            );
+        }
+        None => attention_rows(
+            queries,
+            all.keys,
+            all.values,
+            all.geometry,
+            first,
+            all.scale,
+            &mut s.attention,
+            &mut s.message,
+        ),
+    }
     let [m0, m1, m2] = &layer.message;
     let [h0, h1] = &mut s.hidden;
     h0.resize(count * m0.outputs(), 0.0);

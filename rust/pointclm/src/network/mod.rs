@@ -31,6 +31,7 @@
 
 mod forward;
 pub(crate) mod layers;
+pub(crate) mod sparse_attention;
 mod weights;
 
 use std::fmt;

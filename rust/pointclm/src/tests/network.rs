@@ -525,3 +525,74 @@ fn the_shipped_network_registers_the_fixture_scene() {
         }
     }
 }
+
+#[test]
+fn sparse_attention_equals_the_dense_one() {
+    use super::sparse_attention::{attention_rows_sparse, SparseBeta, Strided};
+    // A tight sigma_d, so that few pairs are consistent (the sparse path's use), and a
+    // loose one with most pairs consistent (none at all outside S for some rows).
+    for (sigma, seed) in [(0.05, 7), (0.3, 8), (50.0, 9)] {
+        let scene = random_scene(300, 3, 0.2, seed);
+        let geo = Geometry::new(&scene.corr, sigma);
+        let n = scene.corr.len();
+        let c = 16;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut draw = || -> Vec<f32> {
+            uniform(&mut rng, n * c, -2.0, 2.0)
+                .iter()
+                .map(|&v| v as f32)
+                .collect()
+        };
+        let (q, k, v) = (draw(), draw(), draw());
+        let scale = 0.25;
+        let want = dense_attention(&q, &k, &v, &geo, c, scale);
+        // The share limit is the forward pass's choice: build the pairs at any share.
+        let sparse = SparseBeta::new(&geo, false, 1.0).unwrap();
+        let view = |data| Strided {
+            data,
+            offset: 0,
+            stride: c,
+            width: c,
+        };
+        let total = view(&v).column_sums(n);
+        let mut got = vec![0.0f32; n * c];
+        for (b, out) in got.chunks_mut(64 * c).enumerate() {
+            let first = b * 64;
+            let rows = out.len() / c;
+            let qb = view(&q[first * c..(first + rows) * c]);
+            attention_rows_sparse(
+                qb,
+                (view(&k), view(&v)),
+                &total,
+                &sparse,
+                (first, n, scale as f32),
+                out,
+            );
+        }
+        let worst = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (f64::from(*a) - b).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 2e-5, "sigma {sigma}: max difference {worst}");
+    }
+}
+
+#[test]
+fn the_sparse_forward_pass_matches_the_dense_one() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    // Few consistent pairs at the network's sigma_d: the sparse attention runs.
+    let scene = random_scene(700, 4, 0.1, 6);
+    let geo = Geometry::new(&scene.corr, net.architecture.sigma_d);
+    let share = super::sparse_attention::MAX_SPARSE_SHARE;
+    assert!(super::sparse_attention::SparseBeta::new(&geo, false, share).is_some());
+    let sparse = forward::embed(&net, &scene.corr, false, 128).unwrap();
+    let dense = forward::embed_with(&net, &scene.corr, false, 128, 0.0).unwrap();
+    let mut worst = 0.0f64;
+    for i in 0..sparse.len() {
+        for (a, b) in sparse.row(i).iter().zip(dense.row(i)) {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(worst < 1e-4, "max difference {worst}");
+}
