@@ -28,14 +28,20 @@ pub fn affinity(
     let k = kept.len();
     let mut a = Mat::<f64>::zeros(k, k);
     let mut row = vec![0.0; k];
+    // One triangle, mirrored: beta and the similarity are symmetric bit for bit (the same
+    // products in the same order), so the matrix is the one computed in full.
     for (r, &i) in kept.iter().enumerate() {
-        beta_row_subset(c, i, kept, inv, &mut row);
-        for (col, &j) in kept.iter().enumerate() {
+        let upper = &kept[r..];
+        beta_row_subset(c, i, upper, inv, &mut row[..upper.len()]);
+        for (off, &j) in upper.iter().enumerate() {
+            let b = row[off];
             let s = match features {
-                Some(f) => row[col] * f.similarity(i, j).max(0.0),
-                None => row[col],
+                // beta = 0 gives 0 whatever the similarity: skip its dot product
+                Some(f) if b != 0.0 => b * f.similarity(i, j).max(0.0),
+                _ => b,
             };
-            a[(r, col)] = s + AFFINITY_FLOOR;
+            a[(r, r + off)] = s + AFFINITY_FLOOR;
+            a[(r + off, r)] = s + AFFINITY_FLOOR;
         }
     }
     Ok(a)
