@@ -76,6 +76,7 @@ impl SparseBeta {
     }
 
     /// Columns and `beta` of row `i`'s consistent pairs.
+    #[inline(always)]
     fn row(&self, i: usize) -> (&[u32], &[f32]) {
         let range = self.offsets[i]..self.offsets[i + 1];
         (&self.cols[range.clone()], &self.beta[range])
@@ -110,6 +111,7 @@ pub(crate) struct Strided<'a> {
 }
 
 impl Strided<'_> {
+    #[inline(always)]
     fn row(&self, i: usize) -> &[f32] {
         let start = i * self.stride + self.offset;
         &self.data[start..start + self.width]
@@ -127,10 +129,87 @@ impl Strided<'_> {
     }
 }
 
+/// `a . b` summed in eight fixed lanes: independent sums that vectorise (one running sum
+/// waits on each of its additions), in an order that does not depend on the CPU.
+#[inline(always)]
+fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
+    const LANES: usize = 8;
+    let mut lanes = [0.0f32; LANES];
+    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for l in 0..LANES {
+            lanes[l] += x[l] * y[l];
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
+}
+
 /// Rows `first .. first + rows` of the attention (`out`: `rows x width`, row-major), from the
 /// block's queries `q` (rows `0..rows`), all keys `k` and values `v`, the sum of all values
 /// `v_total` ([`Strided::column_sums`]) and the consistent pairs.
 pub(crate) fn attention_rows_sparse(
+    q: Strided<'_>,
+    (k, v): (Strided<'_>, Strided<'_>),
+    v_total: &[f64],
+    sparse: &SparseBeta,
+    (first, n, scale): (usize, usize, f32),
+    out: &mut [f32],
+) {
+    pulp::Arch::new().dispatch(SparseRows {
+        q,
+        k,
+        v,
+        v_total,
+        sparse,
+        first,
+        n,
+        scale,
+        out,
+    });
+}
+
+/// [`attention_rows_sparse`]'s arguments, so that its loops are compiled inside pulp's
+/// `#[target_feature]` function (AVX2 where the CPU has it).
+struct SparseRows<'a> {
+    q: Strided<'a>,
+    k: Strided<'a>,
+    v: Strided<'a>,
+    v_total: &'a [f64],
+    sparse: &'a SparseBeta,
+    first: usize,
+    n: usize,
+    scale: f32,
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for SparseRows<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let Self {
+            q,
+            k,
+            v,
+            v_total,
+            sparse,
+            first,
+            n,
+            scale,
+            out,
+        } = self;
+        sparse_rows(q, (k, v), v_total, sparse, (first, n, scale), out);
+    }
+}
+
+#[inline(always)]
+fn sparse_rows(
     q: Strided<'_>,
     (k, v): (Strided<'_>, Strided<'_>),
     v_total: &[f64],
@@ -152,7 +231,7 @@ pub(crate) fn attention_rows_sparse(
         };
         logits.clear();
         for (&j, &b) in cols.iter().zip(beta) {
-            let dot: f32 = qi.iter().zip(k.row(j as usize)).map(|(a, b)| a * b).sum();
+            let dot = dot_lanes(qi, k.row(j as usize));
             let z = scale * dot * b;
             max = max.max(z);
             logits.push(z);
