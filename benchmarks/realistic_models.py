@@ -495,17 +495,18 @@ def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def scale_child(path: str, threads: int) -> None:
-    """Child mode: load one cached scene, register it training-free once, print one JSON line."""
+def scale_child(path: str, threads: int, model: str | None = None) -> None:
+    """Child mode: load one cached scene, register it once (training-free, or with the
+    learned embedding `model` and its thresholds for raw poses), print one JSON line."""
     import pointclm
     from pointclm.metrics import score_scene
-    from pointclm.point_clouds import scaled_config
+    from pointclm.point_clouds import cloud_config, scaled_config
 
     scene = load_scene(Path(path))
-    cfg = scaled_config(scene.voxel_size)
+    cfg = cloud_config(scene.voxel_size, model, False) if model else scaled_config(scene.voxel_size)
     baseline = _peak_mb()
     t = time.perf_counter()
-    r = pointclm.register(scene.correspondences, None, cfg, 0, num_threads=threads)
+    r = pointclm.register(scene.correspondences, None, cfg, 0, num_threads=threads, model=model)
     seconds = time.perf_counter() - t
     peak = _peak_mb()
     s = score_scene(_poses(r.transformations), scene.poses, 15.0, scene.max_translation)
@@ -513,6 +514,7 @@ def scale_child(path: str, threads: int) -> None:
         json.dumps(
             {
                 "model": scene.model,
+                "method": model or "training-free",
                 "n": len(scene.correspondences),
                 "inliers": int((scene.labels >= 0).sum()),
                 "threads": threads,
@@ -530,7 +532,12 @@ def scale_child(path: str, threads: int) -> None:
 
 
 def run_scale(
-    n: int, cache: Path, data_dir: str | None, workers: int, timeout: float = 600
+    n: int,
+    cache: Path,
+    data_dir: str | None,
+    workers: int,
+    timeout: float = 600,
+    models: Sequence[str] = (),
 ) -> list[str]:
     jobs = [(m, benchmark_seeds(m, 1)[0], scale_params(m, n, data_dir)) for m in SCALE_MODELS]
     load_scenes(jobs, cache, workers)  # builds what the cache lacks; the children read it
@@ -539,45 +546,55 @@ def run_scale(
     # allocation from taking the shared machine down.
     sh = 'ulimit -v 8000000; "$@"; exit $?'
     results, failures = [], []
-    for model, seed, params in jobs:
+    runs = [
+        (model, seed, params, method, threads)
+        for model, seed, params in jobs
+        for method in (None, *models)
+        for threads in sorted({1, os.cpu_count() or 1})
+    ]
+    for model, seed, params, method, threads in runs:
         path = cache_path(cache, model, seed, params)
-        for threads in sorted({1, os.cpu_count() or 1}):
-            cmd = ["/bin/sh", "-c", sh, "sh", sys.executable, __file__]
-            cmd += ["--scale-child", str(path), "--threads", str(threads)]
-            t = time.perf_counter()
-            try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
-            except subprocess.TimeoutExpired:
-                failures.append(f"{model}, {threads} thread(s): over {timeout:.0f} s, stopped")
-                continue
-            if proc.returncode != 0:
-                tail = proc.stderr.strip().splitlines()[-1:] or ["?"]
-                failures.append(
-                    f"{model}, {threads} thread(s): exit {proc.returncode} after "
-                    f"{time.perf_counter() - t:.0f} s ({tail[0]})"
-                )
-                continue
-            results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-            print(
-                f"  scale {model} {threads} thread(s): {results[-1]['seconds']:.2f} s", flush=True
+        label = method or "training-free"
+        cmd = ["/bin/sh", "-c", sh, "sh", sys.executable, __file__]
+        cmd += ["--scale-child", str(path), "--threads", str(threads)]
+        cmd += ["--scale-model", method] if method else []
+        t = time.perf_counter()
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            failures.append(f"{model} {label}, {threads} thread(s): over {timeout:.0f} s, stopped")
+            continue
+        if proc.returncode != 0:
+            tail = proc.stderr.strip().splitlines()[-1:] or ["?"]
+            failures.append(
+                f"{model} {label}, {threads} thread(s): exit {proc.returncode} after "
+                f"{time.perf_counter() - t:.0f} s ({tail[0]})"
             )
+            continue
+        results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+        print(
+            f"  scale {model} {label} {threads} thread(s): {results[-1]['seconds']:.2f} s",
+            flush=True,
+        )
     out = [
         f"### N = {n:,} realistic correspondences: time and peak memory",
         "",
         "Scenes: each model's first benchmark seed, 8 copies and 3 clutter objects, "
         f"voxel = diagonal / 80, FPFH matches without the mutual filter, the top {n:,} kept. One "
-        "`pointclm.register` (training-free, default config scaled to the voxel, "
+        "`pointclm.register` (training-free: the default config scaled to the voxel; learned: "
+        "the network's thresholds for raw poses, `cloud_config(voxel, model, False)`; "
         "correspondences alone) per fresh child process; peak RSS = `ru_maxrss`, baseline = "
-        "after loading the scene.",
+        "after loading the scene. The learned wall time includes the network's forward pass.",
         "",
-        "| model | N | true matches | threads | wall s | pruning s | clustering s | poses s "
-        "| baseline MB | peak MB | found / GT | correct |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| model | method | N | true matches | threads | wall s | pruning s | clustering s "
+        "| poses s | baseline MB | peak MB | found / GT | correct |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
         t = r["timings"]
         out.append(
-            f"| {r['model']} | {r['n']} | {r['inliers']} | {r['threads']} | {r['seconds']:.2f} | "
+            f"| {r['model']} | {r.get('method', 'training-free')} | {r['n']} | {r['inliers']} "
+            f"| {r['threads']} | {r['seconds']:.2f} | "
             f"{t.get('pruning', float('nan')):.2f} | {t.get('clustering', float('nan')):.2f} | "
             f"{t.get('poses', float('nan')):.3f} | {r['baseline_mb']:.0f} | "
             f"{r['peak_mb']:.0f} | {r['found']} / {r['gt']} | {r['matched']} |"
@@ -637,10 +654,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", default="benchmarks/results/realistic_models.md")
     ap.add_argument("--scale-child", help=argparse.SUPPRESS)
+    ap.add_argument("--scale-model", help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.scale_child:
-        scale_child(args.scale_child, args.threads)
+        scale_child(args.scale_child, args.threads, args.scale_model)
         return
 
     from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS, default_data_dir
@@ -663,7 +681,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     methods = make_methods(args.model, ransac=not args.no_ransac)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
     rows = run_methods(scenes, methods)
-    scale_lines = run_scale(args.scale, cache, data_dir, args.workers) if args.scale else []
+    scale_lines = (
+        run_scale(args.scale, cache, data_dir, args.workers, models=args.model)
+        if args.scale
+        else []
+    )
 
     import pointclm
 
