@@ -188,12 +188,12 @@ def kill_and_resume(model: Path, scans: list[str], out: Path, workers: int) -> d
 
 def as_command_writes(record: dict[str, Any]) -> dict[str, Any]:
     """`record` (from `register_files`) with its diagnosis in the command's flags."""
-    from pointclm.cli import _flag_names
+    from pointclm.cli import flag_names
 
     if "diagnosis" not in record:
         return record
     text = record["diagnosis"].replace('viewpoint="none"', "viewpoint=None")
-    return {**record, "diagnosis": _flag_names(text)}
+    return {**record, "diagnosis": flag_names(text)}
 
 
 def machine() -> str:

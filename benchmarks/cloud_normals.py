@@ -30,7 +30,7 @@ import pointclm.preprocessing as pp
 from pointclm import register
 from pointclm.datasets import scenes as sc
 from pointclm.metrics import score_scene, summarize
-from pointclm.point_clouds import _config
+from pointclm.point_clouds import cloud_config
 from pointclm.refinement import refine_poses
 
 
@@ -107,7 +107,7 @@ def run_variant(
         "flips": flip_share(cap, m, labels),
     }
     for refine in (False, True):
-        cfg = _config(None, s.voxel_size, None, refine)
+        cfg = cloud_config(s.voxel_size, None, refine)
         r = register(corr, None, cfg, seed, normals=nrm, num_threads=1)
         kept = np.asarray(r.kept, dtype=np.int64)
         true_kept = int((labels[kept] >= 0).sum())

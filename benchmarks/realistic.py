@@ -87,7 +87,7 @@ def main() -> None:
 
     import pointclm
     from pointclm.datasets.scenes import make_realistic_scene
-    from pointclm.evaluation import _register_scaled
+    from pointclm.evaluation import register_scaled
     from pointclm.metrics import Summary, score_scene, summarize
     from pointclm.point_clouds import scaled_config
 
@@ -144,7 +144,7 @@ def main() -> None:
                 else:
                     config = pick[refine] if "validation" in m else None
                     model = m.split("(")[1][1:-2] if "learned" in m else None
-                    poses = _register_scaled(
+                    poses = register_scaled(
                         sc.correspondences, sc.voxel_size, config, 0, 1, model, refine
                     ).transformations
                 poses = np.asarray(poses).reshape(-1, 4, 4)

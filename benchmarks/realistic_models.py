@@ -271,12 +271,12 @@ def _refine(scene: Any, poses: np.ndarray) -> np.ndarray:
 
 
 def _pointclm(model: str | None, refine: bool) -> Callable[[Any], np.ndarray]:
-    from pointclm.evaluation import _register_scaled
+    from pointclm.evaluation import register_scaled
 
     def run(scene: Any) -> np.ndarray:
         # The pipeline's own defaults for raw or refined poses (or the model's recommended
         # thresholds), scaled to the voxel, exactly as `register_point_clouds` picks them.
-        r = _register_scaled(scene.correspondences, scene.voxel_size, None, 0, 1, model, refine)
+        r = register_scaled(scene.correspondences, scene.voxel_size, None, 0, 1, model, refine)
         poses = _poses(r.transformations)
         return _refine(scene, poses) if refine else poses
 

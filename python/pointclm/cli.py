@@ -270,10 +270,12 @@ def _pose_line(T: np.ndarray) -> str:
 def _diagnosis(reg: Any) -> str:
     """The result's diagnosis with `register_point_clouds`' argument names as this command's
     flags, so its advice can be followed as written."""
-    return _flag_names(str(getattr(reg, "diagnosis", "") or ""))
+    return flag_names(str(getattr(reg, "diagnosis", "") or ""))
 
 
-def _flag_names(text: str) -> str:
+def flag_names(text: str) -> str:
+    """`text` (a diagnosis naming `register_point_clouds` arguments) with the command line's
+    flags in their place."""
     for argument, flag in _FLAGS_FOR_ARGUMENTS:
         text = text.replace(argument, flag)
     return text
@@ -767,7 +769,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         png_dir=args.png_dir,
         ply_dir=args.ply_dir,
         progress=not args.quiet,
-        diagnosis=_flag_names,
+        diagnosis=flag_names,
     )
     # Scans that failed are in the output and the count; the batch itself ran: exit 0.
     print(f"pointclm batch: {summary}")

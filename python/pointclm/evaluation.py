@@ -147,7 +147,7 @@ def _found_poses(
         )
         return np.asarray(result.transformations).reshape(-1, 4, 4)
     voxel = scene.voxel_size
-    result = _register_scaled(
+    result = register_scaled(
         scene.correspondences, voxel, config, seed, num_threads, model, kind == "refined"
     )
     poses = np.asarray(result.transformations).reshape(-1, 4, 4)
@@ -160,7 +160,7 @@ def _found_poses(
     return poses
 
 
-def _register_scaled(
+def register_scaled(
     corr: np.ndarray,
     voxel: float,
     config: Config | None,
