@@ -59,18 +59,7 @@ pub(crate) fn embed_with(
     let sparse = SparseBeta::new(&geometry, parallel, max_sparse_share);
     let scale = (w as f64).powf(-0.5) as f32;
 
-    // `feat` is the running feature (N x w). `act` holds, per row, the pointcn output then
-    // q, k and v (N x 4w), so that sweep (A) writes one chunk per block.
-    let mut feat = try_filled(
-        "network features",
-        checked_elements("network features", &[n, w], 4)?,
-        0.0f32,
-    )?;
-    let mut act = try_filled(
-        "network activations",
-        checked_elements("network activations", &[n, 4, w], 4)?,
-        0.0f32,
-    )?;
+    let (mut feat, mut act) = buffers(n, w)?;
     let aw = 4 * w;
     let scratch = thread_scratch(parallel);
     let for_blocks =
@@ -87,30 +76,11 @@ pub(crate) fn embed_with(
         for_blocks(&mut act, block_rows * aw, &|k, out, s| {
             pointcn_and_qkv(layer, block(&feat, w, k, block_rows), w, out, s);
         });
-        let keys = MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, aw);
-        let values = MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, aw);
-        let strided = |offset| Strided {
-            data: &act,
-            offset,
-            stride: aw,
-            width: w,
-        };
-        let v_total = sparse.as_ref().map(|_| strided(3 * w).column_sums(n));
-        let all = AllRows {
-            keys,
-            values,
-            geometry: &geometry,
-            scale,
-            sparse: sparse
-                .as_ref()
-                .zip(v_total.as_deref())
-                .map(|(sp, total)| Sparse {
-                    beta: sp,
-                    keys: strided(2 * w),
-                    values: strided(3 * w),
-                    v_total: total,
-                }),
-        };
+        let v_total = sparse
+            .as_ref()
+            .map(|_| strided(&act, 3 * w, w).column_sums(n));
+        let sparse_view = sparse.as_ref().zip(v_total.as_deref());
+        let all = AllRows::new(&act, w, &geometry, scale, sparse_view);
         for_blocks(&mut feat, block_rows * w, &|k, out, s| {
             let first = k * block_rows;
             let rows = &act[first * aw..(first + out.len() / w) * aw];
@@ -118,6 +88,33 @@ pub(crate) fn embed_with(
         });
     }
     normalised(&feat, w)
+}
+
+/// `feat`, the running feature (N x w), and `act`, per row the pointcn output then q, k and
+/// v (N x 4w, so that sweep (A) writes one chunk per block); a typed error where they do not
+/// fit in memory.
+fn buffers(n: usize, w: usize) -> Result<(Vec<f32>, Vec<f32>)> {
+    let feat = try_filled(
+        "network features",
+        checked_elements("network features", &[n, w], 4)?,
+        0.0f32,
+    )?;
+    let act = try_filled(
+        "network activations",
+        checked_elements("network activations", &[n, 4, w], 4)?,
+        0.0f32,
+    )?;
+    Ok((feat, act))
+}
+
+/// Columns `offset..offset + w` of the activations (rows of `4w`).
+fn strided(act: &[f32], offset: usize, w: usize) -> Strided<'_> {
+    Strided {
+        data: act,
+        offset,
+        stride: 4 * w,
+        width: w,
+    }
 }
 
 /// One scratch per thread of the pool, reused by every block that thread runs: a fresh one
@@ -157,6 +154,32 @@ struct AllRows<'a> {
     scale: f32,
     /// The consistent pairs and what the sparse attention reads, where they are few enough.
     sparse: Option<Sparse<'a>>,
+}
+
+impl<'a> AllRows<'a> {
+    /// What sweep (B) reads from the activations `act` (rows of `4w`: pointcn, q, k, v), with
+    /// the consistent pairs and the sum of all values where the sparse attention runs.
+    fn new(
+        act: &'a [f32],
+        w: usize,
+        geometry: &'a Geometry,
+        scale: f32,
+        sparse: Option<(&'a SparseBeta, &'a [f64])>,
+    ) -> Self {
+        let n = act.len() / (4 * w);
+        Self {
+            keys: MatRef::from_row_major_slice_with_stride(&act[2 * w..], n, w, 4 * w),
+            values: MatRef::from_row_major_slice_with_stride(&act[3 * w..], n, w, 4 * w),
+            geometry,
+            scale,
+            sparse: sparse.map(|(beta, v_total)| Sparse {
+                beta,
+                keys: strided(act, 2 * w, w),
+                values: strided(act, 3 * w, w),
+                v_total,
+            }),
+        }
+    }
 }
 
 /// The sparse attention's view of a layer ([`attention_rows_sparse`]).
