@@ -305,12 +305,18 @@ fn nearest_rows(queries: &Features, base: &Features, k: usize) -> (Vec<usize>, V
 trait Screen: faer::traits::ComplexField + Copy {
     /// Rounding unit.
     const UNIT: f64;
+    /// The column as f32 when the screen runs in f32 (descriptors up to [`F32_MAX_ENTRY`], so
+    /// every product is finite): the nearest-row fast path's input.
+    fn f32_column(col: &[Self]) -> Option<&[f32]>;
     fn from_f64(v: f64) -> Self;
     fn to_f64(self) -> f64;
 }
 
 impl Screen for f32 {
     const UNIT: f64 = f32::EPSILON as f64 / 2.0;
+    fn f32_column(col: &[Self]) -> Option<&[f32]> {
+        Some(col)
+    }
     fn from_f64(v: f64) -> Self {
         v as f32
     }
@@ -321,6 +327,9 @@ impl Screen for f32 {
 
 impl Screen for f64 {
     const UNIT: f64 = f64::EPSILON / 2.0;
+    fn f32_column(_: &[Self]) -> Option<&[f32]> {
+        None
+    }
     fn from_f64(v: f64) -> Self {
         v
     }
@@ -363,10 +372,20 @@ fn screened_block<T: Screen>(
     );
     // Reused by every query of the block: no allocation per query on this hot path.
     let mut scratch = (Vec::with_capacity(k + 1), Vec::new());
+    let max_norm = base_norm.iter().fold(0.0f64, |m, &v| m.max(v));
+    let norm32: Vec<f32> = base_norm.iter().map(|&v| v as f32).collect();
+    // The fast path's bound also covers the f32 norms and the f32 difference (3 roundings of
+    // at most |q|^2 + |b|^2 each).
+    let err32 = err + 8.0 * f64::from(f32::EPSILON);
     for i in 0..hi - lo {
         let query = queries.row(lo + i);
         let qn: f64 = query.iter().map(|v| v * v).sum();
         let col = g.col_as_slice(i);
+        if let (1, Some(col32)) = (k, T::f32_column(col)) {
+            let bound = (err32, tiny);
+            nearest_one_dispatched(query, qn, col32, base, &norm32, max_norm, bound, &mut best);
+            continue;
+        }
         let bounds = |j: usize| {
             let v = base_norm[j] - 2.0 * col[j].to_f64();
             let e = err * (qn + base_norm[j]) + tiny;
@@ -423,6 +442,105 @@ fn rank_query(
         out.0.push(j);
         out.1.push(d2);
     }
+}
+
+/// The nearest base row of `query` from the f32 screen's column `col` (`q . b_j` for every
+/// base row) and `norm` (`|b_j|^2` in f32; `max_norm` the largest in f64): what
+/// [`rank_query`] gives for `k = 1`, without its running list. Every `c_j = |b_j|^2 - 2 q . b_j`
+/// as computed in f32 is within `e = err (|q|^2 + max_norm) + tiny` of its true value (`err`
+/// covers the product, the norm's and the difference's f32 roundings), so the nearest row has
+/// `c_j <= min c + 2 e`; those rows are ranked by direct distance in f64, ties to the lower
+/// row. Both sweeps are branch-free f32 arithmetic, compiled for AVX2 where the CPU has it.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn nearest_one(
+    query: &[f64],
+    qn: f64,
+    col: &[f32],
+    base: &Features,
+    norm: &[f32],
+    max_norm: f64,
+    (err, tiny): (f64, f64),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    const LANES: usize = 8;
+    let c = |g: f32, bn: f32| bn - 2.0 * g;
+    let mut lanes = [f32::INFINITY; LANES];
+    let (cg, cb) = (col.chunks_exact(LANES), norm.chunks_exact(LANES));
+    let mut least = cg
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .fold(f32::INFINITY, |m, (&g, &bn)| m.min(c(g, bn)));
+    for (g, bn) in cg.zip(cb) {
+        for l in 0..LANES {
+            let x = c(g[l], bn[l]);
+            lanes[l] = if x < lanes[l] { x } else { lanes[l] };
+        }
+    }
+    for m in lanes {
+        least = least.min(m);
+    }
+    // In f64, then widened past the rounding of its conversion to f32.
+    let limit = f64::from(least) + 2.0 * (err * (qn + max_norm) + tiny);
+    let limit = (limit + limit.abs() * 1e-6 + tiny) as f32;
+    let mut best: Option<(f64, usize)> = None;
+    for (j, (&g, &bn)) in col.iter().zip(norm).enumerate() {
+        if c(g, bn) <= limit {
+            let d2: f64 = query
+                .iter()
+                .zip(base.row(j))
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum();
+            if best.is_none_or(|(b, _)| d2 < b) {
+                best = Some((d2, j));
+            }
+        }
+    }
+    // `base` is never empty (k <= base.len()), and the row of the least `c` is under the limit.
+    let (d2, j) = best.unwrap_or((f64::INFINITY, 0));
+    out.0.push(j);
+    out.1.push(d2);
+}
+
+/// [`nearest_one`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn nearest_one_avx2(
+    query: &[f64],
+    qn: f64,
+    col: &[f32],
+    base: &Features,
+    norm: &[f32],
+    max_norm: f64,
+    bound: (f64, f64),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    nearest_one(query, qn, col, base, norm, max_norm, bound, out)
+}
+
+/// [`nearest_one`], in 8 lanes where the CPU has AVX2.
+#[allow(clippy::too_many_arguments)]
+fn nearest_one_dispatched(
+    query: &[f64],
+    qn: f64,
+    col: &[f32],
+    base: &Features,
+    norm: &[f32],
+    max_norm: f64,
+    bound: (f64, f64),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked on the line above.
+        return unsafe { nearest_one_avx2(query, qn, col, base, norm, max_norm, bound, out) };
+    }
+    nearest_one(query, qn, col, base, norm, max_norm, bound, out)
 }
 
 /// `(value, row)` pairs.

@@ -319,3 +319,26 @@ fn given_nearest_sources_are_checked() {
         Err(Error::NonFinite { row: 4, .. })
     ));
 }
+
+#[test]
+fn the_nearest_row_fast_path_equals_the_general_ranking() {
+    // k = 1 takes `nearest_one`; the first of k = 2 comes from the general sweep. Duplicated
+    // and nearly duplicated rows test the ties (lowest row first).
+    let mut base = pseudo_random(700, 33, 9);
+    let copies: Vec<Vec<f64>> = base[..50].to_vec();
+    base.extend(copies);
+    let nudged: Vec<Vec<f64>> = base[..30]
+        .iter()
+        .map(|r| r.iter().map(|v| v * (1.0 + 1e-12)).collect())
+        .collect();
+    base.extend(nudged);
+    let mut queries = pseudo_random(400, 33, 10);
+    queries.extend(base[..40].iter().cloned());
+    let (b, q) = (features(&base), features(&queries));
+    let (one, d_one) = nearest_rows(&q, &b, 1);
+    let (two, d_two) = nearest_rows(&q, &b, 2);
+    for i in 0..queries.len() {
+        assert_eq!(one[i], two[2 * i], "query {i}");
+        assert_eq!(d_one[i], d_two[2 * i], "query {i}");
+    }
+}
