@@ -382,8 +382,15 @@ fn screened_block<T: Screen>(
         let qn: f64 = query.iter().map(|v| v * v).sum();
         let col = g.col_as_slice(i);
         if let (1, Some(col32)) = (k, T::f32_column(col)) {
-            let bound = (err32, tiny);
-            nearest_one_dispatched(query, qn, col32, base, &norm32, max_norm, bound, &mut best);
+            let screened = ScreenedQuery {
+                query,
+                qn,
+                col: col32,
+                norm: &norm32,
+                max_norm,
+                bound: (err32, tiny),
+            };
+            nearest_one_dispatched(&screened, base, &mut best);
             continue;
         }
         let bounds = |j: usize| {
@@ -451,18 +458,10 @@ fn rank_query(
 /// covers the product, the norm's and the difference's f32 roundings), so the nearest row has
 /// `c_j <= min c + 2 e`; those rows are ranked by direct distance in f64, ties to the lower
 /// row. Both sweeps are branch-free f32 arithmetic, compiled for AVX2 where the CPU has it.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn nearest_one(
-    query: &[f64],
-    qn: f64,
-    col: &[f32],
-    base: &Features,
-    norm: &[f32],
-    max_norm: f64,
-    (err, tiny): (f64, f64),
-    out: &mut (Vec<usize>, Vec<f64>),
-) {
+fn nearest_one(s: &ScreenedQuery<'_>, base: &Features, out: &mut (Vec<usize>, Vec<f64>)) {
+    let (query, qn, col, norm, max_norm) = (s.query, s.qn, s.col, s.norm, s.max_norm);
+    let (err, tiny) = s.bound;
     const LANES: usize = 8;
     let c = |g: f32, bn: f32| bn - 2.0 * g;
     let mut lanes = [f32::INFINITY; LANES];
@@ -509,38 +508,37 @@ fn nearest_one(
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
 unsafe fn nearest_one_avx2(
-    query: &[f64],
-    qn: f64,
-    col: &[f32],
+    s: &ScreenedQuery<'_>,
     base: &Features,
-    norm: &[f32],
-    max_norm: f64,
-    bound: (f64, f64),
     out: &mut (Vec<usize>, Vec<f64>),
 ) {
-    nearest_one(query, qn, col, base, norm, max_norm, bound, out)
+    nearest_one(s, base, out)
 }
 
 /// [`nearest_one`], in 8 lanes where the CPU has AVX2.
-#[allow(clippy::too_many_arguments)]
 fn nearest_one_dispatched(
-    query: &[f64],
-    qn: f64,
-    col: &[f32],
+    s: &ScreenedQuery<'_>,
     base: &Features,
-    norm: &[f32],
-    max_norm: f64,
-    bound: (f64, f64),
     out: &mut (Vec<usize>, Vec<f64>),
 ) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked on the line above.
-        return unsafe { nearest_one_avx2(query, qn, col, base, norm, max_norm, bound, out) };
+        return unsafe { nearest_one_avx2(s, base, out) };
     }
-    nearest_one(query, qn, col, base, norm, max_norm, bound, out)
+    nearest_one(s, base, out)
+}
+
+/// One query of [`nearest_one`]: its row and squared norm, its f32 screen column and the base
+/// rows' f32 squared norms (and the largest, in f64), and the bound's `(err, tiny)`.
+struct ScreenedQuery<'a> {
+    query: &'a [f64],
+    qn: f64,
+    col: &'a [f32],
+    norm: &'a [f32],
+    max_norm: f64,
+    bound: (f64, f64),
 }
 
 /// `(value, row)` pairs.

@@ -163,13 +163,10 @@ pub(crate) fn attention_rows_sparse(
 ) {
     pulp::Arch::new().dispatch(SparseRows {
         q,
-        k,
-        v,
+        kv: (k, v),
         v_total,
         sparse,
-        first,
-        n,
-        scale,
+        rows: (first, n, scale),
         out,
     });
 }
@@ -178,13 +175,10 @@ pub(crate) fn attention_rows_sparse(
 /// `#[target_feature]` function (AVX2 where the CPU has it).
 struct SparseRows<'a> {
     q: Strided<'a>,
-    k: Strided<'a>,
-    v: Strided<'a>,
+    kv: (Strided<'a>, Strided<'a>),
     v_total: &'a [f64],
     sparse: &'a SparseBeta,
-    first: usize,
-    n: usize,
-    scale: f32,
+    rows: (usize, usize, f32),
     out: &'a mut [f32],
 }
 
@@ -193,30 +187,20 @@ impl pulp::WithSimd for SparseRows<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        let Self {
-            q,
-            k,
-            v,
-            v_total,
-            sparse,
-            first,
-            n,
-            scale,
-            out,
-        } = self;
-        sparse_rows(q, (k, v), v_total, sparse, (first, n, scale), out);
+        sparse_rows(self);
     }
 }
 
 #[inline(always)]
-fn sparse_rows(
-    q: Strided<'_>,
-    (k, v): (Strided<'_>, Strided<'_>),
-    v_total: &[f64],
-    sparse: &SparseBeta,
-    (first, n, scale): (usize, usize, f32),
-    out: &mut [f32],
-) {
+fn sparse_rows(args: SparseRows<'_>) {
+    let SparseRows {
+        q,
+        kv: (k, v),
+        v_total,
+        sparse,
+        rows: (first, n, scale),
+        out,
+    } = args;
     let c = v.width;
     let mut logits = Vec::new();
     let (mut weighted, mut plain) = (vec![0.0f64; c], vec![0.0f64; c]);

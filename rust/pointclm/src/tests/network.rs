@@ -180,20 +180,32 @@ fn dense_attention(
     out
 }
 
+/// Queries, keys and values (`n x c` each, row-major), uniform in [-2, 2).
+fn random_qkv(n: usize, c: usize, seed: u64) -> [Vec<f32>; 3] {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    std::array::from_fn(|_| {
+        uniform(&mut rng, n * c, -2.0, 2.0)
+            .iter()
+            .map(|&v| v as f32)
+            .collect()
+    })
+}
+
+/// The largest absolute difference between an f32 result and its f64 reference.
+fn max_difference(got: &[f32], want: &[f64]) -> f64 {
+    got.iter()
+        .zip(want)
+        .map(|(a, b)| (f64::from(*a) - b).abs())
+        .fold(0.0, f64::max)
+}
+
 #[test]
 fn blocked_attention_equals_the_dense_one() {
     let scene = random_scene(300, 3, 0.2, 5);
     let geo = Geometry::new(&scene.corr, 0.3);
     let n = scene.corr.len();
     let c = 16;
-    let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let mut draw = || -> Vec<f32> {
-        uniform(&mut rng, n * c, -2.0, 2.0)
-            .iter()
-            .map(|&v| v as f32)
-            .collect()
-    };
-    let (q, k, v) = (draw(), draw(), draw());
+    let [q, k, v] = random_qkv(n, c, 4);
     let scale = 0.25;
     let want = dense_attention(&q, &k, &v, &geo, c, scale);
     for block in [1, 64, 128, 300, 512] {
@@ -213,11 +225,7 @@ fn blocked_attention_equals_the_dense_one() {
                 out,
             );
         }
-        let worst = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (f64::from(*a) - b).abs())
-            .fold(0.0, f64::max);
+        let worst = max_difference(&got, &want);
         assert!(worst < 2e-5, "block {block}: max difference {worst}");
     }
 }
@@ -536,14 +544,7 @@ fn sparse_attention_equals_the_dense_one() {
         let geo = Geometry::new(&scene.corr, sigma);
         let n = scene.corr.len();
         let c = 16;
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut draw = || -> Vec<f32> {
-            uniform(&mut rng, n * c, -2.0, 2.0)
-                .iter()
-                .map(|&v| v as f32)
-                .collect()
-        };
-        let (q, k, v) = (draw(), draw(), draw());
+        let [q, k, v] = random_qkv(n, c, seed);
         let scale = 0.25;
         let want = dense_attention(&q, &k, &v, &geo, c, scale);
         // The share limit is the forward pass's choice: build the pairs at any share.
@@ -569,11 +570,7 @@ fn sparse_attention_equals_the_dense_one() {
                 out,
             );
         }
-        let worst = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (f64::from(*a) - b).abs())
-            .fold(0.0, f64::max);
+        let worst = max_difference(&got, &want);
         assert!(worst < 2e-5, "sigma {sigma}: max difference {worst}");
     }
 }
