@@ -96,20 +96,28 @@ impl CountingGrid {
         if points.is_empty() {
             (lo, hi) = ([0.0; 3], [0.0; 3]);
         }
-        let limit = (Self::CELLS_PER_POINT * points.len()).max(64);
+        let limit = (Self::CELLS_PER_POINT * points.len()).max(64) as f64;
+        let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        // Cells per axis at a cell size, if their product stays within the limit.
+        let fits = |cell: f64| {
+            let per_axis = extent.map(|e| (e / cell).floor() + 1.0);
+            let total: f64 = per_axis.iter().product();
+            (total <= limit).then(|| per_axis.map(|d| d as usize))
+        };
         let mut cell = (2.0 * radius).max(f64::MIN_POSITIVE);
         let dims = loop {
-            let dims = [0, 1, 2].map(|a| ((hi[a] - lo[a]) / cell) as usize + 1);
-            if dims
-                .iter()
-                .try_fold(1usize, |m, &d| m.checked_mul(d))
-                .is_some_and(|m| m <= limit)
-            {
+            if !cell.is_finite() || extent.iter().any(|e| !e.is_finite()) {
+                // Extents beyond f64 (coordinates near its limit): one cell holds everything,
+                // and every query scans it; slow but exact.
+                cell = f64::INFINITY;
+                break [1, 1, 1];
+            }
+            if let Some(dims) = fits(cell) {
                 break dims;
             }
             cell *= 1.5;
         };
-        let inv_cell = 1.0 / cell;
+        let inv_cell = if cell.is_finite() { 1.0 / cell } else { 0.0 };
         let cell_of = |p: &[f64; 3]| {
             let i = [0, 1, 2].map(|a| (((p[a] - lo[a]) * inv_cell) as usize).min(dims[a] - 1));
             i[0] + dims[0] * (i[1] + dims[1] * i[2])

@@ -12,6 +12,8 @@
 //! differs (sums in another order, in f64 here). Its cost is `|S| x C` per row instead of
 //! `N x C`, and `beta` is evaluated once per scene instead of once per layer.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use rayon::prelude::*;
 
 use super::layers::Geometry;
@@ -19,6 +21,10 @@ use super::layers::Geometry;
 /// Share of consistent pairs above which the dense attention is used: its matrix products
 /// run several times faster per pair than the gathers here.
 pub(crate) const MAX_SPARSE_SHARE: f64 = 1.0 / 16.0;
+
+/// Consistent pairs the sparse attention may hold in all (8 bytes each: 400 MB), whatever the
+/// share: past it the dense attention, whose memory is `O(block x N)`, runs instead.
+pub(crate) const MAX_SPARSE_PAIRS: usize = 50_000_000;
 
 /// The pairs with `beta_ij > 0`, row by row, with `beta` exactly as
 /// [`Geometry::scale_by_beta`] computes it.
@@ -30,13 +36,19 @@ pub(crate) struct SparseBeta {
 
 impl SparseBeta {
     /// The consistent pairs of `geometry`, or `None` when they are more than `max_share` of
-    /// all pairs (the forward pass uses [`MAX_SPARSE_SHARE`]) or the rows do not fit `u32`.
+    /// all pairs (the forward pass uses [`MAX_SPARSE_SHARE`]) or than [`MAX_SPARSE_PAIRS`],
+    /// or the rows do not fit `u32`. Rows stop being collected once the budget is exceeded.
     pub(crate) fn new(geometry: &Geometry, parallel: bool, max_share: f64) -> Option<Self> {
         let n = geometry.len();
         if u32::try_from(n).is_err() {
             return None;
         }
+        let budget = ((max_share * (n as f64) * (n as f64)) as usize).min(MAX_SPARSE_PAIRS);
+        let held = AtomicUsize::new(0);
         let row = |buf: &mut Vec<f32>, i: usize| -> (Vec<u32>, Vec<f32>) {
+            if held.load(Ordering::Relaxed) > budget {
+                return (Vec::new(), Vec::new());
+            }
             buf.clear();
             buf.resize(n, 1.0);
             pulp::Arch::new().dispatch(BetaRow {
@@ -45,7 +57,9 @@ impl SparseBeta {
                 row: buf,
             });
             let hits = buf.iter().enumerate().filter(|(_, &b)| b > 0.0);
-            hits.map(|(j, &b)| (j as u32, b)).unzip()
+            let (cols, beta): (Vec<u32>, Vec<f32>) = hits.map(|(j, &b)| (j as u32, b)).unzip();
+            held.fetch_add(cols.len(), Ordering::Relaxed);
+            (cols, beta)
         };
         let rows: Vec<(Vec<u32>, Vec<f32>)> = if parallel {
             (0..n)
@@ -56,10 +70,10 @@ impl SparseBeta {
             let mut buf = Vec::new();
             (0..n).map(|i| row(&mut buf, i)).collect()
         };
-        let nnz: usize = rows.iter().map(|(c, _)| c.len()).sum();
-        if nnz as f64 > max_share * (n as f64) * (n as f64) {
+        if held.into_inner() > budget {
             return None;
         }
+        let nnz: usize = rows.iter().map(|(c, _)| c.len()).sum();
         let mut offsets = Vec::with_capacity(n + 1);
         let (mut cols, mut beta) = (Vec::with_capacity(nnz), Vec::with_capacity(nnz));
         offsets.push(0);

@@ -67,6 +67,10 @@ fn grid_counts_equal_brute_force() {
         .collect();
     let flat: Vec<[f64; 3]> = spread.iter().map(|p| [p[0], p[1], 0.5]).collect();
     let same = vec![[1.0, 1.0, 1.0]; 50];
+    let huge: Vec<[f64; 3]> = spread
+        .iter()
+        .map(|p| [p[0] * 6e307, p[1], -p[2] * 1e307])
+        .collect();
     for (points, radius) in [
         (&spread, 0.3),
         (&spread, 1e-4),
@@ -74,6 +78,7 @@ fn grid_counts_equal_brute_force() {
         (&flat, 0.2),
         (&same, 0.1),
         (&vec![], 0.1),
+        (&huge, 0.5),
     ] {
         let grid = CountingGrid::new(points, radius);
         for _ in 0..300 {
