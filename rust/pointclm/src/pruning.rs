@@ -27,7 +27,7 @@ pub fn density_counts(
         return Ok(vec![0; n]);
     }
     let inv = inv_sigma_sq(config.sigma_d)?;
-    if c.pair_normals().is_none() {
+    if c.pair_normals().is_none() && f32_fits(c) {
         match (config.pruning, features) {
             (Pruning::Paper, None) => {
                 return Ok(paper_counts_f32(c, config.tau_s, inv, wide_lanes()));
@@ -200,6 +200,22 @@ fn wide_lanes() -> bool {
 #[target_feature(enable = "avx2")]
 unsafe fn count_block_avx2(rule: &PaperRuleF32<'_>, first: usize, out: &mut [u32]) {
     rule.count_block(first, out)
+}
+
+/// Centred coordinates up to this magnitude keep the f32 kernels' squared lengths finite
+/// (about 1e36, against f32's 3.4e38); beyond it the f64 kernel decides every pair.
+const F32_MAX_EXTENT: f64 = 1e18;
+
+/// Whether every coordinate lies within [`F32_MAX_EXTENT`] of its column's mean (the
+/// centring of [`centred_f32`]).
+fn f32_fits(c: &Correspondences) -> bool {
+    let side = |cols: &[Vec<f64>; 3]| {
+        cols.iter().all(|col| {
+            let mean = col.iter().sum::<f64>() / col.len().max(1) as f64;
+            col.iter().all(|&v| (v - mean).abs() <= F32_MAX_EXTENT)
+        })
+    };
+    side(c.source_columns()) && side(c.target_columns())
 }
 
 /// The columns minus their means, in f32 (lengths do not change), and the largest absolute

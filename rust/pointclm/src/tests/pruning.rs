@@ -189,3 +189,36 @@ fn f32_feature_counts_equal_f64_counts_for_every_threshold() {
         }
     }
 }
+
+#[test]
+fn coordinates_beyond_the_f32_range_are_counted_in_f64() {
+    // Lengths near 1e22: their f32 squares would overflow; the counts must still be exact.
+    let scene = random_scene(300, 3, 0.1, 17);
+    let scale = 1e22;
+    let rows: Vec<[f64; 6]> = (0..scene.corr.len())
+        .map(|i| {
+            let (s, t) = (scene.corr.source(i), scene.corr.target(i));
+            [s[0], s[1], s[2], t[0], t[1], t[2]].map(|v| v * scale)
+        })
+        .collect();
+    let corr = Correspondences::from_rows(&rows).unwrap();
+    assert!(!f32_fits(&corr));
+    let n = corr.len();
+    let feats = features_for(n, 3);
+    for pruning in [Pruning::Paper, Pruning::AuthorsCode] {
+        let config = Config {
+            pruning,
+            sigma_d: Config::default().sigma_d * scale,
+            ..Config::default()
+        };
+        let beta = spatial_consistency(&corr, config.sigma_d).unwrap();
+        for f in [None, Some(&feats)] {
+            let dense = density_counts_dense(&beta, n, f, &config);
+            assert_eq!(
+                density_counts(&corr, f, &config).unwrap(),
+                dense,
+                "{pruning:?}"
+            );
+        }
+    }
+}
