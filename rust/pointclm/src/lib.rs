@@ -41,6 +41,7 @@ pub mod consistency;
 pub mod correspondences;
 pub mod discretize;
 pub mod error;
+mod grid;
 pub mod instances;
 pub mod kabsch;
 pub mod kmeans;

@@ -15,11 +15,13 @@
 //! when `NFA <= max_nfa`.
 
 use crate::correspondences::Correspondences;
+use crate::grid::{dist_sq, UniformGrid};
 use crate::kabsch::RigidTransform;
 
 /// The target ends of a scene, indexed once for every pose's null probability.
 pub struct NullModel {
-    grid: CountingGrid,
+    /// Cells twice the radius: a ball meets at most two per axis, four runs in all.
+    grid: UniformGrid,
     n: usize,
     radius: f64,
     radius_sq: f64,
@@ -30,7 +32,7 @@ impl NullModel {
     pub fn new(c: &Correspondences, radius: f64) -> Self {
         let targets: Vec<[f64; 3]> = (0..c.len()).map(|i| c.target(i)).collect();
         Self {
-            grid: CountingGrid::new(&targets, radius),
+            grid: UniformGrid::new(&targets, 2.0 * radius),
             n: c.len(),
             radius,
             radius_sq: radius * radius,
@@ -43,7 +45,7 @@ impl NullModel {
         let (mut pairs, mut own) = (0usize, 0usize);
         for a in 0..self.n {
             let q = pose.apply(c.source(a));
-            pairs += self.grid.count_within(q, self.radius, self.radius_sq);
+            pairs += count_within(&self.grid, q, self.radius, self.radius_sq);
             if pose.residual_sq(c.source(a), c.target(a)) < self.radius_sq {
                 own += 1;
             }
@@ -63,117 +65,16 @@ impl NullModel {
     }
 }
 
-/// Points bucketed in a uniform grid whose cells are at least twice the query radius, stored
-/// cell by cell, so that counting the points of a ball visits at most four contiguous runs
-/// (two cells along each axis).
-///
-/// Why not the k-d tree used elsewhere: every candidate pose asks one radius count per
-/// correspondence (thousands of small queries on a few thousand points); a tree query that
-/// collects its hits into a vector cost most of the pose stage on synthetic scenes.
-struct CountingGrid {
-    origin: [f64; 3],
-    inv_cell: f64,
-    dims: [usize; 3],
-    /// `start[c]..start[c + 1]` are the points of cell `c` in `points`.
-    start: Vec<usize>,
-    points: Vec<[f64; 3]>,
-}
-
-impl CountingGrid {
-    /// At most this many cells per point: a finer grid than the radius allows would only add
-    /// empty cells, a sparse scene with a tiny radius is given coarser cells instead.
-    const CELLS_PER_POINT: usize = 8;
-
-    fn new(points: &[[f64; 3]], radius: f64) -> Self {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
+/// How many points of `grid` lie strictly within `radius` (squared: `radius_sq`) of `q`.
+fn count_within(grid: &UniformGrid, q: [f64; 3], radius: f64, radius_sq: f64) -> usize {
+    let (points, _) = grid.points();
+    let mut count = 0;
+    grid.runs(q, radius, |run| {
+        for p in &points[run] {
+            count += usize::from(dist_sq(p, &q) < radius_sq);
         }
-        if points.is_empty() {
-            (lo, hi) = ([0.0; 3], [0.0; 3]);
-        }
-        let limit = (Self::CELLS_PER_POINT * points.len()).max(64) as f64;
-        let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
-        // Cells per axis at a cell size, if their product stays within the limit.
-        let fits = |cell: f64| {
-            let per_axis = extent.map(|e| (e / cell).floor() + 1.0);
-            let total: f64 = per_axis.iter().product();
-            (total <= limit).then(|| per_axis.map(|d| d as usize))
-        };
-        let mut cell = (2.0 * radius).max(f64::MIN_POSITIVE);
-        let dims = loop {
-            if !cell.is_finite() || extent.iter().any(|e| !e.is_finite()) {
-                // Extents beyond f64 (coordinates near its limit): one cell holds everything,
-                // and every query scans it; slow but exact.
-                cell = f64::INFINITY;
-                break [1, 1, 1];
-            }
-            if let Some(dims) = fits(cell) {
-                break dims;
-            }
-            cell *= 1.5;
-        };
-        let inv_cell = if cell.is_finite() { 1.0 / cell } else { 0.0 };
-        let cell_of = |p: &[f64; 3]| {
-            let i = [0, 1, 2].map(|a| (((p[a] - lo[a]) * inv_cell) as usize).min(dims[a] - 1));
-            i[0] + dims[0] * (i[1] + dims[1] * i[2])
-        };
-        let mut start = vec![0usize; dims[0] * dims[1] * dims[2] + 1];
-        for p in points {
-            start[cell_of(p) + 1] += 1;
-        }
-        for c in 1..start.len() {
-            start[c] += start[c - 1];
-        }
-        let mut next = start.clone();
-        let mut sorted = vec![[0.0; 3]; points.len()];
-        for p in points {
-            let c = cell_of(p);
-            sorted[next[c]] = *p;
-            next[c] += 1;
-        }
-        Self {
-            origin: lo,
-            inv_cell,
-            dims,
-            start,
-            points: sorted,
-        }
-    }
-
-    /// How many points lie strictly within `radius` (squared: `radius_sq`) of `q`.
-    fn count_within(&self, q: [f64; 3], radius: f64, radius_sq: f64) -> usize {
-        let mut span = [(0usize, 0usize); 3];
-        for a in 0..3 {
-            // Cell indices by truncation, which is the floor on the non-negative side kept
-            // (`floor` is a library call on baseline x86-64).
-            let first = (q[a] - radius - self.origin[a]) * self.inv_cell;
-            let last = (q[a] + radius - self.origin[a]) * self.inv_cell;
-            if last < 0.0 || first >= self.dims[a] as f64 {
-                return 0;
-            }
-            span[a] = (
-                first.max(0.0) as usize,
-                (last as usize).min(self.dims[a] - 1),
-            );
-        }
-        let mut count = 0;
-        for k in span[2].0..=span[2].1 {
-            for j in span[1].0..=span[1].1 {
-                let row = self.dims[0] * (j + self.dims[1] * k);
-                let run = self.start[row + span[0].0]..self.start[row + span[0].1 + 1];
-                for p in &self.points[run] {
-                    let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-                    count += usize::from(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < radius_sq);
-                }
-            }
-        }
-        count
-    }
+    });
+    count
 }
 
 /// `log10 P[Binomial(n, p) >= k]`, summed in log space from the mode-side end so that tails

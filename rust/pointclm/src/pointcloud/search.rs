@@ -9,6 +9,7 @@ use rayon::prelude::*;
 
 use super::{check_count, check_points, check_positive};
 use crate::error::Result;
+use crate::grid::{dist_sq, UniformGrid};
 
 /// A k-d tree over a point cloud, built once and queried many times.
 pub struct PointIndex {
@@ -75,10 +76,14 @@ impl PointIndex {
     ) -> Result<Neighbourhoods> {
         check_positive("radius", radius)?;
         check_count("max_nn", max_nn, 1)?;
-        let lists: Vec<Vec<(usize, f64)>> = points
-            .par_iter()
-            .map(|p| self.hybrid(p, radius, max_nn))
-            .collect();
+        let lists = if points.len() <= u32::MAX as usize {
+            grid_neighbourhoods(points, radius, max_nn)
+        } else {
+            points
+                .par_iter()
+                .map(|p| self.hybrid(p, radius, max_nn))
+                .collect()
+        };
         let mut offsets = Vec::with_capacity(points.len() + 1);
         offsets.push(0);
         let total: usize = lists.iter().map(Vec::len).sum();
@@ -97,6 +102,45 @@ impl PointIndex {
             dist2,
         })
     }
+}
+
+/// [`PointIndex::hybrid`] of every point of `points` within the cloud itself, from a grid of
+/// cells the size of the radius (a ball meets at most 27, in nine contiguous runs): the
+/// points within `radius` (inclusive, as the tree's search), the `max_nn` nearest kept,
+/// nearest first, the point itself first among those at distance 0, other ties by index. The same lists as the tree's wherever distances do not
+/// tie; several times faster for FPFH's neighbourhoods of 50-100 points.
+fn grid_neighbourhoods(points: &[[f64; 3]], radius: f64, max_nn: usize) -> Vec<Vec<(usize, f64)>> {
+    let grid = UniformGrid::new(points, radius);
+    let (sorted, index) = grid.points();
+    let r_sq = radius * radius;
+    points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            // Nearest first, the point itself ahead of any duplicate (FPFH skips the first
+            // entry as the point itself), then by index.
+            let by_distance = |a: &(usize, f64), b: &(usize, f64)| {
+                (a.1.total_cmp(&b.1))
+                    .then((a.0 != i).cmp(&(b.0 != i)))
+                    .then(a.0.cmp(&b.0))
+            };
+            let mut list = Vec::new();
+            grid.runs(*p, radius, |run| {
+                for (q, &j) in sorted[run.clone()].iter().zip(&index[run]) {
+                    let d = dist_sq(p, q);
+                    if d <= r_sq {
+                        list.push((j as usize, d));
+                    }
+                }
+            });
+            if list.len() > max_nn {
+                list.select_nth_unstable_by(max_nn - 1, by_distance);
+                list.truncate(max_nn);
+            }
+            list.sort_unstable_by(by_distance);
+            list
+        })
+        .collect()
 }
 
 /// Neighbour lists of every point, stored flat (CSR): the lists are reused by the two passes

@@ -90,3 +90,49 @@ fn nearest_within_is_the_nearest_point_closer_than_the_radius() {
         }
     }
 }
+
+#[test]
+fn grid_neighbourhoods_equal_the_trees() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    // A noisy surface patch (FPFH's case) and a volume; radius and max_nn such that some
+    // lists are cut at max_nn and others are not.
+    let surface: Vec<[f64; 3]> = (0..3000)
+        .map(|_| {
+            let (x, y): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+            [
+                x,
+                y,
+                0.1 * (6.0 * x).sin() + 0.002 * rng.random_range(-1.0..1.0),
+            ]
+        })
+        .collect();
+    let volume: Vec<[f64; 3]> = (0..2000)
+        .map(|_| [0, 1, 2].map(|_| rng.random_range(-1.0..1.0)))
+        .collect();
+    for (points, radius, max_nn) in [
+        (&surface, 0.05, 30),
+        (&surface, 0.05, 1000),
+        (&volume, 0.2, 16),
+    ] {
+        let index = PointIndex::new(points).unwrap();
+        let grid = grid_neighbourhoods(points, radius, max_nn);
+        for (i, p) in points.iter().enumerate() {
+            assert_eq!(grid[i], index.hybrid(p, radius, max_nn), "point {i}");
+        }
+    }
+}
+
+#[test]
+fn a_point_comes_first_in_its_own_neighbourhood_among_duplicates() {
+    let points = vec![
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0],
+        [0.1, 0.0, 0.0],
+        [0.0, 0.0, 0.0],
+    ];
+    let lists = grid_neighbourhoods(&points, 0.5, 10);
+    for (i, list) in lists.iter().enumerate() {
+        assert_eq!(list[0].0, i);
+    }
+}
