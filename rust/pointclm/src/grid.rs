@@ -88,6 +88,12 @@ impl UniformGrid {
         }
     }
 
+    /// The mean number of points in a non-empty cell.
+    pub(crate) fn mean_occupancy(&self) -> f64 {
+        let filled = self.start.windows(2).filter(|w| w[1] > w[0]).count();
+        self.points.len() as f64 / filled.max(1) as f64
+    }
+
     /// The points in sorted (cell) order, and their indices in the input.
     pub(crate) fn points(&self) -> (&[[f64; 3]], &[u32]) {
         (&self.points, &self.index)

@@ -76,14 +76,15 @@ impl PointIndex {
     ) -> Result<Neighbourhoods> {
         check_positive("radius", radius)?;
         check_count("max_nn", max_nn, 1)?;
-        let lists = if points.len() <= u32::MAX as usize {
-            grid_neighbourhoods(points, radius, max_nn)
-        } else {
+        let grid = (points.len() <= u32::MAX as usize)
+            .then(|| grid_neighbourhoods(points, radius, max_nn))
+            .flatten();
+        let lists = grid.unwrap_or_else(|| {
             points
                 .par_iter()
                 .map(|p| self.hybrid(p, radius, max_nn))
                 .collect()
-        };
+        });
         let mut offsets = Vec::with_capacity(points.len() + 1);
         offsets.push(0);
         let total: usize = lists.iter().map(Vec::len).sum();
@@ -109,11 +110,23 @@ impl PointIndex {
 /// points within `radius` (inclusive, as the tree's search), the `max_nn` nearest kept,
 /// nearest first, the point itself first among those at distance 0, other ties by index. The same lists as the tree's wherever distances do not
 /// tie; several times faster for FPFH's neighbourhoods of 50-100 points.
-fn grid_neighbourhoods(points: &[[f64; 3]], radius: f64, max_nn: usize) -> Vec<Vec<(usize, f64)>> {
+///
+/// `None` when the cells hold so many points that a query would scan far more than `max_nn`
+/// of them (a radius large against the cloud): the tree, which stops at the `max_nn` nearest,
+/// is then faster.
+fn grid_neighbourhoods(
+    points: &[[f64; 3]],
+    radius: f64,
+    max_nn: usize,
+) -> Option<Vec<Vec<(usize, f64)>>> {
     let grid = UniformGrid::new(points, radius);
+    // A query scans up to 27 cells.
+    if 27.0 * grid.mean_occupancy() > 16.0 * max_nn.max(16) as f64 {
+        return None;
+    }
     let (sorted, index) = grid.points();
     let r_sq = radius * radius;
-    points
+    let lists = points
         .par_iter()
         .enumerate()
         .map(|(i, p)| {
@@ -140,7 +153,8 @@ fn grid_neighbourhoods(points: &[[f64; 3]], radius: f64, max_nn: usize) -> Vec<V
             list.sort_unstable_by(by_distance);
             list
         })
-        .collect()
+        .collect();
+    Some(lists)
 }
 
 /// Neighbour lists of every point, stored flat (CSR): the lists are reused by the two passes

@@ -116,7 +116,7 @@ fn grid_neighbourhoods_equal_the_trees() {
         (&volume, 0.2, 16),
     ] {
         let index = PointIndex::new(points).unwrap();
-        let grid = grid_neighbourhoods(points, radius, max_nn);
+        let grid = grid_neighbourhoods(points, radius, max_nn).unwrap();
         for (i, p) in points.iter().enumerate() {
             assert_eq!(grid[i], index.hybrid(p, radius, max_nn), "point {i}");
         }
@@ -131,8 +131,18 @@ fn a_point_comes_first_in_its_own_neighbourhood_among_duplicates() {
         [0.1, 0.0, 0.0],
         [0.0, 0.0, 0.0],
     ];
-    let lists = grid_neighbourhoods(&points, 0.5, 10);
+    let lists = grid_neighbourhoods(&points, 0.5, 10).unwrap();
     for (i, list) in lists.iter().enumerate() {
         assert_eq!(list[0].0, i);
     }
+}
+
+#[test]
+fn a_radius_large_against_the_cloud_takes_the_tree() {
+    // Every point in one cell: a query would scan the whole cloud for 10 neighbours.
+    let points: Vec<[f64; 3]> = (0..2000).map(|i| [i as f64 * 1e-3, 0.0, 0.0]).collect();
+    assert!(grid_neighbourhoods(&points, 10.0, 10).is_none());
+    let index = PointIndex::new(&points).unwrap();
+    let hoods = index.neighbourhoods(&points, 10.0, 10).unwrap();
+    assert_eq!(hoods.of(5).0.len(), 10);
 }
