@@ -39,6 +39,7 @@ pub mod clustering;
 pub mod config;
 pub mod consistency;
 pub mod correspondences;
+mod cpu;
 pub mod discretize;
 pub mod error;
 mod grid;

@@ -523,7 +523,7 @@ fn nearest_one_dispatched(
     out: &mut (Vec<usize>, Vec<f64>),
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
+    if crate::cpu::has_avx2() {
         // SAFETY: the CPU has AVX2, checked on the line above.
         return unsafe { nearest_one_avx2(s, base, out) };
     }

@@ -7,6 +7,7 @@ use rayon::prelude::*;
 use crate::config::{Config, Pruning};
 use crate::consistency::{beta_row, beta_value, inv_sigma_sq};
 use crate::correspondences::{Correspondences, Features};
+use crate::cpu::has_avx2;
 use crate::error::Result;
 
 /// Rows per parallel task: large enough to amortise scheduling, small enough to balance.
@@ -30,11 +31,11 @@ pub fn density_counts(
     if c.pair_normals().is_none() && f32_fits(c) {
         match (config.pruning, features) {
             (Pruning::Paper, None) => {
-                return Ok(paper_counts_f32(c, config.tau_s, inv, wide_lanes()));
+                return Ok(paper_counts_f32(c, config.tau_s, inv, has_avx2()));
             }
             (_, Some(f)) => {
                 if let Some(rule) = FeatureRule::of(config) {
-                    return Ok(feature_counts_f32(c, f, rule, inv, wide_lanes()));
+                    return Ok(feature_counts_f32(c, f, rule, inv, has_avx2()));
                 }
             }
             _ => {}
@@ -60,35 +61,16 @@ pub fn density_counts(
 /// do not change), eight lanes at a time and without a row buffer, and re-decided in f64
 /// exactly as [`beta_value`](crate::consistency) does for the pairs whose f32 length
 /// difference lies within its error bound of `D`. The counts equal the f64 ones exactly.
-/// `wide`: run the AVX2 build of the row loop ([`wide_lanes`]).
+/// `wide`: run the AVX2 build of the row loop ([`has_avx2`]).
 fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64, wide: bool) -> Vec<u32> {
     let n = c.len();
     if tau_s < 0.0 {
         return vec![n as u32; n]; // beta >= 0 > tau_s for every pair
     }
-    let (s, ms) = centred_f32(c.source_columns(), n);
-    let (t, mt) = centred_f32(c.target_columns(), n);
-    let (lo2, hi2) = undecided_band(tau_s, inv, ms.max(mt));
-    let rule = PaperRuleF32 {
-        s,
-        t,
-        src: c.source_columns(),
-        dst: c.target_columns(),
-        lo2,
-        hi2,
-        tau_s,
-        inv,
-        features: None,
-    };
-    let mut counts = vec![0u32; n];
-    counts
-        .par_chunks_mut(BLOCK_ROWS)
-        .enumerate()
-        .for_each(|(block, out)| rule.count_block_dispatched(block * BLOCK_ROWS, out, wide));
-    counts
+    LengthTestF32::new(c, tau_s, inv, None).counts(wide)
 }
 
-/// Columns per tile of [`PaperRuleF32::count_block`]: six f32 columns of this length (48 KB)
+/// Columns per tile of [`LengthTestF32::count_block`]: six f32 columns of this length (48 KB)
 /// stay in the core's cache while a block of rows runs over them. Streaming every row over
 /// all columns instead runs from the shared cache once N passes about 20,000 (N = 50,000:
 /// three times the time per pair of N = 1000).
@@ -155,50 +137,17 @@ fn feature_counts_f32(
     inv: f64,
     wide: bool,
 ) -> Vec<u32> {
-    let n = c.len();
-    let (s, ms) = centred_f32(c.source_columns(), n);
-    let (t, mt) = centred_f32(c.target_columns(), n);
-    let (_, hi2) = undecided_band(rule.geometric(), inv, ms.max(mt));
-    let kernel = PaperRuleF32 {
-        s,
-        t,
-        src: c.source_columns(),
-        dst: c.target_columns(),
-        lo2: 0.0,
-        hi2,
-        tau_s: 0.0,
-        inv,
-        features: Some((f, rule)),
-    };
-    let mut counts = vec![0u32; n];
-    counts
-        .par_chunks_mut(BLOCK_ROWS)
-        .enumerate()
-        .for_each(|(block, out)| kernel.count_block_dispatched(block * BLOCK_ROWS, out, wide));
-    counts
+    LengthTestF32::new(c, rule.geometric(), inv, Some((f, rule))).counts(wide)
 }
 
-/// Whether the CPU runs 8-lane f32 vectors (AVX2), checked once per pruning. A wheel is built for
-/// baseline x86-64 (SSE2, 4 lanes), where the row loop runs at about half the speed.
-fn wide_lanes() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
-/// [`PaperRuleF32::count_block`] compiled for AVX2. Without FMA: Rust never fuses
+/// [`LengthTestF32::count_block`] compiled for AVX2. Without FMA: Rust never fuses
 /// `a * b + c`, so the arithmetic, and every count, is the same as the baseline build's.
 ///
 /// # Safety
-/// The CPU must support AVX2 ([`wide_lanes`]).
+/// The CPU must support AVX2 ([`has_avx2`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn count_block_avx2(rule: &PaperRuleF32<'_>, first: usize, out: &mut [u32]) {
+unsafe fn count_block_avx2(rule: &LengthTestF32<'_>, first: usize, out: &mut [u32]) {
     rule.count_block(first, out)
 }
 
@@ -250,9 +199,11 @@ fn undecided_band(tau_s: f64, inv: f64, extent: f64) -> (f32, f32) {
     (f32_down(lo2), f32_up(hi2))
 }
 
-/// The paper's rule decided in f32 on centred columns `s`, `t`, with the f64 columns `src`,
-/// `dst` and [`beta_value`] for the pairs in the undecided band `[lo2, hi2]`.
-struct PaperRuleF32<'a> {
+/// The length test `|l_s - l_t| < D` decided in f32 on centred columns `s`, `t`, with the f64
+/// columns `src`, `dst` and [`beta_value`] for the pairs in the undecided band `[lo2, hi2]`:
+/// the paper's rule `beta > tau_s` alone, or (with `features`) the prefilter of a rule with
+/// features, whose candidates are every pair up to `hi2`.
+struct LengthTestF32<'a> {
     s: [Vec<f32>; 3],
     t: [Vec<f32>; 3],
     src: &'a [Vec<f64>; 3],
@@ -265,12 +216,47 @@ struct PaperRuleF32<'a> {
     features: Option<(&'a Features, FeatureRule)>,
 }
 
-impl PaperRuleF32<'_> {
-    /// [`Self::count_block`], in 8 lanes where `wide` ([`wide_lanes`]).
+impl<'a> LengthTestF32<'a> {
+    /// The test at `D^2 = (1 - tau) / inv` on the correspondences `c` (centred per side), for
+    /// the paper's rule at `tau_s = tau` or, with `features`, for their rule's prefilter.
+    fn new(
+        c: &'a Correspondences,
+        tau: f64,
+        inv: f64,
+        features: Option<(&'a Features, FeatureRule)>,
+    ) -> Self {
+        let n = c.len();
+        let (s, ms) = centred_f32(c.source_columns(), n);
+        let (t, mt) = centred_f32(c.target_columns(), n);
+        let (lo2, hi2) = undecided_band(tau, inv, ms.max(mt));
+        Self {
+            s,
+            t,
+            src: c.source_columns(),
+            dst: c.target_columns(),
+            lo2,
+            hi2,
+            tau_s: tau,
+            inv,
+            features,
+        }
+    }
+
+    /// Every row's count, blocks of rows in parallel, in 8 lanes where `wide`.
+    fn counts(&self, wide: bool) -> Vec<u32> {
+        let mut counts = vec![0u32; self.src[0].len()];
+        counts
+            .par_chunks_mut(BLOCK_ROWS)
+            .enumerate()
+            .for_each(|(block, out)| self.count_block_dispatched(block * BLOCK_ROWS, out, wide));
+        counts
+    }
+
+    /// [`Self::count_block`], in 8 lanes where `wide` ([`has_avx2`]).
     fn count_block_dispatched(&self, first: usize, out: &mut [u32], wide: bool) {
         #[cfg(target_arch = "x86_64")]
         if wide {
-            // SAFETY: `wide` comes from `wide_lanes`, which checked that the CPU has AVX2.
+            // SAFETY: `wide` comes from `has_avx2`, which checked that the CPU has AVX2.
             return unsafe { count_block_avx2(self, first, out) };
         }
         let _ = wide;

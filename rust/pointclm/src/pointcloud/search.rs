@@ -108,8 +108,9 @@ impl PointIndex {
 /// [`PointIndex::hybrid`] of every point of `points` within the cloud itself, from a grid of
 /// cells the size of the radius (a ball meets at most 27, in nine contiguous runs): the
 /// points within `radius` (inclusive, as the tree's search), the `max_nn` nearest kept,
-/// nearest first, the point itself first among those at distance 0, other ties by index. The same lists as the tree's wherever distances do not
-/// tie; several times faster for FPFH's neighbourhoods of 50-100 points.
+/// nearest first, the point itself first among those at distance 0, other ties by index.
+/// The same lists as the tree's wherever distances do not tie; several times faster for
+/// FPFH's neighbourhoods of 50-100 points.
 ///
 /// `None` when the cells hold so many points that a query would scan far more than `max_nn`
 /// of them (a radius large against the cloud): the tree, which stops at the `max_nn` nearest,

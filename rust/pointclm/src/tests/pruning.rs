@@ -105,7 +105,7 @@ fn f32_paper_counts_equal_f64_counts_near_the_threshold_and_far_from_the_origin(
                 narrow, dense,
                 "baseline build, offset {offset} tau_s {tau_s}"
             );
-            if wide_lanes() {
+            if has_avx2() {
                 let wide = paper_counts_f32(&corr, tau_s, inv, true);
                 assert_eq!(wide, dense, "AVX2 build, offset {offset} tau_s {tau_s}");
             }
@@ -182,7 +182,7 @@ fn f32_feature_counts_equal_f64_counts_for_every_threshold() {
         );
         if let Some(rule) = FeatureRule::of(&config) {
             let inv = inv_sigma_sq(config.sigma_d).unwrap();
-            for wide in [false, wide_lanes()] {
+            for wide in [false, has_avx2()] {
                 let got = feature_counts_f32(&scene.corr, &feats, rule, inv, wide);
                 assert_eq!(got, dense, "{label} wide {wide}");
             }
