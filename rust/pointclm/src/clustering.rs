@@ -7,7 +7,7 @@ use crate::correspondences::{Correspondences, Features};
 use crate::discretize::discretize;
 use crate::error::{Error, Result};
 use crate::kmeans::kmeans;
-use crate::lowest_eigen::lowest_eigenpairs;
+use crate::lowest_eigen::{lowest_eigenpairs, Estimates, BLOCK};
 use crate::seeds::{stream, STAGE_CLUSTERING};
 use crate::spectral::{
     affinity, eigengap, normalized_laplacian, row_normalized_embedding, symmetric_eigen,
@@ -23,8 +23,8 @@ pub struct SpectralLabels {
     pub n_clusters: usize,
     /// Eigenvalues of the normalised Laplacian, ascending: all of them below
     /// [`PARTIAL_ROWS`] rows (in f32 arithmetic from [`SINGLE_PRECISION_ROWS`] rows), from
-    /// there the lowest ones the partial solver found ([`suffices`]): right to its tolerance
-    /// up to the eigengap, only roughly in the dense rest of the spectrum.
+    /// there the partial solver's Ritz values ([`settled_count`]): right to its tolerance up
+    /// to the eigengap, upper bounds of the eigenvalues of their rank after it.
     pub eigenvalues: Vec<f64>,
 }
 
@@ -82,20 +82,24 @@ pub fn spectral_clustering_by(
     let l = normalized_laplacian(a)?;
     let lowest = (n >= PARTIAL_ROWS)
         .then(|| {
-            lowest_eigenpairs(l.as_ref(), n / 3, seed, |v| {
-                suffices(v, n, count).then(|| cluster_count(v, n, count))
+            lowest_eigenpairs(l.as_ref(), partial_basis(n), seed, |est| {
+                settled_count(est, n, count)
             })
         })
         .flatten();
-    let (eigenvalues, vectors) = match lowest {
-        Some(low) => (low.values, Some(low.vectors)),
-        None if n >= SINGLE_PRECISION_ROWS => {
-            let (values, vectors) = symmetric_eigen_f32(l.as_ref())?;
-            (values, Some(vectors))
+    let (eigenvalues, vectors, m) = match lowest {
+        Some(low) => (low.values, Some(low.vectors), low.needed),
+        None => {
+            let (values, vectors) = if n >= SINGLE_PRECISION_ROWS {
+                let (values, vectors) = symmetric_eigen_f32(l.as_ref())?;
+                (values, Some(vectors))
+            } else {
+                symmetric_eigen(l.as_ref(), true)?
+            };
+            let m = cluster_count(&values, n, count);
+            (values, vectors, m)
         }
-        None => symmetric_eigen(l.as_ref(), true)?,
     };
-    let m = cluster_count(&eigenvalues, n, count);
     let Some(vectors) = vectors else {
         return Ok(SpectralLabels {
             labels: vec![],
@@ -123,37 +127,69 @@ pub fn spectral_clustering_by(
 }
 
 /// Rows from which clustering computes only the lowest eigenpairs
-/// ([`lowest_eigenpairs`]); below, the dense decomposition is as fast (one thread: 0.9 ms
-/// dense against 1.1 ms partial at 100 rows, 2.1 against 1.2 ms at 150, 8.8 against 2.6 ms
-/// at 300, on block affinities of 2-5 groups; the realistic scenes keep 100-260 rows).
-pub const PARTIAL_ROWS: usize = 150;
+/// ([`lowest_eigenpairs`]); below, the dense decomposition costs about as much as the few
+/// Rayleigh-Ritz projections the partial solver needs.
+pub const PARTIAL_ROWS: usize = 64;
 
-/// Whether the converged lowest eigenvalues `values` (ascending, a prefix of the `n`-row
-/// spectrum) settle the cluster count of `count`.
+/// The partial solver's basis budget at `n` rows: a third of the rows, at least four blocks
+/// (two products and a restart's room), at most all rows.
+fn partial_basis(n: usize) -> usize {
+    (n / 3).max(4 * BLOCK).min(n)
+}
+
+/// The cluster count of `count`, when the partial spectrum `est` of an `n`-row Laplacian
+/// settles it (`None`: more of the spectrum is needed).
 ///
-/// A fixed count needs that many. The eigengap rule needs every gap it may pick: all gaps up
-/// to its cap, or a prefix whose largest gap lies in its lower half, since past the groups'
-/// eigenvalues the spectrum of the rest is dense (gaps far below the one separating the
-/// groups). A level needs the prefix to reach it (or the cap).
-pub fn suffices(values: &[f64], n: usize, count: Count) -> bool {
+/// A fixed count needs that many converged eigenvalues. The eigengap rule needs to know which
+/// gap up to its cap is the largest, from any of:
+/// - all those gaps converged;
+/// - bounds: a gap whose lower bound exceeds the upper bound of every other gap up to the cap
+///   ([`gap_by_bounds`]), so the dense rest of the spectrum need not converge;
+/// - failing those, a converged prefix whose largest gap lies in its lower half, since past the groups'
+///   eigenvalues the spectrum of the rest is dense (gaps far below the one separating the
+///   groups).
+///
+/// A level needs the converged prefix to reach it (or the cap).
+pub fn settled_count(est: &Estimates<'_>, n: usize, count: Count) -> Option<usize> {
+    let values = est.converged_values();
     let p = values.len();
     if p >= n {
-        return true;
+        return Some(cluster_count(values, n, count));
     }
-    match count {
-        Count::Fixed(k) => p >= k,
-        Count::Eigengap { cap, level } => {
-            if p < 2 {
-                return false;
-            }
-            let cap = cap.map_or(n - 1, |c| c.clamp(1, n - 1));
-            if p > cap {
-                return true;
-            }
-            let reached = level.is_none_or(|l| values[p - 1] >= l);
-            reached && eigengap(values, None) <= (p - 1) / 2
-        }
+    let Count::Eigengap { cap, level } = count else {
+        return matches!(count, Count::Fixed(k) if p >= k).then(|| cluster_count(values, n, count));
+    };
+    let cap = cap.map_or(n - 1, |c| c.clamp(1, n - 1));
+    if p > cap {
+        return Some(cluster_count(values, n, count));
     }
+    if level.is_some_and(|l| values.last().is_none_or(|&v| v < l)) {
+        return None;
+    }
+    if let Some(gap) = gap_by_bounds(est, cap) {
+        let below = level.map_or(0, |l| values.iter().filter(|&&v| v < l).count());
+        return Some(gap.max(below.min(cap)).clamp(1, n));
+    }
+    (p >= 2 && eigengap(values, None) <= (p - 1) / 2).then(|| cluster_count(values, n, count))
+}
+
+/// The eigengap's choice `k` (1-based: the gap `lambda_{k+1} - lambda_k`, `k <= cap`) when
+/// the Ritz bounds prove it the largest: its lower bound (`lambda_{k+1}`'s lower estimate
+/// less `lambda_k`'s upper bound) exceeds the upper bound of each gap before it, and the span
+/// `lambda_{cap+1} - lambda_{k+1}` that all gaps after it share. Needs the Ritz value of rank
+/// `cap + 1` (an upper bound) and residuals through rank `k + 1`.
+pub fn gap_by_bounds(est: &Estimates<'_>, cap: usize) -> Option<usize> {
+    let top = *est.values.get(cap)?;
+    let lower = |i: usize| est.lower(i).unwrap_or(f64::NEG_INFINITY);
+    let (k, gap) = (1..=est.converged.min(cap))
+        .filter(|&k| est.lower(k).is_some())
+        .map(|k| (k, lower(k) - est.values[k - 1]))
+        .fold(None, |best: Option<(usize, f64)>, (k, g)| match best {
+            Some((_, b)) if b >= g => best,
+            _ => Some((k, g)),
+        })?;
+    let before_smaller = (1..k).all(|j| est.values[j] - lower(j - 1) < gap);
+    (before_smaller && top - lower(k) < gap).then_some(k)
 }
 
 /// The number of clusters `count` picks from the lowest eigenvalues `values` of an `n`-row

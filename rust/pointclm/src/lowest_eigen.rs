@@ -34,6 +34,16 @@ pub const BLOCK: usize = 16;
 /// 1e-7 * sqrt(n) of the norm), far below.
 pub const VECTOR_TOL: f64 = 1e-3;
 
+/// The first `k` Ritz vectors have converged as a subspace when the sine of its largest
+/// angle to the invariant subspace of the `k` lowest eigenvalues is below this, bounded by
+/// Davis and Kahan's sin-theta theorem: the Frobenius norm of the `k` residuals over the gap
+/// between their Ritz values and the rest of the spectrum. Spectral clustering reads only
+/// that subspace (k-means on the row-normalised embedding is the same in any orthonormal
+/// basis of it) and places rows on the unit sphere, where the groups lie a right angle apart:
+/// a hundredth of a radian moves nothing, while vectors of nearly equal eigenvalues (groups
+/// almost disconnected) take many more products to converge one by one.
+pub const SUBSPACE_TOL: f64 = 5e-2;
+
 /// An eigenvalue has converged when its Ritz residual is below this times the norm bound: a
 /// true eigenvalue lies within the residual of the Ritz value (and within its square over the
 /// gap to the rest), while the eigengap compares gaps of 1e-2 and more.
@@ -42,26 +52,61 @@ pub const VALUE_TOL: f64 = 1e-2;
 /// The lowest converged eigenpairs.
 #[derive(Debug, Clone)]
 pub struct Lowest {
-    /// The lowest eigenvalues, ascending: a prefix of the spectrum.
+    /// The Ritz values, ascending: the lowest eigenvalues to [`VALUE_TOL`] for the first
+    /// `converged`, upper bounds of the eigenvalues of their rank after that.
     pub values: Vec<f64>,
-    /// Their eigenvectors as columns (`n x values.len()`).
+    /// How many leading `values` have converged.
+    pub converged: usize,
+    /// The count the caller's `enough` asked for.
+    pub needed: usize,
+    /// The eigenvectors of the first `needed` values as columns (`n x needed`), converged to
+    /// [`VECTOR_TOL`].
     pub vectors: Mat<f64>,
 }
 
+/// What one Rayleigh-Ritz projection says about the lowest eigenvalues, for `enough` to judge.
+#[derive(Debug, Clone, Copy)]
+pub struct Estimates<'a> {
+    /// The Ritz values, ascending. Each is at least the eigenvalue of its rank (Courant-Fischer:
+    /// the `i`-th lowest Ritz value of any subspace bounds the `i`-th lowest eigenvalue from
+    /// above), converged or not.
+    pub values: &'a [f64],
+    /// The residual norms `||M y - theta y||` of the first Ritz pairs (fewer than `values`):
+    /// an eigenvalue lies within each of its Ritz value.
+    pub residuals: &'a [f64],
+    /// How many leading values have converged to [`VALUE_TOL`].
+    pub converged: usize,
+}
+
+impl Estimates<'_> {
+    /// The converged prefix of the values.
+    pub fn converged_values(&self) -> &[f64] {
+        &self.values[..self.converged]
+    }
+
+    /// A lower estimate of eigenvalue `i` (0-based): its Ritz value less the residual where
+    /// that was measured. Like the converged prefix, it assumes that no eigenvalue below has
+    /// been missed by the subspace.
+    pub fn lower(&self, i: usize) -> Option<f64> {
+        self.residuals.get(i).map(|r| self.values[i] - r)
+    }
+}
+
 /// The lowest eigenpairs of the symmetric matrix `m`, as many as `enough` asks for: it is
-/// called with each converged prefix of the ascending eigenvalues and returns how many
-/// eigenvectors it needs when that prefix suffices (`None`: more eigenvalues). Returns `None`
-/// when the work would exceed `max_basis` basis vectors (at most the matrix's order): the
-/// caller then decomposes densely.
+/// called after each Rayleigh-Ritz projection with its [`Estimates`] and returns how many
+/// eigenvectors it needs once these settle its question (`None`: look further). The Ritz
+/// values after the converged prefix bound the eigenvalues of their rank from above, so a
+/// caller can rule out what lies beyond without waiting for the dense rest of the spectrum.
+/// Returns `None` when the work would exceed `max_basis` basis vectors (at most the matrix's
+/// order): the caller then decomposes densely.
 ///
-/// The values returned are the converged prefix ([`VALUE_TOL`]); the vectors, one column per
-/// value, have converged to [`VECTOR_TOL`] for at least the count `enough` asked for.
+/// The vectors, one column per needed pair, have converged to [`VECTOR_TOL`].
 /// `m` must be symmetric and finite (the caller checks). `seed` draws the starting block.
 pub fn lowest_eigenpairs(
     m: MatRef<'_, f64>,
     max_basis: usize,
     seed: u64,
-    enough: impl Fn(&[f64]) -> Option<usize>,
+    enough: impl Fn(&Estimates<'_>) -> Option<usize>,
 ) -> Option<Lowest> {
     let n = m.nrows();
     let max_basis = max_basis.min(n);
@@ -75,7 +120,7 @@ pub fn lowest_eigenpairs(
     let mut next = random_block(n, BLOCK, &mut rng);
     // Ritz pairs wanted before a restart; doubled whenever they have all converged but
     // `enough` still asks for more.
-    let mut wanted = 2 * BLOCK;
+    let mut wanted = BLOCK;
     // Each product adds BLOCK columns; a thick restart keeps at most `wanted + BLOCK`. Every
     // round either grows the converged prefix or spends a bounded number of products.
     let max_products = 8 * max_basis.div_ceil(BLOCK) + 16;
@@ -122,37 +167,57 @@ fn norm_bound(m: MatRef<'_, f64>) -> f64 {
 }
 
 /// One Rayleigh-Ritz projection: the Ritz values `theta` (ascending) and the vectors `y`
-/// in the basis, with how many of the lowest have converged as values (`prefix`,
-/// [`VALUE_TOL`]) and as vectors (`vectors_done`, [`VECTOR_TOL`]).
+/// in the basis, the residuals of the lowest ones, and how many of the lowest have converged
+/// as values (`prefix`, [`VALUE_TOL`]) and as vectors (`vectors_done`, [`VECTOR_TOL`]).
 struct Ritz {
     theta: Vec<f64>,
     y: Mat<f64>,
+    residuals: Vec<f64>,
     prefix: usize,
     vectors_done: usize,
 }
 
 impl Ritz {
-    /// The converged pairs when `enough` (asked with the converged values; a full spectrum
-    /// is always enough) needs no more vectors than have converged.
+    /// Whether the first `k` Ritz vectors span the lowest invariant subspace to
+    /// [`SUBSPACE_TOL`] (Davis-Kahan, with the gap's lower end at Ritz value `k` less its
+    /// residual).
+    fn span_done(&self, k: usize) -> bool {
+        let (Some(&next), Some(&r_next)) = (self.theta.get(k), self.residuals.get(k)) else {
+            return false;
+        };
+        let gap = next - r_next - self.theta[k.saturating_sub(1)];
+        let spread = self.residuals[..k]
+            .iter()
+            .map(|r| r * r)
+            .sum::<f64>()
+            .sqrt();
+        k >= 1 && gap > 0.0 && spread <= SUBSPACE_TOL * gap
+    }
+
+    /// The pairs `enough` asks for (a full spectrum is always enough), when no more vectors
+    /// than have converged.
     fn enough_found(
         &self,
         basis: &Basis,
-        enough: impl Fn(&[f64]) -> Option<usize>,
+        enough: impl Fn(&Estimates<'_>) -> Option<usize>,
     ) -> Option<Lowest> {
-        let converged = &self.theta[..self.prefix];
         let needed = if self.prefix == basis.n {
             Some(self.prefix)
         } else {
-            enough(converged)
-        };
-        if self.prefix >= 1 && needed.is_some_and(|k| k <= self.vectors_done) {
-            Some(Lowest {
-                values: converged.to_vec(),
-                vectors: basis.combine(self.y.as_ref(), self.prefix),
+            enough(&Estimates {
+                values: &self.theta,
+                residuals: &self.residuals,
+                converged: self.prefix,
             })
-        } else {
-            None
-        }
+        };
+        let needed = needed
+            .filter(|&k| self.prefix >= 1 && (k <= self.vectors_done || self.span_done(k)))?;
+        Some(Lowest {
+            values: self.theta.clone(),
+            converged: self.prefix,
+            needed,
+            vectors: basis.combine(self.y.as_ref(), needed),
+        })
     }
 }
 
@@ -197,20 +262,33 @@ impl Basis {
     /// Appends the columns of `block` that are new against the basis, orthonormalised, after
     /// column `used` (without counting them as used yet), while there is room; returns how
     /// many.
+    ///
+    /// The whole block is projected off the basis at once (block classical Gram-Schmidt,
+    /// twice: two matrix products per pass), then each column off the columns appended
+    /// before it. One product per column, as before, cost more in call overhead than in
+    /// arithmetic at the sizes clustering sees.
     fn append_orthonormal(&mut self, mut block: Vec<f64>, rng: &mut ChaCha8Rng) -> usize {
         let n = self.n;
         let start = self.used;
-        let room = self.cap - start;
-        let mut added = 0;
-        let width = block.len() / n;
-        for c in 0..width {
-            if added == room {
-                break;
+        let width = (block.len() / n).min(self.cap - start);
+        block.truncate(width * n);
+        let before: Vec<f64> = block.chunks_exact(n).map(norm).collect();
+        if start > 0 && width > 0 {
+            let q = MatRef::from_column_major_slice(&self.q[..n * start], n, start);
+            let mut p = Mat::<f64>::zeros(start, width);
+            for _ in 0..2 {
+                let b = MatRef::from_column_major_slice(&block, n, width);
+                matmul(p.as_mut(), Accum::Replace, q.transpose(), b, 1.0, Par::Seq);
+                let b = MatMut::from_column_major_slice_mut(&mut block, n, width);
+                matmul(b, Accum::Add, q, p.as_ref(), -1.0, Par::Seq);
             }
+        }
+        let mut added = 0;
+        for (c, &was) in before.iter().enumerate() {
             let mut v = block[c * n..(c + 1) * n].to_vec();
             // A direction that vanishes against the basis means the Krylov space became
             // invariant there: explore with a fresh random one instead.
-            let mut ok = self.orthonormalize(&mut v, start + added);
+            let mut ok = was.is_finite() && self.finish_column(&mut v, start, added, was);
             for _ in 0..3 {
                 if ok {
                     break;
@@ -227,6 +305,29 @@ impl Basis {
         }
         block.clear();
         added
+    }
+
+    /// Projects `v` (already off the first `start` columns) off the `added` columns after
+    /// them, twice, and normalises it; false when less than 1e-8 of its norm `before` any
+    /// projection is left.
+    fn finish_column(&self, v: &mut [f64], start: usize, added: usize, before: f64) -> bool {
+        if before == 0.0 {
+            return false;
+        }
+        let n = self.n;
+        for _ in 0..2 {
+            for j in start..start + added {
+                let qj = &self.q[j * n..(j + 1) * n];
+                let p = dot(qj, v);
+                v.iter_mut().zip(qj).for_each(|(x, q)| *x -= p * q);
+            }
+        }
+        let after = norm(v);
+        if after <= 1e-8 * before {
+            return false;
+        }
+        v.iter_mut().for_each(|x| *x /= after);
+        true
     }
 
     /// `W_new = M Q_new` for the `added` columns from `start`, in f32: one pass over the
@@ -295,6 +396,7 @@ impl Basis {
         Some(Ritz {
             theta,
             y,
+            residuals,
             prefix,
             vectors_done,
         })
@@ -449,9 +551,24 @@ fn random_block(n: usize, width: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
         .collect()
 }
 
+/// Four interleaved partial sums: one serial sum runs at the latency of an addition, these
+/// let the compiler use vector lanes.
 #[inline]
 fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+    let mut acc = [0.0f64; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
 }
 
 #[inline]

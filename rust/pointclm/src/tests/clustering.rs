@@ -125,27 +125,99 @@ fn partial_spectrum_on_planted_scenes_matches_the_dense_count() {
     }
 }
 
+/// Estimates with every value converged and exact (zero residuals).
+fn exact(values: &[f64]) -> Estimates<'_> {
+    Estimates {
+        values,
+        residuals: &[0.0; 64][..values.len()],
+        converged: values.len(),
+    }
+}
+
 #[test]
-fn suffices_needs_every_gap_it_may_pick() {
+fn settled_count_needs_every_gap_it_may_pick() {
     let count = Count::Eigengap {
         cap: None,
         level: None,
     };
     // The largest gap in the lower half of the prefix settles it; in the upper half, not yet.
-    assert!(suffices(&[0.0, 0.01, 0.5, 0.55, 0.6], 100, count));
-    assert!(!suffices(&[0.0, 0.01, 0.02, 0.03, 0.6], 100, count));
+    assert_eq!(
+        settled_count(&exact(&[0.0, 0.01, 0.5, 0.55, 0.6]), 100, count),
+        Some(2)
+    );
+    assert_eq!(
+        settled_count(&exact(&[0.0, 0.01, 0.02, 0.03, 0.6]), 100, count),
+        None
+    );
     // A level needs the prefix to reach it, unless the cap is already within it.
     let level = Count::Eigengap {
         cap: None,
         level: Some(0.7),
     };
-    assert!(!suffices(&[0.0, 0.01, 0.5, 0.55, 0.6], 100, level));
+    assert_eq!(
+        settled_count(&exact(&[0.0, 0.01, 0.5, 0.55, 0.6]), 100, level),
+        None
+    );
     let capped = Count::Eigengap {
         cap: Some(3),
         level: Some(0.7),
     };
-    assert!(suffices(&[0.0, 0.01, 0.02, 0.03, 0.6], 100, capped));
-    assert!(suffices(&[0.1; 4], 4, count));
-    assert!(suffices(&[0.1; 3], 100, Count::Fixed(3)));
-    assert!(!suffices(&[0.1; 2], 100, Count::Fixed(3)));
+    assert_eq!(
+        settled_count(&exact(&[0.0, 0.01, 0.02, 0.03, 0.6]), 100, capped),
+        Some(3)
+    );
+    assert_eq!(settled_count(&exact(&[0.1; 4]), 4, count), Some(1));
+    assert_eq!(
+        settled_count(&exact(&[0.1; 3]), 100, Count::Fixed(3)),
+        Some(3)
+    );
+    assert_eq!(settled_count(&exact(&[0.1; 2]), 100, Count::Fixed(3)), None);
+}
+
+#[test]
+fn ritz_bounds_settle_the_gap_before_the_rest_converges() {
+    let count = Count::Eigengap {
+        cap: Some(5),
+        level: None,
+    };
+    // Three groups, then the rest near 0.9: converged through rank 3, the fourth value within
+    // 0.05, the upper bounds up to rank cap + 1 = 6 unconverged. The gap at 3 is at least
+    // 0.85 - 0.02 = 0.83; all later gaps together span at most 1.0 - 0.85.
+    let values = [0.0, 0.01, 0.02, 0.9, 0.95, 1.0, 1.1, 1.2];
+    let est = Estimates {
+        values: &values,
+        residuals: &[0.0, 0.0, 0.0, 0.05, 0.3],
+        converged: 3,
+    };
+    assert_eq!(gap_by_bounds(&est, 5), Some(3));
+    assert_eq!(settled_count(&est, 100, count), Some(3));
+    // Without the bound of rank cap + 1, or with a span after the gap that could hold a
+    // larger one, nothing is settled.
+    assert_eq!(
+        gap_by_bounds(
+            &Estimates {
+                values: &values[..5],
+                ..est
+            },
+            5
+        ),
+        None
+    );
+    let wide = [0.0, 0.01, 0.02, 0.9, 0.95, 1.9, 1.95, 2.0];
+    assert_eq!(
+        gap_by_bounds(
+            &Estimates {
+                values: &wide,
+                ..est
+            },
+            5
+        ),
+        None
+    );
+    // A residual that leaves the gap's lower end unsure: not settled either.
+    let unsure = Estimates {
+        residuals: &[0.0, 0.0, 0.0, 0.6],
+        ..est
+    };
+    assert_eq!(gap_by_bounds(&unsure, 5), None);
 }
