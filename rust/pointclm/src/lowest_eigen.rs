@@ -120,7 +120,7 @@ pub fn lowest_eigenpairs(
     let mut next = random_block(n, BLOCK, &mut rng);
     // Ritz pairs wanted before a restart; doubled whenever they have all converged but
     // `enough` still asks for more.
-    let mut wanted = BLOCK;
+    let mut wanted = 2 * BLOCK;
     // Each product adds BLOCK columns; a thick restart keeps at most `wanted + BLOCK`. Every
     // round either grows the converged prefix or spends a bounded number of products.
     let max_products = 8 * max_basis.div_ceil(BLOCK) + 16;

@@ -67,7 +67,7 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64, wide: bool) -> Ve
     if tau_s < 0.0 {
         return vec![n as u32; n]; // beta >= 0 > tau_s for every pair
     }
-    LengthTestF32::new(c, tau_s, inv, None).counts(wide)
+    LengthTestF32::new(c, tau_s, inv, None).counts_symmetric(wide)
 }
 
 /// Columns per tile of [`LengthTestF32::count_block`]: six f32 columns of this length (48 KB)
@@ -149,6 +149,20 @@ fn feature_counts_f32(
 #[target_feature(enable = "avx2")]
 unsafe fn count_block_avx2(rule: &LengthTestF32<'_>, first: usize, out: &mut [u32]) {
     rule.count_block(first, out)
+}
+
+/// [`LengthTestF32::count_upper_block`] compiled for AVX2, like [`count_block_avx2`].
+///
+/// # Safety
+/// The CPU must support AVX2 ([`has_avx2`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn count_upper_block_avx2(
+    rule: &LengthTestF32<'_>,
+    rows: std::ops::Range<usize>,
+    acc: &mut [u32],
+) {
+    rule.count_upper_block(rows, acc)
 }
 
 /// Centred coordinates up to this magnitude keep the f32 kernels' squared lengths finite
@@ -250,6 +264,92 @@ impl<'a> LengthTestF32<'a> {
             .enumerate()
             .for_each(|(block, out)| self.count_block_dispatched(block * BLOCK_ROWS, out, wide));
         counts
+    }
+
+    /// Every row's count under the paper's rule alone, from the pairs `j >= i` only: the
+    /// test is symmetric bit for bit (the same differences squared, in the same order, on
+    /// either side), so each pair adds to both its rows and half the lengths are computed.
+    /// Blocks of rows in parallel, each adding into its task's counts; integer sums, so the
+    /// result is the same whatever the split and the thread count.
+    fn counts_symmetric(&self, wide: bool) -> Vec<u32> {
+        let n = self.src[0].len();
+        (0..n.div_ceil(BLOCK_ROWS))
+            .into_par_iter()
+            .fold(
+                || vec![0u32; n],
+                |mut acc, block| {
+                    let rows = block * BLOCK_ROWS..((block + 1) * BLOCK_ROWS).min(n);
+                    self.count_upper_dispatched(rows, &mut acc, wide);
+                    acc
+                },
+            )
+            .reduce(
+                || vec![0u32; n],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            )
+    }
+
+    /// [`Self::count_upper_block`], in 8 lanes where `wide` ([`has_avx2`]).
+    fn count_upper_dispatched(&self, rows: std::ops::Range<usize>, acc: &mut [u32], wide: bool) {
+        #[cfg(target_arch = "x86_64")]
+        if wide {
+            // SAFETY: `wide` comes from `has_avx2`, which checked that the CPU has AVX2.
+            return unsafe { count_upper_block_avx2(self, rows, acc) };
+        }
+        let _ = wide;
+        self.count_upper_block(rows, acc)
+    }
+
+    /// Adds the pairs `(i, j)`, `i` in `rows`, `j >= i`, that pass the rule to `acc[i]` and
+    /// (for `j > i`) to `acc[j]`, the columns taken [`COLUMN_TILE`] at a time.
+    #[inline(always)]
+    fn count_upper_block(&self, rows: std::ops::Range<usize>, acc: &mut [u32]) {
+        let n = self.s[0].len();
+        for i in rows.clone() {
+            acc[i] += self.count(i, i..i + 1);
+        }
+        for start in (rows.start..n).step_by(COLUMN_TILE) {
+            let end = (start + COLUMN_TILE).min(n);
+            for i in rows.clone() {
+                let first = (i + 1).max(start);
+                if first < end {
+                    acc[i] += self.count_upper(i, first..end, acc);
+                }
+            }
+        }
+    }
+
+    /// [`Self::count`] of row `i` against `cols` (all after `i`), also adding each passing
+    /// pair to `acc[j]`.
+    #[inline(always)]
+    fn count_upper(&self, i: usize, cols: std::ops::Range<usize>, acc: &mut [u32]) -> u32 {
+        let (lo2, hi2) = (self.lo2, self.hi2);
+        let (mut sure, mut near) = (0u32, 0u32);
+        for (q, a) in self
+            .length_diffs(i, cols.clone())
+            .zip(&mut acc[cols.clone()])
+        {
+            let pass = u32::from(q < lo2);
+            sure += pass;
+            *a += pass;
+            near += u32::from((q >= lo2) & (q <= hi2));
+        }
+        if near > 0 {
+            let (src, dst) = (self.src, self.dst);
+            for (j, qj) in cols.clone().zip(self.length_diffs(i, cols)) {
+                if qj >= lo2 && qj <= hi2 {
+                    let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
+                    let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
+                    let pass = u32::from(beta_value(ds, dt, self.inv) > self.tau_s);
+                    sure += pass;
+                    acc[j] += pass;
+                }
+            }
+        }
+        sure
     }
 
     /// [`Self::count_block`], in 8 lanes where `wide` ([`has_avx2`]).

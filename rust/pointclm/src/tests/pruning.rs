@@ -148,6 +148,13 @@ fn f32_paper_counts_span_column_tiles() {
         dense
     );
     assert_eq!(density_counts(&scene.corr, None, &config).unwrap(), dense);
+    // Each pair is tested once and added to both rows, in per-task counts summed at the end:
+    // the same whatever the pool splits the row blocks into.
+    for threads in [1, 2, 3] {
+        let pool = crate::pipeline::thread_pool(threads).unwrap();
+        let counts = pool.install(|| paper_counts_f32(&scene.corr, config.tau_s, inv, has_avx2()));
+        assert_eq!(counts, dense, "{threads} threads");
+    }
 }
 
 #[test]
