@@ -46,9 +46,8 @@ impl NullModel {
         for a in 0..self.n {
             let q = pose.apply(c.source(a));
             pairs += count_within(&self.grid, q, self.radius, self.radius_sq);
-            if pose.residual_sq(c.source(a), c.target(a)) < self.radius_sq {
-                own += 1;
-            }
+            // `pose.residual_sq` of the pair, from the point already moved.
+            own += usize::from(dist_sq(&q, &c.target(a)) < self.radius_sq);
         }
         // Boundary points may be counted by one test and not the other: never below zero.
         let others = pairs.saturating_sub(own);
