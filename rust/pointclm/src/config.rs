@@ -341,7 +341,9 @@ config! {
         pub assignment: Assignment = Assignment::KMeans => Unit::Unitless,
         /// Restarts of k-means (best inertia wins) or of the discretisation.
         pub kmeans_restarts: usize = 10 => Unit::Unitless,
-        /// Clusters, and final instances, with fewer members are dropped.
+        /// Instances with fewer inliers are dropped (checked after the labelling and again
+        /// after the final refit). Clusters only seed poses: any cluster of 3 or more rows is
+        /// fitted (`clustering::MIN_SEED_ROWS`), since its pose may explain more rows.
         pub min_cluster_size: usize = 10 => Unit::Unitless,
         /// At most this many RANSAC hypotheses (3-point Kabsch) per cluster.
         pub ransac_iterations: usize = 1000 => Unit::Unitless,

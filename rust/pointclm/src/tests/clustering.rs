@@ -22,6 +22,23 @@ fn planted_instances_become_clusters() {
 }
 
 #[test]
+fn groups_below_the_instance_floor_still_seed_poses() {
+    // Two copies keep 30 rows each, a third only 5 (fewer than `min_cluster_size`, 10): its
+    // group is kept, since the pose it fits may explain more rows than pruning kept.
+    let scene = random_scene(300, 3, 0.1, 2);
+    let kept: Vec<usize> = (0..65).collect();
+    let config = Config::default();
+    assert!(5 < config.min_cluster_size);
+    let (groups, _) = cluster_kept(&scene.corr, None, &kept, &config, 0).unwrap();
+    let sizes: Vec<usize> = groups.iter().map(Vec::len).collect();
+    assert_eq!(sizes, vec![30, 30, 5]);
+    assert!(groups[2].iter().all(|&i| scene.labels[i] == 2));
+    // Fewer rows than a pose needs: nothing to cluster.
+    let (none, _) = cluster_kept(&scene.corr, None, &kept[..2], &config, 0).unwrap();
+    assert!(none.is_empty());
+}
+
+#[test]
 fn both_assignments_agree_on_clean_blocks() {
     let scene = random_scene(300, 3, 0.1, 2);
     let kept: Vec<usize> = (0..90).collect();
@@ -117,8 +134,8 @@ fn partial_spectrum_on_planted_scenes_matches_the_dense_count() {
         let a = affinity(&scene.corr, None, &kept, 0.1).unwrap();
         let l = normalized_laplacian(a.as_ref()).unwrap();
         let (dense, _) = symmetric_eigen(l.as_ref(), false).unwrap();
-        // Capped as `cluster_kept` caps it: at most one group per `min_cluster_size` rows.
-        let cap = Some(kept.len() / 10);
+        // Capped as `cluster_kept` caps it: at most one group per `MIN_SEED_ROWS` rows.
+        let cap = Some(kept.len() / MIN_SEED_ROWS);
         let r = spectral_clustering(a.as_ref(), None, cap, Assignment::KMeans, 5, 0).unwrap();
         assert!(r.eigenvalues.len() < kept.len(), "the partial path ran");
         assert_eq!(r.n_clusters, eigengap(&dense, cap), "seed {seed}");

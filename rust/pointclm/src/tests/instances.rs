@@ -259,3 +259,37 @@ fn finalize_merges_assigns_and_orders_instances() {
     assert_eq!(instances[0].pose, shift(5.0));
     assert_eq!(labels2, labels);
 }
+
+#[test]
+fn instances_left_too_small_by_the_refit_are_dropped() {
+    // A fit at shift 0 explains 9 rows within the threshold of 0.1: 3 at shift -0.09 and 6
+    // at +0.09. The refit moves it towards the 6 and out of reach of the 3, which leaves 6
+    // rows. Another copy (shift 5) holds 8 exact rows.
+    let c = rows(&[(3, -0.09), (6, 0.09), (8, 5.0)]);
+    let fit = |x: f64| RansacFit {
+        pose: shift(x),
+        inliers: vec![],
+    };
+    let fits = [fit(0.0), fit(5.0)];
+    let config = Config {
+        inlier_threshold: 0.1,
+        min_cluster_size: 8,
+        max_nfa: None,
+        refine: true,
+        ..Config::default()
+    };
+    let (instances, labels) = finalize(&c, &fits, &config, None);
+    assert_eq!(sizes(&instances), vec![8]);
+    assert!((instances[0].pose.translation - Vector3::new(5.0, 0.0, 0.0)).norm() < 1e-12);
+    assert_eq!(labels[..9], [-1; 9]);
+    assert_eq!(labels[9..], [0; 8]);
+    // With a floor of 6 the moved pose stays, with the 6 rows it still explains.
+    let six = Config {
+        min_cluster_size: 6,
+        ..config
+    };
+    let (instances, labels) = finalize(&c, &fits, &six, None);
+    assert_eq!(sizes(&instances), vec![8, 6]);
+    assert_eq!(labels[..3], [-1; 3]);
+    assert_eq!(labels[3..9], [1; 6]);
+}
