@@ -11,8 +11,9 @@ shared, noisy machine.
 
 The arithmetic models (operations per unit, counted on the formulas the code evaluates):
 
-- pruning: every ordered pair (i, j) of the N correspondences: two squared lengths (10), two
-  square roots (2), a difference, a square and two comparisons (4): 16 f32 operations.
+- pruning: every unordered pair {i, j} of the N correspondences (the test is symmetric, so each
+  pair is tested once and counted for both rows): two squared lengths (10), two square roots
+  (2), a difference, a square and two comparisons (4): 16 f32 operations.
 - clustering: the affinity of the k kept rows (k^2 pairs at about 16 f64 operations), plus the
   tridiagonal reduction a dense symmetric eigensolver needs (4/3 k^3); a partial solver may
   need less, so the bound is loose from `clustering::PARTIAL_ROWS` rows.
@@ -71,7 +72,7 @@ def _timed(fn: Callable[[], Any]) -> float:
 def stage_flops(n: int, kept: int, clusters: int) -> dict[str, tuple[float, str]]:
     """The lower-bound operation counts of each stage and the precision they run in."""
     return {
-        "pruning": (PAIR_FLOPS * n * n, "f32"),
+        "pruning": (PAIR_FLOPS * n * (n + 1) // 2, "f32"),
         "clustering": (AFFINITY_FLOPS * kept**2 + 4 / 3 * kept**3, "f64"),
         "poses": (clusters * n * (2 * POSE_FLOPS + RADIUS_FLOPS), "f64"),
     }

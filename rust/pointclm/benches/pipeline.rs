@@ -1,8 +1,13 @@
-//! Criterion benchmarks of the whole pipeline, of its O(N^2) pruning stage and of the
-//! a-contrario test's null probability (one radius count per correspondence and pose).
+//! Criterion benchmarks of the whole pipeline, of its O(N^2) pruning stage, of the
+//! clustering of one kept set (the partial eigensolver alone, and with the Laplacian and
+//! k-means) and of the a-contrario test's null probability (one radius count per
+//! correspondence and pose).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use pointclm::pruning::density_counts;
+use pointclm::clustering::{partial_basis, settled_count, spectral_clustering_by, Count};
+use pointclm::lowest_eigen::lowest_eigenpairs;
+use pointclm::pruning::{density_counts, select_kept};
+use pointclm::spectral::{affinity, normalized_laplacian};
 use pointclm::validation::NullModel;
 use pointclm::{register, Config, Correspondences, RigidTransform};
 
@@ -51,6 +56,27 @@ fn bench(c: &mut Criterion) {
     let corr = scene(1000, 7, 20);
     c.bench_function("density_counts_1000_1_thread", |b| {
         b.iter(|| pool.install(|| density_counts(&corr, None, &config).expect("counts")))
+    });
+    let kept = select_kept(
+        &density_counts(&corr, None, &config).expect("counts"),
+        &config,
+    );
+    let a = affinity(&corr, None, &kept, config.affinity_sigma).expect("affinity");
+    let l = normalized_laplacian(a.as_ref()).expect("laplacian");
+    let (rows, assignment) = (kept.len(), config.assignment);
+    let count = Count::Eigengap {
+        cap: Some(rows / 3),
+        level: None,
+    };
+    c.bench_function("lowest_eigenpairs_kept_set_1000", |b| {
+        b.iter(|| {
+            lowest_eigenpairs(l.as_ref(), partial_basis(rows), 0, |e| {
+                settled_count(e, rows, count)
+            })
+        })
+    });
+    c.bench_function("spectral_clustering_kept_set_1000", |b| {
+        b.iter(|| spectral_clustering_by(a.as_ref(), count, assignment, 10, 0).expect("clusters"))
     });
     let null = NullModel::new(&corr, config.inlier_threshold);
     let pose = RigidTransform::identity();

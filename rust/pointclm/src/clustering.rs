@@ -133,7 +133,7 @@ pub const PARTIAL_ROWS: usize = 64;
 
 /// The partial solver's basis budget at `n` rows: a third of the rows, at least four blocks
 /// (two products and a restart's room), at most all rows.
-fn partial_basis(n: usize) -> usize {
+pub fn partial_basis(n: usize) -> usize {
     (n / 3).max(4 * BLOCK).min(n)
 }
 
