@@ -191,7 +191,7 @@ pub fn refine_poses(
     params: &RefineParams,
 ) -> Result<Refined> {
     check_inputs(source, target, poses, viewpoint, params)?;
-    let index = PointIndex::new(target)?;
+    let index = PointIndex::with_cells(target, params.fit_radius)?;
     let normals = match target_normals {
         Some(given) => checked_normals(target, given)?.into(),
         // Point-to-plane ICP needs them; without ICP, none.

@@ -11,10 +11,12 @@ use super::{check_count, check_points, check_positive};
 use crate::error::Result;
 use crate::grid::{dist_sq, UniformGrid};
 
-/// A k-d tree over a point cloud, built once and queried many times.
+/// A k-d tree over a point cloud, built once and queried many times; optionally a uniform
+/// grid beside it for [`Self::nearest_within`] ([`Self::with_cells`]).
 pub struct PointIndex {
     tree: ImmutableKdTree<f64, u64, 3, 32>,
     len: usize,
+    grid: Option<UniformGrid>,
 }
 
 impl PointIndex {
@@ -24,7 +26,20 @@ impl PointIndex {
         Ok(Self {
             tree: ImmutableKdTree::new_from_slice(points),
             len: points.len(),
+            grid: None,
         })
+    }
+
+    /// [`Self::new`] with a grid of cells at least `cell` wide beside the tree, which
+    /// [`Self::nearest_within`] then scans instead of the tree. Why: ICP and the verification
+    /// ask one bounded nearest-point query per model point and step, at radii of one to a few
+    /// cells; the tree's bounded query collects its answer into a fresh vector each time, while
+    /// the grid's is a few contiguous runs of the sorted points.
+    pub fn with_cells(points: &[[f64; 3]], cell: f64) -> Result<Self> {
+        check_positive("cell", cell)?;
+        let mut index = Self::new(points)?;
+        index.grid = Some(UniformGrid::new(points, cell));
+        Ok(index)
     }
 
     /// Number of indexed points.
@@ -53,6 +68,9 @@ impl PointIndex {
     /// stops at the radius instead of looking for the nearest point however far.
     pub fn nearest_within(&self, query: &[f64; 3], radius: f64) -> Option<(usize, f64)> {
         let r_sq = radius * radius;
+        if let Some(grid) = &self.grid {
+            return nearest_in_grid(grid, query, radius, r_sq);
+        }
         self.tree
             .nearest_n_within::<SquaredEuclidean>(query, r_sq, NonZero::<usize>::MIN, true)
             .into_iter()
@@ -103,6 +121,28 @@ impl PointIndex {
             dist2,
         })
     }
+}
+
+/// The nearest point of `grid` strictly within `radius` (squared: `r_sq`) of `query`, the
+/// lowest input index among equally near ones: `(index, squared distance)`.
+fn nearest_in_grid(
+    grid: &UniformGrid,
+    query: &[f64; 3],
+    radius: f64,
+    r_sq: f64,
+) -> Option<(usize, f64)> {
+    let (points, index) = grid.points();
+    let mut best: Option<(u32, f64)> = None;
+    grid.runs(*query, radius, |run| {
+        for k in run {
+            let d = dist_sq(&points[k], query);
+            let better = best.is_none_or(|(i, b)| d < b || (d == b && index[k] < i));
+            if d < r_sq && better {
+                best = Some((index[k], d));
+            }
+        }
+    });
+    best.map(|(i, d)| (i as usize, d))
 }
 
 /// [`PointIndex::hybrid`] of every point of `points` within the cloud itself, from a grid of

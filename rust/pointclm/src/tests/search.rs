@@ -92,6 +92,50 @@ fn nearest_within_is_the_nearest_point_closer_than_the_radius() {
 }
 
 #[test]
+fn grid_nearest_within_equals_the_trees() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let mut pts: Vec<[f64; 3]> = (0..2000)
+        .map(|_| {
+            [
+                rng.random::<f64>(),
+                rng.random::<f64>(),
+                rng.random::<f64>() * 0.2,
+            ]
+        })
+        .collect();
+    // Duplicates: the grid answers with the lowest index among equally near points.
+    pts.extend_from_within(..50);
+    let tree = PointIndex::new(&pts).unwrap();
+    for cell in [0.01, 0.03, 0.1] {
+        let grid = PointIndex::with_cells(&pts, cell).unwrap();
+        for _ in 0..500 {
+            let q = [
+                rng.random::<f64>() * 1.2 - 0.1,
+                rng.random::<f64>() * 1.2 - 0.1,
+                rng.random::<f64>() * 0.4 - 0.1,
+            ];
+            for radius in [0.005, 0.02, 0.045, 0.3] {
+                let (a, b) = (
+                    tree.nearest_within(&q, radius),
+                    grid.nearest_within(&q, radius),
+                );
+                match (a, b) {
+                    (Some((i, d)), Some((j, e))) => {
+                        assert_eq!(d, e, "cell {cell} radius {radius}");
+                        assert_eq!(pts[i], pts[j]);
+                        assert!(j < 2000, "the first of duplicates");
+                    }
+                    (None, None) => {}
+                    _ => panic!("cell {cell} radius {radius}: {a:?} against {b:?}"),
+                }
+            }
+        }
+    }
+    assert!(PointIndex::with_cells(&pts, 0.0).is_err());
+}
+
+#[test]
 fn grid_neighbourhoods_equal_the_trees() {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
