@@ -16,7 +16,7 @@ The arithmetic models (operations per unit, counted on the formulas the code eva
   (2), a difference, a square and two comparisons (4): 16 f32 operations.
 - clustering: the affinity of the k kept rows (k^2 pairs at about 16 f64 operations), plus the
   tridiagonal reduction a dense symmetric eigensolver needs (4/3 k^3); a partial solver may
-  need less, so the bound is loose from `clustering::PARTIAL_ROWS` rows.
+  need less, so the bound is loose from `clustering::PARTIAL_ROWS` (64) rows.
 - poses: every candidate pose (one per cluster) applied to all N correspondences with its
   residual (about 20 operations per correspondence), twice (inliers and the a-contrario
   test's own count), plus the test's radius count (about 10 per visited point, at least one

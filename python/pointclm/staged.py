@@ -82,9 +82,10 @@ def spectral_clustering(
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Labels, cluster count (eigengap when `n_clusters` is None) and the normalised
     Laplacian's eigenvalues, ascending, as the pipeline's clustering computes them: all of
-    them below 150 rows (in f32 from 400); from there the lowest ones a partial solver found,
-    of which those up to the eigengap are right to about 1e-2 and the rest rough
-    (``eigh(normalized_laplacian(affinity))`` gives the exact spectrum)."""
+    them below 64 rows; from there the Ritz values of a partial solver, of which those up to
+    the eigengap are right to about 1e-2 and the rest upper bounds of the eigenvalues of
+    their rank (all of them, in f32, where the partial solver hands the work back from 400
+    rows; ``eigh(normalized_laplacian(affinity))`` gives the exact spectrum)."""
     if not isinstance(assignment, str):
         raise InputError(f"assignment must be 'kmeans' or 'discretize', got {assignment!r}")
     return _core.spectral_clustering(
