@@ -145,9 +145,9 @@ pub fn partial_basis(n: usize) -> usize {
 /// - all those gaps converged;
 /// - bounds: a gap whose lower bound exceeds the upper bound of every other gap up to the cap
 ///   ([`gap_by_bounds`]), so the dense rest of the spectrum need not converge;
-/// - failing those, a converged prefix whose largest gap lies in its lower half, since past the groups'
-///   eigenvalues the spectrum of the rest is dense (gaps far below the one separating the
-///   groups).
+/// - failing those, a converged prefix whose largest gap lies in its lower half, since past
+///   the groups' eigenvalues the spectrum of the rest is dense (gaps far below the one
+///   separating the groups).
 ///
 /// A level needs the converged prefix to reach it (or the cap).
 pub fn settled_count(est: &Estimates<'_>, n: usize, count: Count) -> Option<usize> {
