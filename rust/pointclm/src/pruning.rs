@@ -67,7 +67,7 @@ fn paper_counts_f32(c: &Correspondences, tau_s: f64, inv: f64, wide: bool) -> Ve
     if tau_s < 0.0 {
         return vec![n as u32; n]; // beta >= 0 > tau_s for every pair
     }
-    LengthTestF32::new(c, tau_s, inv, None).counts_symmetric(wide)
+    LengthTestF32::new(c, tau_s, inv).counts_symmetric(wide)
 }
 
 /// Columns per tile of [`LengthTestF32::count_block`]: six f32 columns of this length (48 KB)
@@ -137,7 +137,7 @@ fn feature_counts_f32(
     inv: f64,
     wide: bool,
 ) -> Vec<u32> {
-    LengthTestF32::new(c, rule.geometric(), inv, Some((f, rule))).counts(wide)
+    LengthTestF32::new(c, rule.geometric(), inv).featured_counts(f, rule, wide)
 }
 
 /// [`LengthTestF32::count_block`] compiled for AVX2. Without FMA: Rust never fuses
@@ -147,8 +147,14 @@ fn feature_counts_f32(
 /// The CPU must support AVX2 ([`has_avx2`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn count_block_avx2(rule: &LengthTestF32<'_>, first: usize, out: &mut [u32]) {
-    rule.count_block(first, out)
+unsafe fn count_block_avx2(
+    test: &LengthTestF32<'_>,
+    first: usize,
+    out: &mut [u32],
+    f: &Features,
+    rule: FeatureRule,
+) {
+    test.count_block(first, out, f, rule)
 }
 
 /// [`LengthTestF32::count_upper_block`] compiled for AVX2, like [`count_block_avx2`].
@@ -215,8 +221,9 @@ fn undecided_band(tau_s: f64, inv: f64, extent: f64) -> (f32, f32) {
 
 /// The length test `|l_s - l_t| < D` decided in f32 on centred columns `s`, `t`, with the f64
 /// columns `src`, `dst` and [`beta_value`] for the pairs in the undecided band `[lo2, hi2]`:
-/// the paper's rule `beta > tau_s` alone, or (with `features`) the prefilter of a rule with
-/// features, whose candidates are every pair up to `hi2`.
+/// the paper's rule `beta > tau_s` alone ([`Self::counts_symmetric`]), or the prefilter of a
+/// rule with features, whose candidates are every pair up to `hi2`
+/// ([`Self::featured_counts`]).
 struct LengthTestF32<'a> {
     s: [Vec<f32>; 3],
     t: [Vec<f32>; 3],
@@ -226,19 +233,12 @@ struct LengthTestF32<'a> {
     hi2: f32,
     tau_s: f64,
     inv: f64,
-    /// With features: candidates are the pairs with `q <= hi2`, decided by the rule.
-    features: Option<(&'a Features, FeatureRule)>,
 }
 
 impl<'a> LengthTestF32<'a> {
     /// The test at `D^2 = (1 - tau) / inv` on the correspondences `c` (centred per side), for
-    /// the paper's rule at `tau_s = tau` or, with `features`, for their rule's prefilter.
-    fn new(
-        c: &'a Correspondences,
-        tau: f64,
-        inv: f64,
-        features: Option<(&'a Features, FeatureRule)>,
-    ) -> Self {
+    /// the paper's rule at `tau_s = tau` or for a feature rule's prefilter.
+    fn new(c: &'a Correspondences, tau: f64, inv: f64) -> Self {
         let n = c.len();
         let (s, ms) = centred_f32(c.source_columns(), n);
         let (t, mt) = centred_f32(c.target_columns(), n);
@@ -252,17 +252,19 @@ impl<'a> LengthTestF32<'a> {
             hi2,
             tau_s: tau,
             inv,
-            features,
         }
     }
 
-    /// Every row's count, blocks of rows in parallel, in 8 lanes where `wide`.
-    fn counts(&self, wide: bool) -> Vec<u32> {
+    /// Every row's count under `rule`, whose candidates are the pairs with `q <= hi2`; blocks
+    /// of rows in parallel, in 8 lanes where `wide`.
+    fn featured_counts(&self, f: &Features, rule: FeatureRule, wide: bool) -> Vec<u32> {
         let mut counts = vec![0u32; self.src[0].len()];
         counts
             .par_chunks_mut(BLOCK_ROWS)
             .enumerate()
-            .for_each(|(block, out)| self.count_block_dispatched(block * BLOCK_ROWS, out, wide));
+            .for_each(|(block, out)| {
+                self.count_block_dispatched(block * BLOCK_ROWS, out, f, rule, wide)
+            });
         counts
     }
 
@@ -309,7 +311,7 @@ impl<'a> LengthTestF32<'a> {
     fn count_upper_block(&self, rows: std::ops::Range<usize>, acc: &mut [u32]) {
         let n = self.s[0].len();
         for i in rows.clone() {
-            acc[i] += self.count(i, i..i + 1);
+            acc[i] += u32::from(self.passes(i, i));
         }
         for start in (rows.start..n).step_by(COLUMN_TILE) {
             let end = (start + COLUMN_TILE).min(n);
@@ -322,8 +324,8 @@ impl<'a> LengthTestF32<'a> {
         }
     }
 
-    /// [`Self::count`] of row `i` against `cols` (all after `i`), also adding each passing
-    /// pair to `acc[j]`.
+    /// How many `j` in `cols` (all after `i`) pass, each passing pair also added to
+    /// `acc[j]`: branch-free in f32 over the tile, then the pairs of the undecided band in f64.
     #[inline(always)]
     fn count_upper(&self, i: usize, cols: std::ops::Range<usize>, acc: &mut [u32]) -> u32 {
         let (lo2, hi2) = (self.lo2, self.hi2);
@@ -338,12 +340,9 @@ impl<'a> LengthTestF32<'a> {
             near += u32::from((q >= lo2) & (q <= hi2));
         }
         if near > 0 {
-            let (src, dst) = (self.src, self.dst);
             for (j, qj) in cols.clone().zip(self.length_diffs(i, cols)) {
                 if qj >= lo2 && qj <= hi2 {
-                    let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
-                    let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
-                    let pass = u32::from(beta_value(ds, dt, self.inv) > self.tau_s);
+                    let pass = u32::from(self.passes_exactly(i, j));
                     sure += pass;
                     acc[j] += pass;
                 }
@@ -352,33 +351,56 @@ impl<'a> LengthTestF32<'a> {
         sure
     }
 
+    /// Whether the pair `(i, j)` passes, decided as the row kernels decide it.
+    fn passes(&self, i: usize, j: usize) -> bool {
+        let q: f32 = self.length_diffs(i, j..j + 1).sum(); // the one pair's
+        q < self.lo2 || (q <= self.hi2 && self.passes_exactly(i, j))
+    }
+
+    /// The paper's rule in f64, `beta_ij > tau_s`.
+    #[inline(always)]
+    fn passes_exactly(&self, i: usize, j: usize) -> bool {
+        self.beta(i, j) > self.tau_s
+    }
+
+    /// `beta_ij` in f64, with [`beta_value`]'s arithmetic.
+    #[inline(always)]
+    fn beta(&self, i: usize, j: usize) -> f64 {
+        let (src, dst) = (self.src, self.dst);
+        let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
+        let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
+        beta_value(ds, dt, self.inv)
+    }
+
     /// [`Self::count_block`], in 8 lanes where `wide` ([`has_avx2`]).
-    fn count_block_dispatched(&self, first: usize, out: &mut [u32], wide: bool) {
+    fn count_block_dispatched(
+        &self,
+        first: usize,
+        out: &mut [u32],
+        f: &Features,
+        rule: FeatureRule,
+        wide: bool,
+    ) {
         #[cfg(target_arch = "x86_64")]
         if wide {
             // SAFETY: `wide` comes from `has_avx2`, which checked that the CPU has AVX2.
-            return unsafe { count_block_avx2(self, first, out) };
+            return unsafe { count_block_avx2(self, first, out, f, rule) };
         }
         let _ = wide;
-        self.count_block(first, out)
+        self.count_block(first, out, f, rule)
     }
 
-    /// For rows `first..first + out.len()`: how many `j` (including `i`) have
-    /// `beta_ij > tau_s`, the columns taken [`COLUMN_TILE`] at a time.
+    /// For rows `first..first + out.len()`: how many `j` (including `i`) pass `rule`, the
+    /// columns taken [`COLUMN_TILE`] at a time.
     #[inline(always)]
-    fn count_block(&self, first: usize, out: &mut [u32]) {
+    fn count_block(&self, first: usize, out: &mut [u32], f: &Features, rule: FeatureRule) {
         let n = self.s[0].len();
         out.fill(0);
         let mut lengths = Vec::new();
         for start in (0..n).step_by(COLUMN_TILE) {
             let cols = start..(start + COLUMN_TILE).min(n);
             for (k, slot) in out.iter_mut().enumerate() {
-                *slot += match self.features {
-                    None => self.count(first + k, cols.clone()),
-                    Some((f, rule)) => {
-                        self.count_featured(first + k, cols.clone(), f, rule, &mut lengths)
-                    }
-                };
+                *slot += self.count_featured(first + k, cols.clone(), f, rule, &mut lengths);
             }
         }
     }
@@ -417,8 +439,12 @@ impl<'a> LengthTestF32<'a> {
         rule: FeatureRule,
         buf: &mut Vec<f32>,
     ) -> u32 {
-        buf.clear();
-        buf.extend(self.length_diffs(i, cols.clone()));
+        // A plain loop rather than `extend`: the iterator's fold is then inlined into the AVX2
+        // build instead of called as a baseline function.
+        buf.resize(cols.len(), 0.0);
+        for (slot, q) in buf.iter_mut().zip(self.length_diffs(i, cols.clone())) {
+            *slot = q;
+        }
         let hi2 = self.hi2;
         let mut count = 0;
         for (chunk, block) in buf.chunks(8).enumerate() {
@@ -428,38 +454,11 @@ impl<'a> LengthTestF32<'a> {
             for (k, &q) in block.iter().enumerate() {
                 if q <= hi2 {
                     let j = cols.start + 8 * chunk + k;
-                    let ds = std::array::from_fn(|a| self.src[a][j] - self.src[a][i]);
-                    let dt = std::array::from_fn(|a| self.dst[a][j] - self.dst[a][i]);
-                    let beta = beta_value(ds, dt, self.inv);
-                    count += u32::from(rule.passes(beta, f.similarity(i, j)));
+                    count += u32::from(rule.passes(self.beta(i, j), f.similarity(i, j)));
                 }
             }
         }
         count
-    }
-
-    /// How many `j` in `cols` have `beta_ij > tau_s`.
-    #[inline(always)]
-    fn count(&self, i: usize, cols: std::ops::Range<usize>) -> u32 {
-        let (src, dst) = (self.src, self.dst);
-        let (lo2, hi2) = (self.lo2, self.hi2);
-        let row = || self.length_diffs(i, cols.clone());
-        // Branch-free over the tile: sure and undecided counts.
-        let (mut sure, mut near) = (0u32, 0u32);
-        for q in row() {
-            sure += u32::from(q < lo2);
-            near += u32::from((q >= lo2) & (q <= hi2));
-        }
-        if near > 0 {
-            for (j, qj) in cols.clone().zip(row()) {
-                if qj >= lo2 && qj <= hi2 {
-                    let ds = std::array::from_fn(|k| src[k][j] - src[k][i]);
-                    let dt = std::array::from_fn(|k| dst[k][j] - dst[k][i]);
-                    sure += u32::from(beta_value(ds, dt, self.inv) > self.tau_s);
-                }
-            }
-        }
-        sure
     }
 }
 
