@@ -322,12 +322,7 @@ impl Basis {
                 v.iter_mut().zip(qj).for_each(|(x, q)| *x -= p * q);
             }
         }
-        let after = norm(v);
-        if after <= 1e-8 * before {
-            return false;
-        }
-        v.iter_mut().for_each(|x| *x /= after);
-        true
+        normalize_unless_vanished(v, before)
     }
 
     /// `W_new = M Q_new` for the `added` columns from `start`, in f32: one pass over the
@@ -427,12 +422,7 @@ impl Basis {
             let col = MatMut::from_column_major_slice_mut(v, n, 1);
             matmul(col, Accum::Add, q, p.as_ref(), -1.0, Par::Seq);
         }
-        let after = norm(v);
-        if after <= 1e-8 * before {
-            return false;
-        }
-        v.iter_mut().for_each(|x| *x /= after);
-        true
+        normalize_unless_vanished(v, before)
     }
 
     /// The products of the last `added` basis vectors: the next Krylov block.
@@ -543,6 +533,17 @@ fn small_evd(t: Mat<f64>) -> Option<(Vec<f64>, Mat<f64>)> {
     )
     .ok()?;
     Some(((0..k).map(|i| s[i]).collect(), u))
+}
+
+/// Normalises `v` unless less than 1e-8 of its norm `before` its projections is left (the
+/// direction was already in the basis); false then.
+fn normalize_unless_vanished(v: &mut [f64], before: f64) -> bool {
+    let after = norm(v);
+    if after <= 1e-8 * before {
+        return false;
+    }
+    v.iter_mut().for_each(|x| *x /= after);
+    true
 }
 
 fn random_block(n: usize, width: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
