@@ -484,16 +484,37 @@ fn nearest_one(s: &ScreenedQuery<'_>, base: &Features, out: &mut (Vec<usize>, Ve
     let limit = f64::from(least) + 2.0 * (err * (qn + max_norm) + tiny);
     let limit = (limit + limit.abs() * 1e-6 + tiny) as f32;
     let mut best: Option<(f64, usize)> = None;
-    for (j, (&g, &bn)) in col.iter().zip(norm).enumerate() {
-        if c(g, bn) <= limit {
-            let d2: f64 = query
-                .iter()
-                .zip(base.row(j))
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum();
-            if best.is_none_or(|(b, _)| d2 < b) {
-                best = Some((d2, j));
+    let mut rank = |j: usize| {
+        let d2: f64 = query
+            .iter()
+            .zip(base.row(j))
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum();
+        if best.is_none_or(|(b, _)| d2 < b) {
+            best = Some((d2, j));
+        }
+    };
+    // A few rows pass the limit: each block of lanes is tested branch-free first, and only a
+    // block holding one is scanned row by row (in row order, as one scan would).
+    let (cg, cb) = (col.chunks_exact(LANES), norm.chunks_exact(LANES));
+    let tail = cg.len() * LANES;
+    let (rg, rb) = (cg.remainder(), cb.remainder());
+    for (block, (g, bn)) in cg.zip(cb).enumerate() {
+        let mut any = false;
+        for l in 0..LANES {
+            any |= c(g[l], bn[l]) <= limit;
+        }
+        if any {
+            for l in 0..LANES {
+                if c(g[l], bn[l]) <= limit {
+                    rank(block * LANES + l);
+                }
             }
+        }
+    }
+    for (l, (&g, &bn)) in rg.iter().zip(rb).enumerate() {
+        if c(g, bn) <= limit {
+            rank(tail + l);
         }
     }
     // `base` is never empty (k <= base.len()), and the row of the least `c` is under the limit.

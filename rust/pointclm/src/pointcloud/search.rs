@@ -172,27 +172,27 @@ fn grid_neighbourhoods(
         .enumerate()
         .map(|(i, p)| {
             // Nearest first, the point itself ahead of any duplicate (FPFH skips the first
-            // entry as the point itself), then by index.
-            let by_distance = |a: &(usize, f64), b: &(usize, f64)| {
-                (a.1.total_cmp(&b.1))
-                    .then((a.0 != i).cmp(&(b.0 != i)))
-                    .then(a.0.cmp(&b.0))
-            };
-            let mut list = Vec::new();
+            // entry as the point itself), then by index: one integer key per neighbour
+            // (squared distances are non-negative, so their bits sort as the numbers do),
+            // which sorts several times faster than a comparator over the three fields.
+            let mut keys: Vec<u128> = Vec::new();
             grid.runs(*p, radius, |run| {
                 for (q, &j) in sorted[run.clone()].iter().zip(&index[run]) {
                     let d = dist_sq(p, q);
                     if d <= r_sq {
-                        list.push((j as usize, d));
+                        let other = u128::from(j as usize != i);
+                        keys.push(u128::from(d.to_bits()) << 64 | other << 32 | u128::from(j));
                     }
                 }
             });
-            if list.len() > max_nn {
-                list.select_nth_unstable_by(max_nn - 1, by_distance);
-                list.truncate(max_nn);
+            if keys.len() > max_nn {
+                keys.select_nth_unstable(max_nn - 1);
+                keys.truncate(max_nn);
             }
-            list.sort_unstable_by(by_distance);
-            list
+            keys.sort_unstable();
+            keys.into_iter()
+                .map(|k| ((k as u32) as usize, f64::from_bits((k >> 64) as u64)))
+                .collect::<Vec<_>>()
         })
         .collect();
     Some(lists)

@@ -141,3 +141,61 @@ fn bad_inputs_are_typed_errors() {
         [0.0; FPFH_DIM]
     );
 }
+
+#[test]
+fn atan_polynomial_stays_within_its_bound() {
+    let steps = 2_000_000;
+    let mut worst = 0.0f64;
+    for i in 0..=steps {
+        let a = i as f64 / steps as f64;
+        let mut p = ATAN_COEFFS[7];
+        for c in ATAN_COEFFS[..7].iter().rev() {
+            p = p * a * a + c;
+        }
+        worst = worst.max((p * a - a.atan()).abs());
+    }
+    assert!(worst < ATAN_ERROR, "{worst}");
+}
+
+#[test]
+fn theta_bin_is_the_library_atan2_bin() {
+    use rand::{Rng, SeedableRng};
+    let exact = |y: f64, x: f64| bin((y.atan2(x) + PI) / (2.0 * PI));
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut checked = 0;
+    // Random directions and magnitudes, and angles within a few ulps of every bin boundary
+    // (where the library decides), both signs of zero and non-finite arguments.
+    for _ in 0..200_000 {
+        let (y, x) = (rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let s: f64 = 10f64.powi(rng.random_range(-5..5));
+        assert_eq!(theta_bin(y * s, x * s), exact(y * s, x * s), "{y} {x}");
+        checked += 1;
+    }
+    for k in 0..=BINS {
+        let edge = -PI + 2.0 * PI * k as f64 / BINS as f64;
+        for ulps in -40i64..=40 {
+            let t = f64::from_bits((edge.to_bits() as i64 + ulps) as u64);
+            for r in [1e-3, 0.7, 1.0, 3e4] {
+                let (y, x) = (r * t.sin(), r * t.cos());
+                assert_eq!(theta_bin(y, x), exact(y, x), "{t} {r}");
+                checked += 1;
+            }
+        }
+    }
+    let odd = [
+        0.0,
+        -0.0,
+        1.0,
+        -1.0,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NAN,
+        1e-320,
+    ];
+    for y in odd {
+        for x in odd {
+            assert_eq!(theta_bin(y, x), exact(y, x), "{y} {x}");
+        }
+    }
+    assert!(checked > 200_000);
+}
