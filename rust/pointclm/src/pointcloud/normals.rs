@@ -42,29 +42,29 @@ pub fn estimate_normals(
             row: 0,
         });
     }
+    // The lists FPFH uses too (from a grid where the cloud allows): nearest first, as the
+    // tree's own search returns them.
+    let hoods = index.neighbourhoods(points, radius, max_nn)?;
     Ok(points
         .par_iter()
-        .map(|p| {
-            let neighbours = index.hybrid(p, radius, max_nn);
-            let n = pca_normal(points, &neighbours);
-            orient(n, p, orientation)
-        })
+        .enumerate()
+        .map(|(i, p)| orient(pca_normal(points, hoods.of(i).0), p, orientation))
         .collect())
 }
 
-fn pca_normal(points: &[[f64; 3]], neighbours: &[(usize, f64)]) -> [f64; 3] {
+fn pca_normal(points: &[[f64; 3]], neighbours: &[u32]) -> [f64; 3] {
     if neighbours.len() < 3 {
         return [0.0, 0.0, 1.0];
     }
     let inv = 1.0 / neighbours.len() as f64;
     let mut mean = Vector3::zeros();
-    for &(j, _) in neighbours {
-        mean += Vector3::from(points[j]);
+    for &j in neighbours {
+        mean += Vector3::from(points[j as usize]);
     }
     mean *= inv;
     let mut cov = Matrix3::zeros();
-    for &(j, _) in neighbours {
-        let d = Vector3::from(points[j]) - mean;
+    for &j in neighbours {
+        let d = Vector3::from(points[j as usize]) - mean;
         cov += d * d.transpose();
     }
     cov *= inv;

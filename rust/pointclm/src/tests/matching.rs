@@ -342,3 +342,49 @@ fn the_nearest_row_fast_path_equals_the_general_ranking() {
         assert_eq!(d_one[i], d_two[2 * i], "query {i}");
     }
 }
+
+#[test]
+fn mutual_nearest_equals_both_searches_with_ties() {
+    // Small integer descriptors: many exactly equal distances and duplicate rows, so every
+    // tie rule of the two-way search is exercised.
+    let rows = |n: usize, salt: u64| -> Vec<Vec<f64>> {
+        (0..n)
+            .map(|i| {
+                (0..4)
+                    .map(|j| ((i as u64 * 7919 + j as u64 * 104729 + salt) % 5) as f64)
+                    .collect()
+            })
+            .collect()
+    };
+    let mut cases: Vec<(Vec<Vec<f64>>, Vec<Vec<f64>>)> = [
+        (40, 300, 1),
+        (300, 40, 2),
+        (64, 64, 3),
+        (1, 9, 4),
+        (9, 1, 5),
+    ]
+    .into_iter()
+    .map(|(ns, nt, salt)| (rows(ns, salt), rows(nt, salt + 10)))
+    .collect();
+    // Target row 1 is the closest of the rows that chose source row 1, but the lower target row 0 (which
+    // chose source row 0 at a tie) is as near to it, so source row 1's nearest is row 0.
+    cases.push((vec![vec![0.0], vec![2.0]], vec![vec![1.0], vec![3.0]]));
+    for (src, tgt) in cases {
+        let (ns, nt) = (src.len(), tgt.len());
+        let (src, tgt) = (features(&src), features(&tgt));
+        let (s_of_t, d2) = nearest_rows(&tgt, &src, 1);
+        let (t_of_s, _) = nearest_rows(&src, &tgt, 1);
+        let fast = mutual_nearest(&src, &tgt, &s_of_t, &d2);
+        for p in 0..nt {
+            assert_eq!(fast[p], t_of_s[s_of_t[p]] == p, "row {p} of {ns} x {nt}");
+        }
+        let cfg = MatchingConfig {
+            top_k: usize::MAX,
+            mutual: true,
+            k: 1,
+            n_samples: None,
+        };
+        let m = match_features(&src, &tgt, &cfg, 0).unwrap();
+        assert_eq!(m.len(), fast.iter().filter(|&&b| b).count());
+    }
+}
