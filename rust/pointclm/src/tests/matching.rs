@@ -356,7 +356,8 @@ fn mutual_nearest_equals_both_searches_with_ties() {
             })
             .collect()
     };
-    let mut cases: Vec<(Vec<Vec<f64>>, Vec<Vec<f64>>)> = [
+    type Rows = Vec<Vec<f64>>;
+    let mut cases: Vec<(Rows, Rows)> = [
         (40, 300, 1),
         (300, 40, 2),
         (64, 64, 3),
