@@ -190,3 +190,34 @@ fn a_radius_large_against_the_cloud_takes_the_tree() {
     let hoods = index.neighbourhoods(&points, 10.0, 10).unwrap();
     assert_eq!(hoods.of(5).0.len(), 10);
 }
+
+#[test]
+fn grid_nearest_within_equals_the_trees_far_from_the_origin() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(22);
+    // Coordinates 1e7 cells from the origin, where the cell coordinates round most, and
+    // points on cell boundaries.
+    let offset = [3.0e5, -2.0e5, 1.0e5];
+    let cell = 0.03;
+    let mut pts: Vec<[f64; 3]> = (0..3000)
+        .map(|_| [0, 1, 2].map(|a| offset[a] + rng.random_range(0.0..1.0)))
+        .collect();
+    pts.extend((0..200).map(|i| [0, 1, 2].map(|a| offset[a] + cell * (i % 30) as f64)));
+    let tree = PointIndex::new(&pts).unwrap();
+    let grid = PointIndex::with_cells(&pts, cell).unwrap();
+    for k in 0..3000 {
+        let q = if k % 3 == 0 {
+            pts[k].map(|v| v + cell * 0.5)
+        } else {
+            [0, 1, 2].map(|a| offset[a] + rng.random_range(-0.1..1.1))
+        };
+        for radius in [0.01, cell, 0.05, 0.2] {
+            // Duplicates: the tree may name another copy of the same point.
+            let (a, b) = (
+                tree.nearest_within(&q, radius),
+                grid.nearest_within(&q, radius),
+            );
+            assert_eq!(a.map(|(i, d)| (pts[i], d)), b.map(|(i, d)| (pts[i], d)));
+        }
+    }
+}
