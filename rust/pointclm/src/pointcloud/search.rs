@@ -97,29 +97,12 @@ impl PointIndex {
         let grid = (points.len() <= u32::MAX as usize)
             .then(|| grid_neighbourhoods(points, radius, max_nn))
             .flatten();
-        let lists = grid.unwrap_or_else(|| {
-            points
-                .par_iter()
-                .map(|p| self.hybrid(p, radius, max_nn))
-                .collect()
-        });
-        let mut offsets = Vec::with_capacity(points.len() + 1);
-        offsets.push(0);
-        let total: usize = lists.iter().map(Vec::len).sum();
-        let mut index = Vec::with_capacity(total);
-        let mut dist2 = Vec::with_capacity(total);
-        for list in lists {
-            for (j, d) in list {
-                index.push(j as u32);
-                dist2.push(d);
-            }
-            offsets.push(index.len());
-        }
-        Ok(Neighbourhoods {
-            offsets,
-            index,
-            dist2,
-        })
+        Ok(grid.unwrap_or_else(|| {
+            Neighbourhoods::build(points.len(), |i, chunk, _| {
+                let list = self.hybrid(&points[i], radius, max_nn);
+                chunk.push(list.into_iter().map(|(j, d)| (j as u32, d)));
+            })
+        }))
     }
 }
 
@@ -155,11 +138,7 @@ fn nearest_in_grid(
 /// `None` when the cells hold so many points that a query would scan far more than `max_nn`
 /// of them (a radius large against the cloud): the tree, which stops at the `max_nn` nearest,
 /// is then faster.
-fn grid_neighbourhoods(
-    points: &[[f64; 3]],
-    radius: f64,
-    max_nn: usize,
-) -> Option<Vec<Vec<(usize, f64)>>> {
+fn grid_neighbourhoods(points: &[[f64; 3]], radius: f64, max_nn: usize) -> Option<Neighbourhoods> {
     let grid = UniformGrid::new(points, radius);
     // A query scans up to 27 cells.
     if 27.0 * grid.mean_occupancy() > 16.0 * max_nn.max(16) as f64 {
@@ -167,62 +146,105 @@ fn grid_neighbourhoods(
     }
     let (sorted, index) = grid.points();
     let r_sq = radius * radius;
-    let lists = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            // Nearest first, the point itself ahead of any duplicate (FPFH skips the first
-            // entry as the point itself), then by index: one integer key per neighbour
-            // (squared distances are non-negative, so their bits sort as the numbers do),
-            // which sorts several times faster than a comparator over the three fields.
-            let mut keys: Vec<u128> = Vec::new();
-            grid.runs(*p, radius, |run| {
-                for (q, &j) in sorted[run.clone()].iter().zip(&index[run]) {
-                    let d = dist_sq(p, q);
-                    if d <= r_sq {
-                        let other = u128::from(j as usize != i);
-                        keys.push(u128::from(d.to_bits()) << 64 | other << 32 | u128::from(j));
-                    }
+    Some(Neighbourhoods::build(points.len(), |i, chunk, keys| {
+        let p = &points[i];
+        // Nearest first, the point itself ahead of any duplicate (FPFH skips the first
+        // entry as the point itself), then by index: one integer key per neighbour (squared
+        // distances are non-negative, so their bits sort as the numbers do), which sorts
+        // several times faster than a comparator over the three fields.
+        keys.clear();
+        grid.runs(*p, radius, |run| {
+            for (q, &j) in sorted[run.clone()].iter().zip(&index[run]) {
+                let d = dist_sq(p, q);
+                if d <= r_sq {
+                    let other = u128::from(j as usize != i);
+                    keys.push(u128::from(d.to_bits()) << 64 | other << 32 | u128::from(j));
                 }
-            });
-            if keys.len() > max_nn {
-                keys.select_nth_unstable(max_nn - 1);
-                keys.truncate(max_nn);
             }
-            keys.sort_unstable();
-            keys.into_iter()
-                .map(|k| ((k as u32) as usize, f64::from_bits((k >> 64) as u64)))
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    Some(lists)
+        });
+        if keys.len() > max_nn {
+            keys.select_nth_unstable(max_nn - 1);
+            keys.truncate(max_nn);
+        }
+        keys.sort_unstable();
+        chunk.push(
+            keys.iter()
+                .map(|&k| (k as u32, f64::from_bits((k >> 64) as u64))),
+        );
+    }))
 }
 
-/// Neighbour lists of every point, stored flat (CSR): the lists are reused by the two passes
-/// of FPFH instead of searching twice as Open3D does.
+/// Points per chunk of [`Neighbourhoods`]: one parallel task's share. Why chunks: lists built
+/// per point cost an allocation each and a serial copy into one flat array at the end, which
+/// took as long as the search on two threads.
+const CHUNK: usize = 256;
+
+/// Neighbour lists of every point, stored flat (CSR) in chunks of [`CHUNK`] points: the lists
+/// are reused by the two passes of FPFH instead of searching twice as Open3D does.
 #[derive(Debug, Clone)]
 pub struct Neighbourhoods {
+    chunks: Vec<HoodChunk>,
+    len: usize,
+}
+
+/// The lists of [`CHUNK`] consecutive points.
+#[derive(Debug, Clone)]
+struct HoodChunk {
     offsets: Vec<usize>,
     index: Vec<u32>,
     dist2: Vec<f64>,
 }
 
+impl HoodChunk {
+    /// Appends the next point's list.
+    fn push(&mut self, list: impl Iterator<Item = (u32, f64)>) {
+        for (j, d) in list {
+            self.index.push(j);
+            self.dist2.push(d);
+        }
+        self.offsets.push(self.index.len());
+    }
+}
+
 impl Neighbourhoods {
+    /// The lists of points `0..n`, `fill(i, chunk, scratch)` appending point `i`'s, chunks in
+    /// parallel on the current rayon pool (`scratch` is reused within a chunk).
+    fn build(n: usize, fill: impl Fn(usize, &mut HoodChunk, &mut Vec<u128>) + Sync) -> Self {
+        let chunks = (0..n.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut chunk = HoodChunk {
+                    offsets: vec![0],
+                    index: Vec::new(),
+                    dist2: Vec::new(),
+                };
+                let mut scratch = Vec::new();
+                for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                    fill(i, &mut chunk, &mut scratch);
+                }
+                chunk
+            })
+            .collect();
+        Self { chunks, len: n }
+    }
+
     /// Neighbours of point `i`, nearest first (the point itself first).
     #[inline]
     pub fn of(&self, i: usize) -> (&[u32], &[f64]) {
-        let (a, b) = (self.offsets[i], self.offsets[i + 1]);
-        (&self.index[a..b], &self.dist2[a..b])
+        let chunk = &self.chunks[i / CHUNK];
+        let at = i % CHUNK;
+        let (a, b) = (chunk.offsets[at], chunk.offsets[at + 1]);
+        (&chunk.index[a..b], &chunk.dist2[a..b])
     }
 
     /// Number of points the lists belong to.
     pub fn len(&self) -> usize {
-        self.offsets.len() - 1
+        self.len
     }
 
     /// True when there are no lists.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.len == 0
     }
 }
 

@@ -162,7 +162,10 @@ fn grid_neighbourhoods_equal_the_trees() {
         let index = PointIndex::new(points).unwrap();
         let grid = grid_neighbourhoods(points, radius, max_nn).unwrap();
         for (i, p) in points.iter().enumerate() {
-            assert_eq!(grid[i], index.hybrid(p, radius, max_nn), "point {i}");
+            let (idx, d2) = grid.of(i);
+            let list: Vec<(usize, f64)> =
+                idx.iter().map(|&j| j as usize).zip(d2.to_vec()).collect();
+            assert_eq!(list, index.hybrid(p, radius, max_nn), "point {i}");
         }
     }
 }
@@ -176,8 +179,9 @@ fn a_point_comes_first_in_its_own_neighbourhood_among_duplicates() {
         [0.0, 0.0, 0.0],
     ];
     let lists = grid_neighbourhoods(&points, 0.5, 10).unwrap();
-    for (i, list) in lists.iter().enumerate() {
-        assert_eq!(list[0].0, i);
+    assert_eq!(lists.len(), 4);
+    for i in 0..4 {
+        assert_eq!(lists.of(i).0[0] as usize, i);
     }
 }
 
@@ -189,6 +193,29 @@ fn a_radius_large_against_the_cloud_takes_the_tree() {
     let index = PointIndex::new(&points).unwrap();
     let hoods = index.neighbourhoods(&points, 10.0, 10).unwrap();
     assert_eq!(hoods.of(5).0.len(), 10);
+}
+
+#[test]
+fn lists_span_several_chunks() {
+    // More points than one chunk holds, on both paths (grid and tree).
+    let points: Vec<[f64; 3]> = (0..3 * CHUNK + 7)
+        .map(|i| [(i % 40) as f64 * 0.1, (i / 40) as f64 * 0.1, 0.0])
+        .collect();
+    let index = PointIndex::new(&points).unwrap();
+    for radius in [0.15, 100.0] {
+        let hoods = index.neighbourhoods(&points, radius, 9).unwrap();
+        assert_eq!(hoods.len(), points.len());
+        for (i, p) in points.iter().enumerate() {
+            let (idx, d2) = hoods.of(i);
+            let want = index.hybrid(p, radius, 9);
+            assert_eq!(idx.len(), want.len(), "point {i}");
+            assert_eq!(idx[0] as usize, i);
+            for (k, &(j, d)) in want.iter().enumerate() {
+                assert_eq!(d2[k], d);
+                assert_eq!(dist_sq(p, &points[idx[k] as usize]), dist_sq(p, &points[j]));
+            }
+        }
+    }
 }
 
 #[test]
