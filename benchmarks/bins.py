@@ -22,6 +22,9 @@ the same voxel and the sensor position, in the same run:
 - **pointclm (one pass)**: the same with ``peel=False`` (one correspondence stage, the paper's).
 - **pointclm (all matches)**: the same with ``mutual=False, n_samples=None`` (:data:`ALL_MATCHES`):
   every scan point's best model match among the top 10,000, the setting for heaps.
+- **pointclm (windowed mutual)**: the same with ``mutual_window=2, n_samples=None``
+  (:data:`WINDOWED_MATCHES`): the mutual check within overlapping cubes two part diagonals
+  wide, so each copy keeps its own mutual matches, all of them kept.
 - **sequential KISS-Matcher** (``benchmarks/peers.py``) on the correspondences of pointclm's
   first pass (``PointCloudRegistration.correspondences``): noise bound 2 voxels, a pose kept
   while it explains at least 6 correspondences (twice the minimal sample), at most 80 poses;
@@ -79,6 +82,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 #: 10,000, not only mutual ones (a model point has one true match per visible copy, and the
 #: mutual filter keeps at most one of them), all of them, not a sample of 1000.
 ALL_MATCHES = {"mutual": False, "n_samples": None}
+#: The mutual check made within cubes of two part diagonals (a grid of stride one diagonal),
+#: so that each copy keeps its own mutual matches, and all of them kept.
+WINDOWED_MATCHES = {"mutual_window": 2.0, "n_samples": None}
+#: Matching arguments per method (the others: `register_point_clouds`' defaults).
+MATCHING = {"pointclm (all matches)": ALL_MATCHES, "pointclm (windowed mutual)": WINDOWED_MATCHES}
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
 #: Sequential KISS-Matcher keeps a pose while it explains this many correspondences.
@@ -87,6 +95,7 @@ METHODS = (
     "pointclm",
     "pointclm (one pass)",
     "pointclm (all matches)",
+    "pointclm (windowed mutual)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )
@@ -379,7 +388,7 @@ def main() -> None:
                         voxel_size=sc.voxel_size,
                         viewpoint=sc.sensor,
                         peel=method != "pointclm (one pass)",
-                        **(ALL_MATCHES if method == "pointclm (all matches)" else {}),
+                        **MATCHING.get(method, {}),
                     )
                     n_down.append(len(reg.target_points))
                 if method.startswith("pointclm"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pointclm
 import pointclm.preprocessing as pp
 import pytest
 
@@ -63,3 +64,43 @@ def test_the_core_checks_given_nearest_sources() -> None:
     bad[0, 0] = len(SRC)
     with pytest.raises(ValueError, match="does not exist"):
         _core.match_features(SRC, TGT, k=2, nearest=(bad, d2))
+
+
+def _two_copies() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A model of 150 points in the unit cube, and a scan of two copies of it 10 apart whose
+    descriptors are the model's with a little noise of their own."""
+    rng = np.random.default_rng(7)
+    model = rng.random((150, 3))
+    scan = np.vstack([model, model + [10.0, 0.0, 0.0]])
+    desc = np.vstack([SRC + rng.normal(0, 0.01, SRC.shape) for _ in range(2)])
+    return model, scan, desc
+
+
+def test_a_windowed_mutual_check_keeps_every_copys_matches() -> None:
+    model, scan, desc = _two_copies()
+    diagonal = float(np.linalg.norm(model.max(0) - model.min(0)))
+    matcher = pp.DescriptorMatcher(SRC, desc, target_points=scan)
+    scene_wide = matcher.match(mutual=True, n_samples=None)
+    assert len(scene_wide) <= len(SRC)  # one scan point per model point: one copy's worth
+    local = matcher.match(mutual=True, n_samples=None, window=2 * diagonal)
+    assert np.array_equal(local.target % len(SRC), local.source)  # every pair a true match
+    per_copy = np.bincount(local.target // len(SRC), minlength=2)
+    assert per_copy.min() >= 0.9 * len(SRC), per_copy
+    # A subset of the rows: only its points are matched, each copy still by itself.
+    rows = np.flatnonzero(np.arange(len(scan)) % 2 == 0)
+    part = matcher.match(rows, mutual=True, n_samples=None, window=2 * diagonal)
+    assert np.isin(part.target, rows).all() and len(part) >= 0.9 * len(rows)
+
+
+def test_a_window_needs_the_mutual_check_one_neighbour_and_the_points() -> None:
+    model, scan, desc = _two_copies()
+    with pytest.raises(ValueError, match="mutual=True and k=1"):
+        pp.DescriptorMatcher(SRC, desc, target_points=scan).match(mutual=False, window=1.0)
+    with pytest.raises(ValueError, match="mutual=True and k=1"):
+        pp.DescriptorMatcher(SRC, desc, k=2, target_points=scan).match(mutual=True, window=1.0)
+    with pytest.raises(ValueError, match="target_points"):
+        pp.DescriptorMatcher(SRC, desc).match(mutual=True, window=1.0)
+    with pytest.raises(ValueError, match="one target point per target descriptor"):
+        pp.DescriptorMatcher(SRC, desc, target_points=scan[:-1])
+    with pytest.raises(ValueError, match="mutual_window needs"):
+        pointclm.register_point_clouds(model, scan, mutual=False, mutual_window=2.0)

@@ -118,6 +118,20 @@ PARAMETERS: dict[str, str] = _entries(
             points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
             then `n_samples` sampled (None: all); see :func:`pointclm.preprocessing.match_features`.
         """,
+    mutual_window="""
+        mutual_window : float, optional
+            For heaps of identical parts (bin picking): the mutual check is made within
+            overlapping cubes of this side, in model diagonals (the model's bounding-box
+            diagonal), instead of over the whole scan (needs `mutual` and ``k=1``;
+            :meth:`pointclm.preprocessing.DescriptorMatcher.match`'s ``window``). Why: a model
+            point has one true match per visible copy, and the scene-wide check keeps at most one
+            of them, so most copies keep too few matches to be found; ``mutual=False`` keeps them
+            but floods the copies with false matches. 2 (with ``n_samples=None``) on the
+            validation bins: half-visible copies found 0.27 -> 0.34 (by ADD-S 0.36 -> 0.48;
+            precision by ADD-S 0.99 -> 0.98), in 1.9 times the time. None: the scene-wide
+            check, better for a few copies among clutter (realistic validation scenes: F1 0.81
+            with it, 0.79 with windows of 2).
+        """,
     cloud_normals="""
         normals : bool
             Give the pipeline the clouds' normals at both ends of each correspondence, so spatial

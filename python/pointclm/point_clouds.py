@@ -25,6 +25,7 @@ from ._core import Instance, RegistrationResult
 from .config import Config
 from .docstrings import fill
 from .embedding import Embedding, resolve
+from .errors import InputError
 from .refinement import (
     MAX_CONTRADICTION,
     MIN_FITNESS,
@@ -294,6 +295,7 @@ def register_point_clouds(
     mutual: bool = True,
     n_samples: int | None = 1000,
     k: int = 1,
+    mutual_window: float | None = None,
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
@@ -311,6 +313,7 @@ def register_point_clouds(
     %(cloud_model)s
     %(viewpoint)s
     %(matching)s
+    %(mutual_window)s
     %(cloud_normals)s
     %(refine)s
     %(peel)s
@@ -320,6 +323,7 @@ def register_point_clouds(
     """
     t0 = time.perf_counter()
     embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint)
+    window = _window_diagonals(mutual_window, mutual, k)
     src = _load(source, "source")
     tgt = _load(target, "target")
     view = _recorded_viewpoint(target) if view is None else view
@@ -329,15 +333,28 @@ def register_point_clouds(
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
-    matching = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples}
-    matcher = pp.DescriptorMatcher(
-        src_d.descriptors, tgt_d.descriptors, k=k, num_threads=num_threads
-    )
+    matching: dict[str, Any] = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples}
+    if window is not None:  # in the clouds' units
+        matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
+    matcher = _matcher(src_d, tgt_d, k, num_threads)
     run = _Run(src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads)
     reg = _register(run, config, refine, peel)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
     return replace(reg, orientation=orientation)
+
+
+def _matcher(
+    src_d: pp.DescribedCloud, tgt_d: pp.DescribedCloud, k: int, num_threads: int | None
+) -> pp.DescriptorMatcher:
+    """The run's matcher: the scan's positions come along for a windowed mutual check."""
+    return pp.DescriptorMatcher(
+        src_d.descriptors,
+        tgt_d.descriptors,
+        k=k,
+        num_threads=num_threads,
+        target_points=tgt_d.points,
+    )
 
 
 def _checked_arguments(
@@ -351,6 +368,16 @@ def _checked_arguments(
     embedding = None if model is None else resolve(model)
     view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
     return embedding, view
+
+
+def _window_diagonals(window: float | None, mutual: bool, k: int) -> float | None:
+    """`mutual_window` checked before the files are read."""
+    if window is None:
+        return None
+    side = pp.as_positive(window, "mutual_window")
+    if not mutual or k != 1:
+        raise InputError("mutual_window needs mutual=True and k=1: it makes the check local")
+    return side
 
 
 def _recorded_viewpoint(target: Any) -> tuple[float, float, float] | None:
