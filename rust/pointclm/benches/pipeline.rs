@@ -1,15 +1,20 @@
 //! Criterion benchmarks of the whole pipeline, of its O(N^2) pruning stage, of the
 //! clustering of one kept set (the partial eigensolver alone, and with the Laplacian and
-//! k-means) and of the a-contrario test's null probability (one radius count per
-//! correspondence and pose).
+//! k-means), of the a-contrario test's null probability (one radius count per
+//! correspondence and pose), and of the point-cloud kernels on a 20,000-point surface:
+//! normals, FPFH, mutual descriptor matching and refinement's bounded nearest-point queries.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use pointclm::clustering::{partial_basis, settled_count, spectral_clustering_by, Count};
 use pointclm::lowest_eigen::lowest_eigenpairs;
+use pointclm::matching::{match_features, MatchingConfig};
+use pointclm::pointcloud::{
+    estimate_normals, fpfh, FpfhVariant, Orientation, PointIndex, FPFH_DIM,
+};
 use pointclm::pruning::{density_counts, select_kept};
 use pointclm::spectral::{affinity, normalized_laplacian};
 use pointclm::validation::NullModel;
-use pointclm::{register, Config, Correspondences, RigidTransform};
+use pointclm::{register, Config, Correspondences, Features, RigidTransform};
 
 /// `instances` copies with `per` noise-free inliers each, the rest uniform outliers in
 /// [0, 6)^3, from a fixed linear congruential sequence.
@@ -85,5 +90,76 @@ fn bench(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench);
+/// A bumpy sheet (two scales of waves, so that local shapes vary) sampled on a jittered grid: `side` x `side` points about 1 apart, like a
+/// downsampled scan of a surface.
+fn surface(side: usize) -> Vec<[f64; 3]> {
+    let mut state = 11u64;
+    let mut u = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    (0..side * side)
+        .map(|k| {
+            let (x, y) = ((k % side) as f64 + 0.3 * u(), (k / side) as f64 + 0.3 * u());
+            let z = 4.0 * (x / 9.0).sin() * (y / 13.0).cos()
+                + 1.5 * (x / 3.7 + y / 5.3).sin() * (x / 6.1 - y / 2.9).cos();
+            [x, y, z + 0.05 * u()]
+        })
+        .collect()
+}
+
+fn bench_point_clouds(c: &mut Criterion) {
+    let pool = pointclm::pipeline::thread_pool(1).expect("pool");
+    let scan = surface(141);
+    let index = PointIndex::new(&scan).expect("index");
+    let towards = Orientation::Towards([70.0, 70.0, 100.0]);
+    c.bench_function("normals_20k_points_1_thread", |b| {
+        b.iter(|| pool.install(|| estimate_normals(&scan, &index, 2.0, 30, towards).expect("n")))
+    });
+    let normals = estimate_normals(&scan, &index, 2.0, 30, towards).expect("normals");
+    c.bench_function("fpfh_20k_points_1_thread", |b| {
+        b.iter(|| {
+            pool.install(|| fpfh(&scan, &normals, &index, 5.0, 100, FpfhVariant::Open3d))
+                .expect("fpfh")
+        })
+    });
+    let desc = fpfh(&scan, &normals, &index, 5.0, 100, FpfhVariant::Open3d).expect("fpfh");
+    let flat = |rows: &[[f64; FPFH_DIM]]| {
+        Features::new(rows.iter().flatten().copied().collect(), FPFH_DIM).expect("features")
+    };
+    // A 2,000-point "model": a patch of the same surface.
+    let model: Vec<[f64; FPFH_DIM]> = (0..scan.len())
+        .filter(|k| k % 141 < 45 && k / 141 < 45)
+        .map(|k| desc[k])
+        .collect();
+    let (model, scan_desc) = (flat(&model), flat(&desc));
+    let mutual = MatchingConfig {
+        mutual: true,
+        ..MatchingConfig::default()
+    };
+    c.bench_function("mutual_matching_2k_x_20k_1_thread", |b| {
+        b.iter(|| {
+            pool.install(|| match_features(&model, &scan_desc, &mutual, 0))
+                .expect("m")
+        })
+    });
+    let grid = PointIndex::with_cells(&scan, 1.5).expect("grid");
+    let queries: Vec<[f64; 3]> = scan
+        .iter()
+        .step_by(10)
+        .map(|p| [p[0] + 0.4, p[1], p[2] + 0.7])
+        .collect();
+    c.bench_function("nearest_within_2k_queries", |b| {
+        b.iter(|| {
+            queries
+                .iter()
+                .filter_map(|q| grid.nearest_within(q, 1.5))
+                .count()
+        })
+    });
+}
+
+criterion_group!(benches, bench, bench_point_clouds);
 criterion_main!(benches);
