@@ -86,7 +86,11 @@ ALL_MATCHES = {"mutual": False, "n_samples": None}
 #: so that each copy keeps its own mutual matches, and all of them kept.
 WINDOWED_MATCHES = {"mutual_window": 2.0, "n_samples": None}
 #: Matching arguments per method (the others: `register_point_clouds`' defaults).
-MATCHING = {"pointclm (all matches)": ALL_MATCHES, "pointclm (windowed mutual)": WINDOWED_MATCHES}
+MATCHING = {
+    "pointclm (all matches)": ALL_MATCHES,
+    "pointclm (windowed mutual)": WINDOWED_MATCHES,
+    "pointclm (flips)": {"flips": True},
+}
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
 #: Sequential KISS-Matcher keeps a pose while it explains this many correspondences.
@@ -96,6 +100,7 @@ METHODS = (
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",
+    "pointclm (flips)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )

@@ -33,6 +33,7 @@ from .refinement import (
     MIN_VISIBLE_FITNESS,
     RefinedPoses,
     refine_poses,
+    resolve_flips,
 )
 from .registration import as_config, as_threads, register
 
@@ -299,6 +300,7 @@ def register_point_clouds(
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
+    flips: bool = False,
     num_threads: int | None = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
@@ -317,12 +319,16 @@ def register_point_clouds(
     %(cloud_normals)s
     %(refine)s
     %(peel)s
+    flips : bool
+        With `refine`: also try each accepted pose turned half a turn about each principal
+        axis of the model through its centroid, and keep a turned pose the scan supports
+        better (:func:`pointclm.refinement.resolve_flips`). False: the poses as verified.
     %(num_threads)s
 
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint)
+    embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window = _window_diagonals(mutual_window, mutual, k)
     src = _load(source, "source")
     tgt = _load(target, "target")
@@ -338,7 +344,7 @@ def register_point_clouds(
         matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
     matcher = _matcher(src_d, tgt_d, k, num_threads)
     run = _Run(src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads)
-    reg = _register(run, config, refine, peel)
+    reg = _register(run, config, refine, peel, flips)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
     return replace(reg, orientation=orientation)
@@ -358,13 +364,19 @@ def _matcher(
 
 
 def _checked_arguments(
-    num_threads: int | None, refine: bool, mutual: bool, model: Any, viewpoint: ArrayLike | None
+    num_threads: int | None,
+    refine: bool,
+    mutual: bool,
+    model: Any,
+    viewpoint: ArrayLike | None,
+    flips: bool = False,
 ) -> tuple[Embedding | None, tuple[float, float, float] | None]:
     """What of `register_point_clouds`' arguments can be checked before the files are read:
     the model resolved (a bad model fails before the work) and the viewpoint as a point."""
     as_threads(num_threads)
     pp.as_flag(refine, "refine")
     pp.as_flag(mutual, "mutual")
+    pp.as_flag(flips, "flips")
     embedding = None if model is None else resolve(model)
     view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
     return embedding, view
@@ -488,7 +500,7 @@ _KEEP_ALL: dict[str, Any] = {
 
 
 def _register(
-    run: _Run, config: Config | dict[str, Any] | None, refine: bool, peel: bool
+    run: _Run, config: Config | dict[str, Any] | None, refine: bool, peel: bool, flips: bool = False
 ) -> PointCloudRegistration:
     """The correspondence stage, refinement and verification, then peeling: every stage
     after the clouds are described."""
@@ -513,6 +525,8 @@ def _register(
     t5 = time.perf_counter()
     if refine and peel and len(tags):
         refined, tags = _peel(run, refined, tags, passes, cfg)
+    if refine and flips and len(tags):
+        refined, tags = _resolve_flips(run, refined, tags)
     t6 = time.perf_counter()
     stage = dict(result.timings)
     timings = {
@@ -775,6 +789,23 @@ def _reverify(
         num_threads=run.num_threads,
     )
     return both, [pool_tags[int(o)] for o in both.origin]
+
+
+def _resolve_flips(
+    run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]]
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """The accepted poses with half-turned alternatives the scan supports better
+    (:func:`pointclm.refinement.resolve_flips`), surest first."""
+    flipped, order = resolve_flips(
+        run.src_d.points,
+        run.tgt_d.points,
+        refined,
+        run.voxel,
+        viewpoint=run.viewpoint,
+        target_normals=run.tgt_d.normals,
+        num_threads=run.num_threads,
+    )
+    return flipped, [tags[int(i)] for i in order]
 
 
 def _not_duplicates(

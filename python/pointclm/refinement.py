@@ -41,6 +41,7 @@ __all__ = [
     "MIN_VISIBLE_FITNESS",
     "RefinedPoses",
     "refine_poses",
+    "resolve_flips",
 ]
 
 #: With a viewpoint: a pose must explain at least this share of what the sensor could see of
@@ -55,6 +56,12 @@ MAX_CONTRADICTION = 0.01
 #: With a viewpoint: the sensor must be able to see at least this share of the model at a
 #: pose (below it there is too little to judge).
 MIN_SEEN = 0.05
+#: A half turn of the model is tried by :func:`resolve_flips` only when at least this share of
+#: the turned model lies farther than 1.5 voxels (the fitness radius) from the model: below it
+#: the turn maps the model onto itself as far as verification can tell (the elliptic cylinder,
+#: the capsule and the bed of the validation bins), so the scan cannot choose, and switching
+#: would only follow noise.
+MIN_FLIP_CHANGE = 0.05
 #: Without a viewpoint: poses explaining less of the model are rejected whatever the rest of
 #: the scene holds.
 MIN_FITNESS = 0.3
@@ -229,3 +236,81 @@ def _number(value: float, name: str) -> float:
         return float(value)
     except OverflowError:
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None
+
+
+def flip_turns(source_points: ArrayLike, voxel_size: float) -> np.ndarray:
+    """(F, 4, 4) half turns of the model about its principal axes through its centroid that
+    verification can tell from the model itself (`MIN_FLIP_CHANGE`); F <= 3."""
+    from scipy.spatial import cKDTree
+
+    src = pp.as_points(source_points, "source_points")
+    voxel = pp.as_positive(voxel_size, "voxel_size")
+    centre = src.mean(0)
+    _, axes = np.linalg.eigh(np.cov((src - centre).T))
+    tree = cKDTree(src)
+    turns = []
+    for axis in axes.T:
+        rot = 2.0 * np.outer(axis, axis) - np.eye(3)  # half a turn about `axis`
+        dist, _ = tree.query((src - centre) @ rot.T + centre)
+        if np.mean(dist > 1.5 * voxel) >= MIN_FLIP_CHANGE:
+            turn = np.eye(4)
+            turn[:3, :3], turn[:3, 3] = rot, centre - rot @ centre
+            turns.append(turn)
+    return np.array(turns).reshape(-1, 4, 4)
+
+
+def resolve_flips(
+    source_points: ArrayLike,
+    target_points: ArrayLike,
+    poses: RefinedPoses,
+    voxel_size: float,
+    *,
+    viewpoint: ArrayLike | None = None,
+    target_normals: ArrayLike | None = None,
+    num_threads: int | None = None,
+) -> tuple[RefinedPoses, np.ndarray]:
+    """Verified `poses` with each replaced by a half-turned alternative the scan supports
+    better, surest first, and the row of `poses` each came from.
+
+    Why: a part close to a symmetry under a half turn (a bathtub end for end, a box with a
+    block on one corner) is often posed turned: ICP settles it on the copy and it passes
+    verification, yet its rotation is wrong. The few discrete hypotheses (the pose times a
+    half turn about each principal axis of the model, :func:`flip_turns`) are refined by ICP
+    and scored like the pose; a turned pose replaces it when it is surer (``confidence``) and
+    explains at least as much of the whole model (``fitness``): visible fitness alone rewards
+    a pose that turns the unexplained part away from the sensor. Turns that map the model onto
+    itself are not tried: the scan cannot decide between them.
+    """
+    src = pp.as_points(source_points, "source_points")
+    turns = flip_turns(src, voxel_size)
+    n = len(poses.transformations)
+    if n == 0 or len(turns) == 0:
+        return poses, np.arange(n)
+    candidates = np.einsum("pij,fjk->pfik", poses.transformations, turns).reshape(-1, 4, 4)
+    alt = refine_poses(
+        src,
+        target_points,
+        candidates,
+        voxel_size,
+        viewpoint=viewpoint,
+        min_visible_fitness=0.0,
+        max_contradiction=1.0,
+        min_seen=0.0,
+        min_fitness=0.0,
+        min_relative_fitness=0.0,
+        max_shared=1.0,
+        target_normals=target_normals,
+        num_threads=num_threads,
+    )
+    rows = np.argsort(alt.origin)  # back to candidate order: pose-major, then turn
+    conf = alt.confidence[rows].reshape(n, len(turns))
+    fit = alt.fitness[rows].reshape(n, len(turns))
+    better = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
+    fields = {f: getattr(poses, f).copy() for f in RefinedPoses._fields if f != "by_visibility"}
+    for i in np.flatnonzero(better.any(1)):
+        j = rows[i * len(turns) + int(np.argmax(np.where(better[i], conf[i], -np.inf)))]
+        for f in fields:
+            if f != "origin":
+                fields[f][i] = getattr(alt, f)[j]
+    order = np.argsort(-fields["confidence"], kind="stable")
+    return poses._replace(**{f: v[order] for f, v in fields.items()}), order
