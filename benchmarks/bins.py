@@ -25,6 +25,8 @@ the same voxel and the sensor position, in the same run:
 - **pointclm (windowed mutual)**: the same with ``mutual_window=2, n_samples=None``
   (:data:`WINDOWED_MATCHES`): the mutual check within overlapping cubes two part diagonals
   wide, so each copy keeps its own mutual matches, all of them kept.
+- **pointclm (no flips)**: the same with ``flips=False``: the accepted poses are not compared
+  with their half-turned alternatives (stop 26's behaviour).
 - **sequential KISS-Matcher** (``benchmarks/peers.py``) on the correspondences of pointclm's
   first pass (``PointCloudRegistration.correspondences``): noise bound 2 voxels, a pose kept
   while it explains at least 6 correspondences (twice the minimal sample), at most 80 poses;
@@ -89,7 +91,7 @@ WINDOWED_MATCHES = {"mutual_window": 2.0, "n_samples": None}
 MATCHING = {
     "pointclm (all matches)": ALL_MATCHES,
     "pointclm (windowed mutual)": WINDOWED_MATCHES,
-    "pointclm (flips)": {"flips": True},
+    "pointclm (no flips)": {"flips": False},
 }
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
@@ -100,7 +102,7 @@ METHODS = (
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",
-    "pointclm (flips)",
+    "pointclm (no flips)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )

@@ -202,7 +202,7 @@ def test_a_pose_turned_about_a_near_symmetry_is_turned_back() -> None:
     assert (np.diff(fixed.confidence) <= 0).all()
 
 
-def test_register_point_clouds_flips_off_by_default_and_checked() -> None:
+def test_register_point_clouds_flips_argument_is_checked() -> None:
     src = _blob()
     with pytest.raises(ValueError, match="flips"):
         pointclm.register_point_clouds(src, src, flips="yes")  # type: ignore[arg-type]

@@ -154,6 +154,15 @@ PARAMETERS: dict[str, str] = _entries(
             `MAX_PEEL_ROUNDS`). This finds the copies of a heap whose matches the first copies
             crowd out of the sample. False: one pass (the paper's pipeline).
         """,
+    flips="""
+        flips : bool
+            With `refine`: also try each accepted pose turned half a turn about each principal
+            axis of the model through its centroid, and keep a turned pose the scan supports
+            better (:func:`pointclm.refinement.resolve_flips`): near-symmetric parts are often
+            posed turned, and ICP and verification alone cannot tell. On the validation sets:
+            realistic scenes F1 0.814 -> 0.871, bins precision 0.744 -> 0.754, at 1.13 and
+            1.04 times the time. False: the poses as verified.
+        """,
     cloud_returns="""
         Returns
         -------

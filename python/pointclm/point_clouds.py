@@ -212,7 +212,8 @@ class PointCloudRegistration:
     ``passes`` holds every pass of the correspondence stage: pass 0 over the whole scan, then
     one per peeling round over what the accepted copies leave unexplained.
     ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
-    pruning, clustering, poses, refinement: pass 0's; peeling: every later pass; total).
+    pruning, clustering, poses, refinement: pass 0's; peeling: every later pass; flips: the
+    half-turned alternatives; total).
     ``viewpoint`` is the sensor position verification judged by (given, or a PCD file's
     ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
     ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
@@ -300,7 +301,7 @@ def register_point_clouds(
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
-    flips: bool = False,
+    flips: bool = True,
     num_threads: int | None = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
@@ -319,10 +320,7 @@ def register_point_clouds(
     %(cloud_normals)s
     %(refine)s
     %(peel)s
-    flips : bool
-        With `refine`: also try each accepted pose turned half a turn about each principal
-        axis of the model through its centroid, and keep a turned pose the scan supports
-        better (:func:`pointclm.refinement.resolve_flips`). False: the poses as verified.
+    %(flips)s
     %(num_threads)s
 
     %(cloud_returns)s
@@ -339,15 +337,24 @@ def register_point_clouds(
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
-    matching: dict[str, Any] = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples}
-    if window is not None:  # in the clouds' units
-        matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
+    matching = _matching(top_k, mutual, n_samples, window, src)
     matcher = _matcher(src_d, tgt_d, k, num_threads)
     run = _Run(src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads)
     reg = _register(run, config, refine, peel, flips)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
     return replace(reg, orientation=orientation)
+
+
+def _matching(
+    top_k: int, mutual: bool, n_samples: int | None, window: float | None, src: np.ndarray
+) -> dict[str, Any]:
+    """The matcher's arguments of every pass; a window (in model diagonals) in the clouds'
+    units."""
+    matching: dict[str, Any] = {"top_k": top_k, "mutual": mutual, "n_samples": n_samples}
+    if window is not None:
+        matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
+    return matching
 
 
 def _matcher(
@@ -525,9 +532,10 @@ def _register(
     t5 = time.perf_counter()
     if refine and peel and len(tags):
         refined, tags = _peel(run, refined, tags, passes, cfg)
+    t6 = time.perf_counter()
     if refine and flips and len(tags):
         refined, tags = _resolve_flips(run, refined, tags)
-    t6 = time.perf_counter()
+    t7 = time.perf_counter()
     stage = dict(result.timings)
     timings = {
         "load": 0.0,
@@ -540,6 +548,7 @@ def _register(
         "registration": t4 - t3,
         "refinement": t5 - t4,
         "peeling": t6 - t5,
+        "flips": t7 - t6,
         "total": 0.0,
     }
     return PointCloudRegistration(

@@ -302,13 +302,17 @@ def resolve_flips(
         target_normals=target_normals,
         num_threads=num_threads,
     )
-    rows = np.argsort(alt.origin)  # back to candidate order: pose-major, then turn
-    conf = alt.confidence[rows].reshape(n, len(turns))
-    fit = alt.fitness[rows].reshape(n, len(turns))
+    # Back to candidate order (pose-major, then turn); a candidate refine_poses did not
+    # return cannot win.
+    row_of = np.full(len(candidates), -1, dtype=np.int64)
+    row_of[np.asarray(alt.origin, dtype=np.int64)] = np.arange(len(alt.origin))
+    found = row_of >= 0
+    conf = np.where(found, alt.confidence[row_of], -np.inf).reshape(n, len(turns))
+    fit = np.where(found, alt.fitness[row_of], -np.inf).reshape(n, len(turns))
     better = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
     fields = {f: getattr(poses, f).copy() for f in RefinedPoses._fields if f != "by_visibility"}
     for i in np.flatnonzero(better.any(1)):
-        j = rows[i * len(turns) + int(np.argmax(np.where(better[i], conf[i], -np.inf)))]
+        j = row_of[i * len(turns) + int(np.argmax(np.where(better[i], conf[i], -np.inf)))]
         for f in fields:
             if f != "origin":
                 fields[f][i] = getattr(alt, f)[j]
