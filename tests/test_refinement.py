@@ -206,3 +206,26 @@ def test_register_point_clouds_flips_argument_is_checked() -> None:
     src = _blob()
     with pytest.raises(ValueError, match="flips"):
         pointclm.register_point_clouds(src, src, flips="yes")  # type: ignore[arg-type]
+
+
+def test_a_context_refines_as_refine_poses_does() -> None:
+    from pointclm.refinement import RefinementContext
+
+    model = _blob()
+    truth = _pose([0.2, 1, 0.4], 35, [4.0, 1.0, -2.0])
+    scene = np.vstack([_apply(truth, model), np.random.default_rng(1).uniform(-8, 8, (300, 3))])
+    poses = np.stack(
+        [_pose([0, 0, 1], 90, [-5.0, -5.0, 5.0]), truth @ _pose([1, 0, 0], 4, [0.1, 0, 0.08])]
+    )
+    eye = np.array([4.0, 1.0, 30.0])
+    for viewpoint in (None, eye):
+        context = RefinementContext(model, scene, 0.1, viewpoint=viewpoint)
+        for kwargs in ({}, {"icp": False}, {"min_fitness": 0.0, "max_shared": 1.0}, {}):
+            once = pointclm.refine_poses(model, scene, poses, 0.1, viewpoint=viewpoint, **kwargs)
+            again = context.refine(poses, **kwargs)
+            for a, b in zip(once, again, strict=True):
+                np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="voxel_size"):
+        RefinementContext(model, scene, 0.0)
+    with pytest.raises(ValueError, match="max_shared"):
+        RefinementContext(model, scene, 0.1).refine(poses, max_shared=2.0)

@@ -14,7 +14,7 @@ from . import errors
 from ._core import Instance, Network, RegistrationResult, __version__
 from .config import Config
 from .point_clouds import CloudInstance, register_point_clouds
-from .refinement import refine_poses
+from .refinement import RefinementContext, refine_poses
 from .registration import register, register_batch
 
 if TYPE_CHECKING:
@@ -26,6 +26,7 @@ __all__ = [
     "Config",
     "Instance",
     "Network",
+    "RefinementContext",
     "RegistrationResult",
     "__version__",
     "errors",

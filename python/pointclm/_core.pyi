@@ -14,6 +14,7 @@ __all__ = [
     "__version__",
     "Instance",
     "Network",
+    "RefineContext",
     "RegistrationResult",
     "config_schema",
     "default_config",
@@ -72,6 +73,38 @@ class RegistrationResult:
     def timings(self) -> dict[str, float]: ...
     def __len__(self) -> int: ...
     def __getitem__(self, index: int, /) -> Instance: ...
+
+@final
+class RefineContext:
+    """What `refine_poses` derives from the clouds alone, built once for many calls against
+    one scan."""
+
+    def __new__(
+        cls,
+        source: npt.NDArray[np.float64],
+        target: npt.NDArray[np.float64],
+        voxel_size: float,
+        viewpoint: tuple[float, float, float] | None,
+        target_normals: npt.NDArray[np.float64] | None = None,
+        num_threads: int | None = None,
+    ) -> RefineContext: ...
+    def refine(
+        self,
+        transformations: npt.NDArray[np.float64],
+        icp: bool,
+        min_visible_fitness: float,
+        max_contradiction: float,
+        min_seen: float,
+        min_fitness: float,
+        min_relative_fitness: float,
+        max_shared: float,
+        num_threads: int | None = None,
+    ) -> tuple[
+        npt.NDArray[np.float64],
+        list[npt.NDArray[np.float64]],
+        npt.NDArray[np.int64],
+        bool,
+    ]: ...
 
 @final
 class Network:

@@ -14,6 +14,7 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,7 @@ from .refinement import (
     MIN_SEEN,
     MIN_VISIBLE_FITNESS,
     RefinedPoses,
-    refine_poses,
+    RefinementContext,
     resolve_flips,
 )
 from .registration import as_config, as_threads, register
@@ -436,6 +437,18 @@ class _Run:
     model: Embedding | None
     num_threads: int | None
 
+    @cached_property
+    def refiner(self) -> RefinementContext:
+        """Refinement against this scan, its cloud-only part built once for every pass."""
+        return RefinementContext(
+            self.src_d.points,
+            self.tgt_d.points,
+            self.voxel,
+            viewpoint=self.viewpoint,
+            target_normals=self.tgt_d.normals,
+            num_threads=self.num_threads,
+        )
+
     def features(self, corr: np.ndarray, cfg: Config) -> np.ndarray | None:
         """The learned embedding of `corr` (in the units of `cfg`), or None without one."""
         if self.model is None:
@@ -571,15 +584,10 @@ def _verify(
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """Pass 0's poses refined and verified (or, without `refine`, only scored, in the
     correspondence stage's order), each with its (pass, instance of that pass's result)."""
-    refined = refine_poses(
-        run.src_d.points,
-        run.tgt_d.points,
+    refined = run.refiner.refine(
         np.asarray(result.transformations).reshape(-1, 4, 4),
-        run.voxel,
-        viewpoint=run.viewpoint,
         icp=refine,
         **({} if refine else {**_KEEP_ALL, "max_shared": 1.0}),
-        target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
     )
     tags = [(0, int(o)) for o in refined.origin]
@@ -639,15 +647,10 @@ def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool
 def _rejected(run: _Run, first: Pass) -> str:
     """Why verification rejected every candidate pose: the best one's scores against the
     rules (one more ICP of the candidates, only when nothing was found)."""
-    scores = refine_poses(
-        run.src_d.points,
-        run.tgt_d.points,
+    scores = run.refiner.refine(
         np.asarray(first.result.transformations).reshape(-1, 4, 4),
-        run.voxel,
-        viewpoint=run.viewpoint,
         **_KEEP_ALL,
         max_shared=1.0,
-        target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
     )
     n = len(first.result)
@@ -727,16 +730,7 @@ def _peel(
             corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals
         )
         candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
-        new = refine_poses(
-            src,
-            scan,
-            candidates,
-            run.voxel,
-            viewpoint=run.viewpoint,
-            max_shared=1.0,
-            target_normals=run.tgt_d.normals,
-            num_threads=run.num_threads,
-        )
+        new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)
         if len(new.origin) and new.by_visibility and refined.by_visibility:
             refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
         elif len(new.origin):
@@ -787,16 +781,7 @@ def _reverify(
     depends on the best fitness among them)."""
     pool = np.concatenate([refined.transformations, new.transformations])
     pool_tags = tags + [(round_, int(o)) for o in new.origin]
-    both = refine_poses(
-        run.src_d.points,
-        run.tgt_d.points,
-        pool,
-        run.voxel,
-        viewpoint=run.viewpoint,
-        icp=False,
-        target_normals=run.tgt_d.normals,
-        num_threads=run.num_threads,
-    )
+    both = run.refiner.refine(pool, icp=False, num_threads=run.num_threads)
     return both, [pool_tags[int(o)] for o in both.origin]
 
 
@@ -813,6 +798,7 @@ def _resolve_flips(
         viewpoint=run.viewpoint,
         target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
+        context=run.refiner,
     )
     return flipped, [tags[int(i)] for i in order]
 

@@ -13,6 +13,7 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
+use std::sync::Arc;
 
 use crate::args;
 use crate::convert::{indices, points as rows3};
@@ -337,8 +338,39 @@ pub fn refine_poses<'py>(
         .map(|a| rows3(&a, "target_normals"))
         .transpose()?;
     let poses = rigid_poses(&transformations)?;
+    let rules = [
+        min_visible_fitness,
+        max_contradiction,
+        min_seen,
+        min_fitness,
+        min_relative_fitness,
+        max_shared,
+    ];
+    let params = refine_params(voxel_size, icp, rules);
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, move || {
+        on_pool(threads, || {
+            pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
+        })
+    })?;
+    Ok(refined_arrays(py, &out))
+}
+
+/// What `refine_poses` derives from the clouds alone (the scan's index and normals, the depth
+/// maps from the viewpoint, the model's normals), built once for many calls against one scan.
+#[pyclass(frozen, module = "pointclm._core", name = "RefineContext")]
+pub struct PyRefineContext {
+    /// Shared with the worker thread of each call (which outlives no call).
+    inner: Arc<pointcloud::RefineContext>,
+    voxel_size: f64,
+}
+
+/// `RefineParams::for_voxel` with the caller's ICP choice and rules.
+fn refine_params(voxel_size: f64, icp: bool, rules: [f64; 6]) -> RefineParams {
     let defaults = RefineParams::for_voxel(voxel_size);
-    let params = RefineParams {
+    let [min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared] =
+        rules;
+    RefineParams {
         radii: if icp { defaults.radii.clone() } else { vec![] },
         min_visible_fitness,
         max_contradiction,
@@ -347,14 +379,75 @@ pub fn refine_poses<'py>(
         min_relative_fitness,
         max_shared,
         ..defaults
-    };
-    let threads = num_threads.map(pool).transpose()?;
-    let out = guarded(py, move || {
-        on_pool(threads, || {
-            pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
+    }
+}
+
+#[pymethods]
+impl PyRefineContext {
+    #[new]
+    #[pyo3(signature = (source, target, voxel_size, viewpoint, target_normals=None, num_threads=None))]
+    fn new(
+        py: Python<'_>,
+        #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'_, f64>,
+        #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'_, f64>,
+        #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+        #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
+        #[pyo3(from_py_with = args::optional_target_normals)] target_normals: Option<
+            PyReadonlyArray2<'_, f64>,
+        >,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<Self> {
+        let s = rows3(&source, "source")?;
+        let t = rows3(&target, "target")?;
+        let n = target_normals
+            .map(|a| rows3(&a, "target_normals"))
+            .transpose()?;
+        let params = RefineParams::for_voxel(voxel_size);
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = guarded(py, move || {
+            on_pool(threads, || {
+                pointcloud::RefineContext::new(&s, &t, n.as_deref(), viewpoint, &params)
+            })
+        })?;
+        Ok(Self {
+            inner: Arc::new(inner),
+            voxel_size,
         })
-    })?;
-    Ok(refined_arrays(py, &out))
+    }
+
+    /// `refine_poses` of `transformations` against the context's clouds (same returns).
+    #[pyo3(signature = (transformations, icp, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn refine<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::icp)] icp: bool,
+        #[pyo3(from_py_with = args::min_visible_fitness)] min_visible_fitness: f64,
+        #[pyo3(from_py_with = args::max_contradiction)] max_contradiction: f64,
+        #[pyo3(from_py_with = args::min_seen)] min_seen: f64,
+        #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
+        #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
+        #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<RefinedArrays<'py>> {
+        let poses = rigid_poses(&transformations)?;
+        let rules = [
+            min_visible_fitness,
+            max_contradiction,
+            min_seen,
+            min_fitness,
+            min_relative_fitness,
+            max_shared,
+        ];
+        let params = refine_params(self.voxel_size, icp, rules);
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let out = guarded(py, move || {
+            on_pool(threads, || inner.refine(&poses, &params))
+        })?;
+        Ok(refined_arrays(py, &out))
+    }
 }
 
 /// `refine_poses`' result as arrays (see its documentation).

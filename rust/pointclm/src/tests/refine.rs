@@ -424,3 +424,57 @@ fn model_points_seen_edge_on_are_not_judged() {
         })
     ));
 }
+
+#[test]
+fn a_context_refines_as_each_call_would() {
+    let model = blob(24);
+    let (a, b) = (
+        motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]),
+        motion([1.0, 0.0, 0.0], 50.0, [4.0, 0.0, 0.0]),
+    );
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(moved(&blob(60), &b));
+    surfaces.extend(wall((2.5, 4.6), (-2.0, 2.0), -3.0, 0.05));
+    let scene = sensed(&surfaces, 0.06);
+    let nudged = [
+        motion([0.0, 1.0, 0.0], 23.0, [0.05, 0.0, 0.0]),
+        b,
+        motion([0.0, 0.0, 1.0], 90.0, [9.0, 9.0, 0.0]),
+    ];
+    let base = RefineParams::for_voxel(0.1);
+    for eye in [Some(EYE), None] {
+        let context = RefineContext::new(&model, &scene, None, eye, &base).unwrap();
+        // Several calls on one context, with other thresholds and without ICP: each as the
+        // one-shot function gives it.
+        let no_icp = RefineParams {
+            radii: vec![],
+            ..base.clone()
+        };
+        let lax = RefineParams {
+            min_visible_fitness: 0.0,
+            min_fitness: 0.0,
+            max_shared: 1.0,
+            ..base.clone()
+        };
+        for params in [&base, &no_icp, &lax, &base] {
+            let once = refine_poses(&model, &scene, None, &nudged, eye, params).unwrap();
+            let again = context.refine(&nudged, params).unwrap();
+            assert_eq!(once.by_visibility, again.by_visibility);
+            assert_eq!(once.poses.len(), again.poses.len());
+            for (x, y) in once.poses.iter().zip(&again.poses) {
+                assert_eq!(
+                    (x.origin, x.confidence, x.fitness),
+                    (y.origin, y.confidence, y.fitness)
+                );
+                assert_eq!(x.pose.rotation, y.pose.rotation);
+                assert_eq!(x.pose.translation, y.pose.translation);
+            }
+        }
+        // Lengths other than the context's are refused.
+        let other = RefineParams::for_voxel(0.2);
+        assert!(matches!(
+            context.refine(&nudged, &other),
+            Err(Error::InvalidParameter { .. })
+        ));
+    }
+}
