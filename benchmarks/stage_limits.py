@@ -98,6 +98,20 @@ def stage_flops(n: int, kept: int, clusters: int) -> dict[str, tuple[float, str]
     }
 
 
+def fastest(call: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[float, Any]:
+    """The shortest wall time of `REPEATS` calls ``call(*args, **kwargs)``, and that call's
+    result."""
+    best: tuple[float, Any] | None = None
+    for _ in range(REPEATS):
+        t = time.perf_counter()
+        result = call(*args, **kwargs)
+        wall = time.perf_counter() - t
+        if best is None or wall < best[0]:
+            best = (wall, result)
+    assert best is not None
+    return best
+
+
 def measure(scenes: Sequence[Any], config_for: Callable[[Any], Any]) -> list[dict[str, Any]]:
     """Per scene: the fastest of `REPEATS` runs' stage times, and the sizes the models need."""
     import pointclm
@@ -105,15 +119,7 @@ def measure(scenes: Sequence[Any], config_for: Callable[[Any], Any]) -> list[dic
     rows = []
     for sc in scenes:
         cfg = config_for(sc)
-        best: tuple[float, Any] | None = None
-        for _ in range(REPEATS):
-            t = time.perf_counter()
-            r = pointclm.register(sc.correspondences, None, cfg, 0, num_threads=1)
-            wall = time.perf_counter() - t
-            if best is None or wall < best[0]:
-                best = (wall, r)
-        assert best is not None
-        wall, r = best
+        wall, r = fastest(pointclm.register, sc.correspondences, None, cfg, 0, num_threads=1)
         rows.append(
             {
                 "wall": wall,
@@ -126,6 +132,26 @@ def measure(scenes: Sequence[Any], config_for: Callable[[Any], Any]) -> list[dic
     return rows
 
 
+def limit_row(
+    stage: str,
+    rows: Sequence[dict[str, Any]],
+    flops: Sequence[tuple[float, str]],
+    peak: dict[str, float],
+    digits: tuple[int, int, int],
+) -> str:
+    """One stage's markdown row: median time, median arithmetic (`flops`: count and precision
+    per scene), its time at peak, and the median ratio; `digits` for the first three."""
+    ms = [1e3 * r["timings"][stage] for r in rows]
+    limit = [1e3 * f / (peak[p] * 1e9) for f, p in flops]
+    ratio = [m / max(lim, 1e-9) for m, lim in zip(ms, limit, strict=True)]
+    d_ms, d_flops, d_limit = digits
+    return (
+        f"| {stage} | {np.median(ms):.{d_ms}f} | "
+        f"{np.median([f for f, _ in flops]) / 1e6:.{d_flops}f} "
+        f"| {np.median(limit):.{d_limit}f} | {np.median(ratio):.1f} |"
+    )
+
+
 def table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float]) -> list[str]:
     """Markdown rows: per stage, median time, median lower-bound arithmetic and the ratio."""
     out = [
@@ -136,14 +162,8 @@ def table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float]) -> 
         "|---|---|---|---|---|",
     ]
     for stage in ("pruning", "clustering", "poses"):
-        ms = [1e3 * r["timings"][stage] for r in rows]
         flops = [stage_flops(r["n"], r["kept"], r["clusters"])[stage] for r in rows]
-        limit = [1e3 * f / (peak[p] * 1e9) for f, p in flops]
-        ratio = [m / max(lim, 1e-9) for m, lim in zip(ms, limit, strict=True)]
-        out.append(
-            f"| {stage} | {np.median(ms):.3f} | {np.median([f for f, _ in flops]) / 1e6:.2f} "
-            f"| {np.median(limit):.4f} | {np.median(ratio):.1f} |"
-        )
+        out.append(limit_row(stage, rows, flops, peak, (3, 2, 4)))
     wall = [1e3 * r["wall"] for r in rows]
     out.append(f"| whole call | {np.median(wall):.3f} | | | |")
     return out + [""]
@@ -177,15 +197,9 @@ def measure_clouds(scenes: Sequence[tuple[Any, ...]]) -> list[dict[str, Any]]:
 
     rows = []
     for model, scan, voxel, view in scenes:
-        best: tuple[float, Any] | None = None
-        for _ in range(REPEATS):
-            t = time.perf_counter()
-            reg = pointclm.register_point_clouds(model, scan, voxel, viewpoint=view, num_threads=1)
-            wall = time.perf_counter() - t
-            if best is None or wall < best[0]:
-                best = (wall, reg)
-        assert best is not None
-        wall, reg = best
+        wall, reg = fastest(
+            pointclm.register_point_clouds, model, scan, voxel, viewpoint=view, num_threads=1
+        )
         rows.append(
             {
                 "wall": wall,
@@ -208,14 +222,8 @@ def cloud_table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float
         "|---|---|---|---|---|",
     ]
     for stage in ("normals", "fpfh", "matching"):
-        ms = [1e3 * r["timings"][stage] for r in rows]
         flops = [r["flops"][stage] for r in rows]
-        limit = [1e3 * f / (peak[p] * 1e9) for f, p in flops]
-        ratio = [m / max(lim, 1e-9) for m, lim in zip(ms, limit, strict=True)]
-        out.append(
-            f"| {stage} | {np.median(ms):.1f} | {np.median([f for f, _ in flops]) / 1e6:.1f} "
-            f"| {np.median(limit):.2f} | {np.median(ratio):.1f} |"
-        )
+        out.append(limit_row(stage, rows, flops, peak, (1, 1, 2)))
     for stage in ("registration", "refinement", "peeling"):
         ms = [1e3 * r["timings"][stage] for r in rows]
         out.append(f"| {stage} | {np.median(ms):.1f} | not modelled | | |")

@@ -150,14 +150,13 @@ def refine_poses(
         :func:`pointclm.register_point_clouds` computed; estimated within 2 voxels when
         omitted (pass them when refining against the same scan repeatedly).
     """
-    src = pp.as_points(source_points, "source_points")
-    tgt = pp.as_points(target_points, "target_points")
-    voxel = pp.as_positive(voxel_size, "voxel_size")
-    poses, eye = _as_poses(transformations), _as_viewpoint(viewpoint)
+    clouds = (source_points, target_points, voxel_size)
+    context = RefinementContext(
+        *clouds, viewpoint=viewpoint, target_normals=target_normals, num_threads=num_threads
+    )
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
-    flag = pp.as_flag(icp, "icp")
-    normals = None if target_normals is None else pp.as_points(target_normals, "target_normals")
-    return _refine(src, tgt, poses, voxel, flag, eye, (*rules, max_shared), normals, num_threads)
+    named = dict(zip(_RULES, (*rules, max_shared), strict=True))
+    return context.refine(transformations, icp=icp, num_threads=num_threads, **named)
 
 
 class RefinementContext:
@@ -226,7 +225,18 @@ class RefinementContext:
             *numbers,
             num_threads=as_threads(num_threads),
         )
-        return _named(mats, columns, origin, by_visibility)
+        confidence, fitness, visible, contradiction, seen, rmse = columns
+        return RefinedPoses(
+            mats,
+            fitness,
+            rmse,
+            origin,
+            confidence,
+            visible,
+            contradiction,
+            seen,
+            bool(by_visibility),
+        )
 
 
 #: The rules' names, in the order the core takes them.
@@ -238,42 +248,6 @@ _RULES = (
     "min_relative_fitness",
     "max_shared",
 )
-
-
-def _refine(
-    src: np.ndarray,
-    tgt: np.ndarray,
-    poses: np.ndarray,
-    voxel: float,
-    icp: bool,
-    eye: tuple[float, float, float] | None,
-    rules: tuple[float, ...],
-    normals: np.ndarray | None,
-    num_threads: int | None,
-) -> RefinedPoses:
-    """The core's refinement and verification, its columns named."""
-    numbers: Any = [_number(value, name) for value, name in zip(rules, _RULES, strict=True)]
-    core: Any = _core  # the rules pass as one list, which the stub cannot count
-    mats, columns, origin, by_visibility = core.refine_poses(
-        src,
-        tgt,
-        poses,
-        voxel,
-        icp,
-        eye,
-        *numbers,
-        target_normals=normals,
-        num_threads=as_threads(num_threads),
-    )
-    return _named(mats, columns, origin, by_visibility)
-
-
-def _named(mats: Any, columns: Any, origin: Any, by_visibility: Any) -> RefinedPoses:
-    """The core's refinement result, its columns named."""
-    confidence, fitness, visible, contradiction, seen, rmse = columns
-    return RefinedPoses(
-        mats, fitness, rmse, origin, confidence, visible, contradiction, seen, bool(by_visibility)
-    )
 
 
 def _as_poses(transformations: ArrayLike) -> np.ndarray:

@@ -258,18 +258,22 @@ fn wall(x: (f64, f64), y: (f64, f64), z0: f64, step: f64) -> Vec<[f64; 3]> {
         .collect()
 }
 
-#[test]
-fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
-    let model = blob(24);
+/// Two copies of `blob(24)` at poses `a` and `b` seen from `EYE`, with a board in front of
+/// copy b that hides all of it but a strip on its right: (model, a, b, scene).
+fn hidden_copy_scene() -> (Vec<[f64; 3]>, RigidTransform, RigidTransform, Vec<[f64; 3]>) {
     let (a, b) = (
         motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]),
         motion([1.0, 0.0, 0.0], 50.0, [4.0, 0.0, 0.0]),
     );
-    // A board in front of copy b hides all of it but a strip on its right.
     let mut surfaces = moved(&blob(60), &a);
     surfaces.extend(moved(&blob(60), &b));
     surfaces.extend(wall((2.5, 4.6), (-2.0, 2.0), -3.0, 0.05));
-    let scene = sensed(&surfaces, 0.06);
+    (blob(24), a, b, sensed(&surfaces, 0.06))
+}
+
+#[test]
+fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
+    let (model, a, b, scene) = hidden_copy_scene();
     let seen = refine_poses(
         &model,
         &scene,
@@ -427,15 +431,7 @@ fn model_points_seen_edge_on_are_not_judged() {
 
 #[test]
 fn a_context_refines_as_each_call_would() {
-    let model = blob(24);
-    let (a, b) = (
-        motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]),
-        motion([1.0, 0.0, 0.0], 50.0, [4.0, 0.0, 0.0]),
-    );
-    let mut surfaces = moved(&blob(60), &a);
-    surfaces.extend(moved(&blob(60), &b));
-    surfaces.extend(wall((2.5, 4.6), (-2.0, 2.0), -3.0, 0.05));
-    let scene = sensed(&surfaces, 0.06);
+    let (model, _, b, scene) = hidden_copy_scene();
     let nudged = [
         motion([0.0, 1.0, 0.0], 23.0, [0.05, 0.0, 0.0]),
         b,
