@@ -19,7 +19,7 @@ use pyo3::types::{PyDict, PyList};
 use convert::{correspondences, features, mat_to_py, matrix4, points, square};
 use errors::{prefixed, to_py_err, ConfigError, InputError};
 use network::PyNetwork;
-use pools::{guarded, guarded_dense, on_pool, pool};
+use pools::{guarded, guarded_dense, pool};
 use result::{PyInstance, PyRegistration};
 
 /// `network=`: None or a loaded `Network`.
@@ -53,11 +53,9 @@ fn register(
             "pass either features or network, not both",
         ));
     }
-    let r = guarded(py, move || {
-        on_pool(p, || match net {
-            Some(net) => pointclm::register_with_network(&c, &net, &cfg, seed),
-            None => pointclm::register(&c, f.as_ref(), &cfg, seed),
-        })
+    let r = guarded(py, p, move || match net {
+        Some(net) => pointclm::register_with_network(&c, &net, &cfg, seed),
+        None => pointclm::register(&c, f.as_ref(), &cfg, seed),
     })?;
     PyRegistration::new(py, r)
 }
@@ -102,7 +100,7 @@ fn register_batch(
         .collect::<PyResult<Vec<_>>>()?;
     let threads = num_threads.unwrap_or(0);
     let net = network.map(|n| n.get().inner.clone());
-    let results = guarded(py, move || match net {
+    let results = guarded(py, None, move || match net {
         Some(net) => {
             let corr: Vec<Correspondences> = batch.into_iter().map(|s| s.correspondences).collect();
             pointclm::register_batch_with_network(&corr, &net, &cfg, seed, threads)
@@ -150,10 +148,8 @@ fn density_counts<'py>(
     let f = convert::features(features.as_ref())?;
     let cfg = config::from_dict(config.as_ref())?;
     let p = num_threads.map(pool).transpose()?;
-    let counts = guarded(py, move || {
-        on_pool(p, || {
-            pointclm::pruning::density_counts(&c, f.as_ref(), &cfg)
-        })
+    let counts = guarded(py, p, move || {
+        pointclm::pruning::density_counts(&c, f.as_ref(), &cfg)
     })?;
     Ok(counts
         .into_iter()

@@ -8,7 +8,7 @@ use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::pools::{guarded, on_pool, pool};
+use crate::pools::{guarded, pool};
 use crate::{args, config, convert};
 
 /// A trained SCNonlocal embedding network, read from a `.safetensors` file and the `.json`
@@ -26,7 +26,7 @@ impl PyNetwork {
     #[new]
     fn new(py: Python<'_>, #[pyo3(from_py_with = args::path)] path: PathBuf) -> PyResult<Self> {
         let p = path.clone();
-        let inner = guarded(py, move || pointclm::Network::from_file(&p))?;
+        let inner = guarded(py, None, move || pointclm::Network::from_file(&p))?;
         Ok(Self {
             inner: Arc::new(inner),
             path,
@@ -74,7 +74,7 @@ impl PyNetwork {
         let c = convert::correspondences(&correspondences)?;
         let p = num_threads.map(pool).transpose()?;
         let net = self.inner.clone();
-        let f = guarded(py, move || on_pool(p, || net.embed(&c)))?;
+        let f = guarded(py, p, move || net.embed(&c))?;
         let dim = f.dim();
         let a = Array2::from_shape_fn((f.len(), dim), |(i, j)| f.row(i)[j]);
         Ok(a.into_pyarray(py))

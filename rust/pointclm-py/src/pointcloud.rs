@@ -18,7 +18,7 @@ use std::sync::Arc;
 use crate::args;
 use crate::convert::{indices, points as rows3};
 use crate::errors::{to_py_err_at, InputError};
-use crate::pools::{guarded, on_pool, pool};
+use crate::pools::{guarded, pool};
 
 fn rows_to_py<'py, const K: usize>(
     py: Python<'py>,
@@ -49,7 +49,9 @@ pub fn voxel_downsample<'py>(
     #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let p = rows3(&points, "points")?;
-    let out = guarded(py, move || pointcloud::voxel_downsample(&p, voxel_size))?;
+    let out = guarded(py, None, move || {
+        pointcloud::voxel_downsample(&p, voxel_size)
+    })?;
     rows_to_py(py, &out)
 }
 
@@ -78,11 +80,9 @@ pub fn estimate_normals<'py>(
     let p = rows3(&points, "points")?;
     let max_nn = neighbours_at_most(max_nn, p.len());
     let threads = num_threads.map(pool).transpose()?;
-    let out = guarded(py, move || {
-        on_pool(threads, || {
-            let index = PointIndex::new(&p)?;
-            pointcloud::estimate_normals(&p, &index, radius, max_nn, orientation)
-        })
+    let out = guarded(py, threads, move || {
+        let index = PointIndex::new(&p)?;
+        pointcloud::estimate_normals(&p, &index, radius, max_nn, orientation)
     })?;
     rows_to_py(py, &out)
 }
@@ -107,11 +107,9 @@ pub fn compute_fpfh<'py>(
     let n = rows3(&normals, "normals")?;
     let max_nn = neighbours_at_most(max_nn, p.len());
     let threads = num_threads.map(pool).transpose()?;
-    let out = guarded(py, move || {
-        on_pool(threads, || {
-            let index = PointIndex::new(&p)?;
-            pointcloud::fpfh(&p, &n, &index, radius, max_nn, variant)
-        })
+    let out = guarded(py, threads, move || {
+        let index = PointIndex::new(&p)?;
+        pointcloud::fpfh(&p, &n, &index, radius, max_nn, variant)
     })?;
     rows_to_py(py, &out)
 }
@@ -149,11 +147,9 @@ pub fn match_features<'py>(
         n_samples,
     };
     let threads = num_threads.map(pool).transpose()?;
-    let m = guarded(py, move || {
-        on_pool(threads, || match &nearest {
-            Some(near) => pointclm::match_features_given(&s, &t, near, &cfg, seed),
-            None => pointclm::match_features(&s, &t, &cfg, seed),
-        })
+    let m = guarded(py, threads, move || match &nearest {
+        Some(near) => pointclm::match_features_given(&s, &t, near, &cfg, seed),
+        None => pointclm::match_features(&s, &t, &cfg, seed),
     })?;
     Ok((
         indices(py, &m.source),
@@ -206,9 +202,7 @@ pub fn nearest_descriptors<'py>(
     let t = descriptors(&target, "target descriptors")?;
     let n = t.len();
     let threads = num_threads.map(pool).transpose()?;
-    let near = guarded(py, move || {
-        on_pool(threads, || pointclm::nearest_sources(&s, &t, k))
-    })?;
+    let near = guarded(py, threads, move || pointclm::nearest_sources(&s, &t, k))?;
     let rows: Vec<i64> = near.source.iter().map(|&v| v as i64).collect();
     let shape = (n, near.k);
     let to_err = |e: numpy::ndarray::ShapeError| PyRuntimeError::new_err(e.to_string());
@@ -236,21 +230,19 @@ pub fn nearest_neighbours<'py>(
     let r = rows3(&reference, "reference points")?;
     let q = rows3(&queries, "query points")?;
     let threads = num_threads.map(pool).transpose()?;
-    let (idx, dist) = guarded(py, move || {
-        on_pool(threads, || {
-            let index = PointIndex::new(&r)?;
-            if let Some(row) = q.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
-                return Err(pointclm::Error::NonFinite {
-                    what: "query points",
-                    row,
-                });
-            }
-            let found: Vec<(usize, f64)> = q.par_iter().map(|p| index.nearest(p)).collect();
-            Ok(found
-                .into_iter()
-                .map(|(i, d2)| (i, d2.sqrt()))
-                .unzip::<_, _, Vec<_>, Vec<_>>())
-        })
+    let (idx, dist) = guarded(py, threads, move || {
+        let index = PointIndex::new(&r)?;
+        if let Some(row) = q.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(pointclm::Error::NonFinite {
+                what: "query points",
+                row,
+            });
+        }
+        let found: Vec<(usize, f64)> = q.par_iter().map(|p| index.nearest(p)).collect();
+        Ok(found
+            .into_iter()
+            .map(|(i, d2)| (i, d2.sqrt()))
+            .unzip::<_, _, Vec<_>, Vec<_>>())
     })?;
     Ok((indices(py, &idx), dist.into_pyarray(py)))
 }
@@ -348,10 +340,8 @@ pub fn refine_poses<'py>(
     ];
     let params = refine_params(voxel_size, icp, rules);
     let threads = num_threads.map(pool).transpose()?;
-    let out = guarded(py, move || {
-        on_pool(threads, || {
-            pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
-        })
+    let out = guarded(py, threads, move || {
+        pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
     })?;
     Ok(refined_arrays(py, &out))
 }
@@ -404,10 +394,8 @@ impl PyRefineContext {
             .transpose()?;
         let params = RefineParams::for_voxel(voxel_size);
         let threads = num_threads.map(pool).transpose()?;
-        let inner = guarded(py, move || {
-            on_pool(threads, || {
-                pointcloud::RefineContext::new(&s, &t, n.as_deref(), viewpoint, &params)
-            })
+        let inner = guarded(py, threads, move || {
+            pointcloud::RefineContext::new(&s, &t, n.as_deref(), viewpoint, &params)
         })?;
         Ok(Self {
             inner: Arc::new(inner),
@@ -443,9 +431,7 @@ impl PyRefineContext {
         let params = refine_params(self.voxel_size, icp, rules);
         let threads = num_threads.map(pool).transpose()?;
         let inner = Arc::clone(&self.inner);
-        let out = guarded(py, move || {
-            on_pool(threads, || inner.refine(&poses, &params))
-        })?;
+        let out = guarded(py, threads, move || inner.refine(&poses, &params))?;
         Ok(refined_arrays(py, &out))
     }
 }
@@ -533,8 +519,8 @@ pub fn describe<'py>(
     let p = rows3(&points, "points")?;
     let n = normals.map(|a| rows3(&a, "normals")).transpose()?;
     let threads = num_threads.map(pool).transpose()?;
-    let d = guarded(py, move || {
-        on_pool(threads, || pointcloud::describe(&p, n.as_deref(), &params))
+    let d = guarded(py, threads, move || {
+        pointcloud::describe(&p, n.as_deref(), &params)
     })?;
     let flat: Vec<f64> = (0..d.descriptors.len())
         .flat_map(|i| d.descriptors.row(i).iter().copied())

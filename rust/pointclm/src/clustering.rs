@@ -10,8 +10,8 @@ use crate::kmeans::kmeans;
 use crate::lowest_eigen::{lowest_eigenpairs, Estimates, BLOCK};
 use crate::seeds::{stream, STAGE_CLUSTERING};
 use crate::spectral::{
-    affinity, eigengap, normalized_laplacian, row_normalized_embedding, symmetric_eigen,
-    symmetric_eigen_f32, SINGLE_PRECISION_ROWS,
+    affinity, check_symmetric, eigengap, laplacian_of_symmetric, row_normalized_embedding,
+    symmetric_eigen, symmetric_eigen_f32, SINGLE_PRECISION_ROWS,
 };
 
 /// Spectral clustering of one affinity matrix.
@@ -69,6 +69,19 @@ pub fn spectral_clustering_by(
     restarts: usize,
     seed: u64,
 ) -> Result<SpectralLabels> {
+    check_symmetric(a)?;
+    clustering_of_symmetric(a, count, assignment, restarts, seed)
+}
+
+/// [`spectral_clustering_by`] of an affinity known to be square, finite and symmetric (see
+/// [`laplacian_of_symmetric`]).
+fn clustering_of_symmetric(
+    a: MatRef<'_, f64>,
+    count: Count,
+    assignment: Assignment,
+    restarts: usize,
+    seed: u64,
+) -> Result<SpectralLabels> {
     let n = a.nrows();
     if let Count::Fixed(k) = count {
         if k == 0 || k > n.max(1) {
@@ -79,7 +92,7 @@ pub fn spectral_clustering_by(
             });
         }
     }
-    let l = normalized_laplacian(a)?;
+    let l = laplacian_of_symmetric(a)?;
     let lowest = (n >= PARTIAL_ROWS)
         .then(|| {
             lowest_eigenpairs(l.as_ref(), partial_basis(n), seed, |est| {
@@ -243,7 +256,8 @@ pub fn cluster_kept(
         cap: Some(cap),
         level: config.cluster_level,
     };
-    let sl = spectral_clustering_by(
+    // `affinity` mirrors one triangle: symmetric and finite by construction.
+    let sl = clustering_of_symmetric(
         a.as_ref(),
         count,
         config.assignment,

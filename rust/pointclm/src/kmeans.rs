@@ -76,22 +76,50 @@ fn plus_plus_init(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha
     centers
 }
 
+/// `centers` (`k` rows of `dim`) as `dim` rows of `k`: one value of every centre side by side.
+fn transpose(centers: &[f64], dim: usize, k: usize, by_dim: &mut [f64]) {
+    for c in 0..k {
+        for d in 0..dim {
+            by_dim[d * k + c] = centers[c * dim + d];
+        }
+    }
+}
+
+/// The centre nearest to `x` (the first on ties) and its squared distance, from the centres
+/// laid out by [`transpose`]. Why this layout: the distances to all centres then accumulate
+/// side by side, which vectorises, and each still sums its terms in [`dist_sq`]'s order, so
+/// the labels and inertia are those of the plain loop bit for bit.
+#[inline]
+fn nearest_center(x: &[f64], by_dim: &[f64], dists: &mut [f64]) -> (usize, f64) {
+    let k = dists.len();
+    dists.fill(0.0);
+    for (d, &v) in x.iter().enumerate() {
+        for (acc, &c) in dists.iter_mut().zip(&by_dim[d * k..(d + 1) * k]) {
+            let t = v - c;
+            *acc += t * t;
+        }
+    }
+    let (mut bl, mut bd) = (0, f64::INFINITY);
+    for (c, &d) in dists.iter().enumerate() {
+        if d < bd {
+            (bl, bd) = (c, d);
+        }
+    }
+    (bl, bd)
+}
+
 fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> (f64, Vec<usize>) {
     let row = |i: usize| &data[i * dim..(i + 1) * dim];
     let mut centers = plus_plus_init(data, dim, n, k, rng);
     let mut labels = vec![usize::MAX; n];
     let mut inertia = f64::INFINITY;
+    let (mut by_dim, mut dists) = (vec![0.0; k * dim], vec![0.0; k]);
     for _ in 0..MAX_ITERATIONS {
         let mut changed = false;
         inertia = 0.0;
+        transpose(&centers, dim, k, &mut by_dim);
         for (i, label) in labels.iter_mut().enumerate() {
-            let (mut bl, mut bd) = (0, f64::INFINITY);
-            for c in 0..k {
-                let d = dist_sq(row(i), &centers[c * dim..(c + 1) * dim]);
-                if d < bd {
-                    (bl, bd) = (c, d);
-                }
-            }
+            let (bl, bd) = nearest_center(row(i), &by_dim, &mut dists);
             inertia += bd;
             if *label != bl {
                 *label = bl;

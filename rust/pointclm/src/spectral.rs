@@ -82,6 +82,13 @@ pub fn check_symmetric(m: MatRef<'_, f64>) -> Result<()> {
 /// `L = I - D^-1/2 A D^-1/2` for a non-negative symmetric affinity `A`.
 pub fn normalized_laplacian(a: MatRef<'_, f64>) -> Result<Mat<f64>> {
     check_symmetric(a)?;
+    laplacian_of_symmetric(a)
+}
+
+/// [`normalized_laplacian`] of a matrix known to be square, finite and symmetric (the
+/// pipeline's own [`affinity`], symmetric by construction); negative entries are still an
+/// error. Why: checking symmetry reads the whole matrix twice, 2-3 % of a 2 ms call.
+pub(crate) fn laplacian_of_symmetric(a: MatRef<'_, f64>) -> Result<Mat<f64>> {
     let n = a.nrows();
     let mut inv_sqrt_deg = vec![0.0; n];
     // Degrees as column sums: equal to the row sums of a symmetric matrix, and contiguous.

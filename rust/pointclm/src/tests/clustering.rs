@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::pruning::{density_counts, select_kept};
-use crate::spectral::{eigengap, symmetric_eigen};
+use crate::spectral::{eigengap, normalized_laplacian, symmetric_eigen};
 use crate::testing::random_scene;
 
 #[test]

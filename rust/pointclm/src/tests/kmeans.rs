@@ -18,3 +18,30 @@ fn separates_well_spaced_groups() {
     let labels = kmeans(&data, 2, 4, 5, &mut ChaCha8Rng::seed_from_u64(0));
     assert_eq!(labels, relabel_by_first_appearance(&truth));
 }
+
+#[test]
+fn nearest_center_is_the_plain_loop_bit_for_bit() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for (dim, k) in [(1, 1), (3, 2), (8, 8), (13, 5), (32, 31)] {
+        let centers: Vec<f64> = (0..k * dim).map(|_| rng.random::<f64>() - 0.5).collect();
+        let mut by_dim = vec![0.0; k * dim];
+        transpose(&centers, dim, k, &mut by_dim);
+        let mut dists = vec![0.0; k];
+        for trial in 0..200 {
+            let mut x: Vec<f64> = (0..dim).map(|_| rng.random::<f64>() - 0.5).collect();
+            if trial % 7 == 0 {
+                // on a centre: a zero distance and (for repeated centres) ties
+                x.copy_from_slice(&centers[(trial % k) * dim..(trial % k + 1) * dim]);
+            }
+            let (mut bl, mut bd) = (0, f64::INFINITY);
+            for c in 0..k {
+                let d = dist_sq(&x, &centers[c * dim..(c + 1) * dim]);
+                if d < bd {
+                    (bl, bd) = (c, d);
+                }
+            }
+            let (l, d) = nearest_center(&x, &by_dim, &mut dists);
+            assert_eq!((l, d.to_bits()), (bl, bd.to_bits()), "dim {dim}, k {k}");
+        }
+    }
+}
