@@ -42,6 +42,8 @@ __all__ = [
     "REFINED_THRESHOLDS",
     "CloudInstance",
     "PointCloudRegistration",
+    "HEAP_MIN_COPIES",
+    "HEAP_WINDOW",
     "MAX_PEEL_ROUNDS",
     "PEEL_CLUSTER_LEVEL",
     "PEEL_RADIUS_VOXELS",
@@ -91,6 +93,17 @@ PEEL_RADIUS_VOXELS = 2.0
 #: Peeling stops after this many rounds (each round must add a copy to go on; a bin of 80
 #: parts with about half visible needs a few rounds of several copies each).
 MAX_PEEL_ROUNDS = 20
+
+#: ``mutual_window="auto"``: once peeling has accepted this many copies, the scan is taken for
+#: a heap of identical parts and the later passes check mutuality within windows
+#: (`HEAP_WINDOW`). A count is the scale-free evidence of many copies: with `n` copies in
+#: view, the scene-wide mutual check leaves each about 1/n of a model point's true matches.
+#: Chosen on the validation sets only (BENCHMARKS.md, bins): every realistic validation scene
+#: stayed below it (at most 7 accepted copies), most validation bins reached it.
+HEAP_MIN_COPIES = 10
+#: The windowed check's cube side in model diagonals for a heap (``mutual_window="auto"``),
+#: with every match kept: the best of the sizes tried on the validation bins.
+HEAP_WINDOW = 2.0
 
 
 def scaled_config(voxel_size: float, base: Config | None = None) -> Config:
@@ -298,7 +311,7 @@ def register_point_clouds(
     mutual: bool = True,
     n_samples: int | None = 1000,
     k: int = 1,
-    mutual_window: float | None = None,
+    mutual_window: float | str | None = "auto",
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
@@ -338,9 +351,12 @@ def register_point_clouds(
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
-    matching = _matching(top_k, mutual, n_samples, window, src)
+    matching = _matching(top_k, mutual, n_samples, None if window == "auto" else window, src)
+    heap = _heap_matching(window, top_k, mutual, k, src)
     matcher = _matcher(src_d, tgt_d, k, num_threads)
-    run = _Run(src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads)
+    run = _Run(
+        src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads, heap
+    )
     reg = _register(run, config, refine, peel, flips)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
@@ -356,6 +372,17 @@ def _matching(
     if window is not None:
         matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
     return matching
+
+
+def _heap_matching(
+    window: float | str | None, top_k: int, mutual: bool, k: int, src: np.ndarray
+) -> dict[str, Any] | None:
+    """The matching of the passes after a heap is recognised (``mutual_window="auto"``), or
+    None: no switch. Only a mutual check (``k=1``) can be made local; with other matching
+    "auto" changes nothing."""
+    if window != "auto" or not mutual or k != 1:
+        return None
+    return _matching(top_k, True, None, HEAP_WINDOW, src)
 
 
 def _matcher(
@@ -390,10 +417,12 @@ def _checked_arguments(
     return embedding, view
 
 
-def _window_diagonals(window: float | None, mutual: bool, k: int) -> float | None:
+def _window_diagonals(window: float | str | None, mutual: bool, k: int) -> float | str | None:
     """`mutual_window` checked before the files are read."""
-    if window is None:
-        return None
+    if window is None or (isinstance(window, str) and window == "auto"):
+        return window
+    if isinstance(window, str):
+        raise InputError(f'mutual_window must be a number, "auto" or None, got {window!r}')
     side = pp.as_positive(window, "mutual_window")
     if not mutual or k != 1:
         raise InputError("mutual_window needs mutual=True and k=1: it makes the check local")
@@ -436,6 +465,9 @@ class _Run:
     #: The learned embedding, resolved once for every pass; None: training-free.
     model: Embedding | None
     num_threads: int | None
+    #: The matching of the passes once the accepted copies show a heap
+    #: (``mutual_window="auto"``); None: every pass uses `matching`.
+    heap_matching: dict[str, Any] | None = None
 
     @cached_property
     def refiner(self) -> RefinementContext:
@@ -672,11 +704,14 @@ def _rejected(run: _Run, first: Pass) -> str:
     )
 
 
-def _match(run: _Run, rows: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+def _match(
+    run: _Run, rows: np.ndarray, seed: int, heap: bool = False
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Correspondences between the model and the scan points `rows` (and the normals at
     their ends when the run uses normals), by the run's
-    :class:`pointclm.preprocessing.DescriptorMatcher`."""
-    m = run.matcher.match(rows, seed=seed, **run.matching)
+    :class:`pointclm.preprocessing.DescriptorMatcher`, with the heap's matching if `heap`."""
+    matching = run.heap_matching if heap and run.heap_matching is not None else run.matching
+    m = run.matcher.match(rows, seed=seed, **matching)
     corr = m.correspondences(run.src_d.points, run.tgt_d.points)
     return corr, m.normals(run.src_d.normals, run.tgt_d.normals) if run.normals else None
 
@@ -703,7 +738,8 @@ def _peel(
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """Peeling rounds: match the scan points no accepted copy explains, register them, refine
     the new poses and verify them together with the accepted ones; stop when a round adds no
-    copy.
+    copy. With ``mutual_window="auto"``, once `HEAP_MIN_COPIES` copies are accepted the later
+    rounds match with the heap's windowed mutual check (`_Run.heap_matching`).
 
     Why: in a heap of identical parts, the copies accepted first hold most of the mutual
     descriptor matches and of the sampled correspondences, so the others keep too few true
@@ -713,35 +749,64 @@ def _peel(
     """
     from scipy.spatial import cKDTree
 
-    src, scan = run.src_d.points, run.tgt_d.points
+    scan_tree = cKDTree(run.tgt_d.points)
     radius = PEEL_RADIUS_VOXELS * run.voxel
-    scan_tree = cKDTree(scan)
-    unexplained = unexplained_points(scan, src, refined.transformations, radius)
+    unexplained = unexplained_points(
+        run.tgt_d.points, run.src_d.points, refined.transformations, radius
+    )
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
+        # Judged before every round on the copies accepted so far.
+        heap = _is_heap(run, tags)
         free = np.flatnonzero(unexplained)
         if len(free) < 3:
             break
-        seed = run.seed + round_
-        corr, pair_normals = _match(run, free, seed)
-        if len(corr) < 3:
+        step = _peel_round(run, refined, tags, cfg, round_, free, heap, scan_tree, unexplained)
+        if step is None:
             break
-        features = run.features(corr, cfg)
-        result = register(
-            corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals
-        )
-        candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
-        new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)
-        if len(new.origin) and new.by_visibility and refined.by_visibility:
-            refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
-        elif len(new.origin):
-            refined, tags = _reverify(run, refined, tags, new, round_)
-            # Re-verification may also drop accepted poses: recompute what is explained.
-            unexplained = unexplained_points(scan, src, refined.transformations, radius)
-        added = sum(t[0] == round_ for t in tags)  # the copies this round added
-        passes.append(Pass(corr, result, free, added))
-        if added == 0:
+        refined, tags, unexplained, done = step
+        passes.append(done)
+        if done.added == 0:
             break
     return refined, tags
+
+
+def _is_heap(run: _Run, tags: list[tuple[int, int]]) -> bool:
+    """Whether the accepted copies show a heap (``mutual_window="auto"``, `HEAP_MIN_COPIES`)."""
+    return run.heap_matching is not None and len(tags) >= HEAP_MIN_COPIES
+
+
+def _peel_round(
+    run: _Run,
+    refined: RefinedPoses,
+    tags: list[tuple[int, int]],
+    cfg: Config,
+    round_: int,
+    free: np.ndarray,
+    heap: bool,
+    scan_tree: Any,
+    unexplained: np.ndarray,
+) -> tuple[RefinedPoses, list[tuple[int, int]], np.ndarray, Pass] | None:
+    """One peeling round over the scan points `free`: the accepted poses, tags and unexplained
+    mask after it, and its pass; None when matching leaves fewer than 3 correspondences."""
+    seed = run.seed + round_
+    corr, pair_normals = _match(run, free, seed, heap)
+    if len(corr) < 3:
+        return None
+    features = run.features(corr, cfg)
+    result = register(corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals)
+    candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
+    new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)
+    if len(new.origin) and new.by_visibility and refined.by_visibility:
+        refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
+    elif len(new.origin):
+        refined, tags = _reverify(run, refined, tags, new, round_)
+        # Re-verification may also drop accepted poses: recompute what is explained.
+        radius = PEEL_RADIUS_VOXELS * run.voxel
+        unexplained = unexplained_points(
+            run.tgt_d.points, run.src_d.points, refined.transformations, radius
+        )
+    added = sum(t[0] == round_ for t in tags)  # the copies this round added
+    return refined, tags, unexplained, Pass(corr, result, free, added)
 
 
 def _add_seen(

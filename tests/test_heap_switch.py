@@ -1,0 +1,106 @@
+"""`register_point_clouds(mutual_window="auto")`: the windowed mutual check only once the
+accepted copies show a heap (issue 18)."""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import numpy as np
+import pointclm
+import pointclm.point_clouds as pc
+import pointclm.preprocessing as pp
+import pytest
+from pointclm.datasets.bins import BinParams, make_bin_scene
+from pointclm.errors import InputError
+
+#: A small bin of procedural boxes (no data folder): about a second per registration.
+SMALL = BinParams(
+    model="box",
+    copies=(18, 22),
+    bin_size=(0.2, 0.15, 0.1),
+    sensor_height=0.5,
+    resolution=(200, 150),
+)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_bin_scene(0, SMALL)
+
+
+def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:
+    return pointclm.register_point_clouds(
+        scene.model_points,
+        scene.scan,
+        voxel_size=scene.voxel_size,
+        viewpoint=scene.sensor,
+        num_threads=1,
+        **kwargs,
+    )
+
+
+def _spy_on_matching(monkeypatch) -> list[dict[str, Any]]:
+    """Every `DescriptorMatcher.match` call's keyword arguments, in order."""
+    calls: list[dict[str, Any]] = []
+    match = pp.DescriptorMatcher.match
+
+    def spy(self, *args: Any, **kwargs: Any):
+        calls.append(kwargs)
+        return match(self, *args, **kwargs)
+
+    monkeypatch.setattr(pp.DescriptorMatcher, "match", spy)
+    return calls
+
+
+def test_auto_is_the_default() -> None:
+    default = inspect.signature(pointclm.register_point_clouds).parameters["mutual_window"]
+    assert default.default == "auto"
+
+
+def test_below_the_count_auto_is_the_scene_wide_check(scene, monkeypatch) -> None:
+    # A count no scene reaches: every pass matches as with mutual_window=None.
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 10_000)
+    calls = _spy_on_matching(monkeypatch)
+    auto = _register(scene)
+    assert all("window" not in c for c in calls)
+    plain = _register(scene, mutual_window=None)
+    np.testing.assert_array_equal(auto.transformations, plain.transformations)
+    assert len(auto.passes) == len(plain.passes)
+
+
+def test_once_the_count_is_reached_later_passes_match_in_windows(scene, monkeypatch) -> None:
+    # This small bin's first pass finds one box: a count of 1 makes the later passes switch.
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    calls = _spy_on_matching(monkeypatch)
+    reg = _register(scene)
+    assert len(reg.passes) == len(calls) >= 2
+    diagonal = float(np.linalg.norm(np.ptp(reg.source_points, axis=0)))
+    accepted = np.cumsum([p.added for p in reg.passes])
+    # Pass 0 always matches scene-wide; pass r in windows once passes 0..r-1 found a copy.
+    assert "window" not in calls[0] and calls[0]["n_samples"] == 1000
+    for r in range(1, len(calls)):
+        if accepted[r - 1] >= 1:
+            assert calls[r]["window"] == pytest.approx(pc.HEAP_WINDOW * diagonal)
+            assert calls[r]["n_samples"] is None and calls[r]["mutual"] is True
+        else:
+            assert "window" not in calls[r]
+    assert any("window" in c for c in calls)
+    # The poses are verified as ever: deterministic, each a distinct copy.
+    again = _register(scene)
+    np.testing.assert_array_equal(again.transformations, reg.transformations)
+
+
+def test_auto_leaves_matching_it_cannot_make_local_alone(scene, monkeypatch) -> None:
+    # Without the mutual check (or with k > 1) there is nothing to make local: "auto" is a
+    # no-op there, not an error, since it is the default.
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    calls = _spy_on_matching(monkeypatch)
+    reg = _register(scene, mutual=False)
+    assert len(reg.passes) >= 1 and all("window" not in c for c in calls)
+
+
+@pytest.mark.parametrize("bad", ["Auto", "windows", ""])
+def test_other_strings_are_rejected(scene, bad: str) -> None:
+    with pytest.raises(InputError, match="mutual_window must be a number"):
+        _register(scene, mutual_window=bad)
