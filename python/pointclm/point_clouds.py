@@ -98,8 +98,10 @@ MAX_PEEL_ROUNDS = 20
 #: a heap of identical parts and the later passes check mutuality within windows
 #: (`HEAP_WINDOW`). A count is the scale-free evidence of many copies: with `n` copies in
 #: view, the scene-wide mutual check leaves each about 1/n of a model point's true matches.
-#: Chosen on the validation sets only (BENCHMARKS.md, bins): every realistic validation scene
-#: stayed below it (at most 7 accepted copies), most validation bins reached it.
+#: Chosen on the validation sets only (BENCHMARKS.md, bins): the realistic validation scenes
+#: (2 to 8 copies among clutter) accept at most 7, so 8 or more leaves them as they were; on
+#: the validation bins 8, 10 and 12 found the same share of half-visible copies (0.316-0.318),
+#: and 10 keeps a margin above a room scan's few copies.
 HEAP_MIN_COPIES = 10
 #: The windowed check's cube side in model diagonals for a heap (``mutual_window="auto"``),
 #: with every match kept: the best of the sizes tried on the validation bins.
@@ -351,12 +353,9 @@ def register_point_clouds(
     tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and viewpoint is None:
         orientation += " (the file's VIEWPOINT)"
-    matching = _matching(top_k, mutual, n_samples, None if window == "auto" else window, src)
-    heap = _heap_matching(window, top_k, mutual, k, src)
-    matcher = _matcher(src_d, tgt_d, k, num_threads)
-    run = _Run(
-        src_d, tgt_d, voxel, view, matching, matcher, normals, seed, embedding, num_threads, heap
-    )
+    matching, heap = _matchings(top_k, mutual, n_samples, k, window, src)
+    args = (src_d, tgt_d, voxel, view, matching, _matcher(src_d, tgt_d, k, num_threads))
+    run = _Run(*args, normals, seed, embedding, num_threads, heap)
     reg = _register(run, config, refine, peel, flips)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
@@ -372,6 +371,22 @@ def _matching(
     if window is not None:
         matching["window"] = window * float(np.linalg.norm(src.max(0) - src.min(0)))
     return matching
+
+
+def _matchings(
+    top_k: int,
+    mutual: bool,
+    n_samples: int | None,
+    k: int,
+    window: float | str | None,
+    src: np.ndarray,
+) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """The matcher's arguments of the first passes, and those once a heap is recognised
+    (None: no switch)."""
+    fixed = None if isinstance(window, str) else window  # "auto" starts scene-wide
+    return _matching(top_k, mutual, n_samples, fixed, src), _heap_matching(
+        window, top_k, mutual, k, src
+    )
 
 
 def _heap_matching(
