@@ -18,10 +18,9 @@ the same voxel and the sensor position, in the same run:
 
 - **pointclm**: ``register_point_clouds(model, scan, voxel_size, viewpoint=sensor)`` with its
   defaults (training-free thresholds for refined poses, ICP refinement and verification,
-  peeling rounds over the scan points no accepted copy explains, the windowed mutual check in
-  the rounds after ``HEAP_MIN_COPIES`` copies are accepted: ``mutual_window="auto"``).
-- **pointclm (scene-wide mutual)**: the same with ``mutual_window=None`` (:data:`SCENE_WIDE`):
-  every pass with the scene-wide mutual check (the default before ``"auto"``).
+  peeling rounds over the scan points no accepted copy explains, the scene-wide mutual check).
+- **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
+  windowed mutual check in the rounds after ``HEAP_MIN_COPIES`` copies are accepted.
 - **pointclm (one pass)**: the same with ``peel=False`` (one correspondence stage, the paper's).
 - **pointclm (all matches)**: the same with ``mutual=False, n_samples=None`` (:data:`ALL_MATCHES`):
   every scan point's best model match among the top 10,000, the setting for heaps.
@@ -90,13 +89,13 @@ ALL_MATCHES = {"mutual": False, "n_samples": None}
 #: The mutual check made within cubes of two part diagonals (a grid of stride one diagonal),
 #: so that each copy keeps its own mutual matches, and all of them kept.
 WINDOWED_MATCHES = {"mutual_window": 2.0, "n_samples": None}
-#: Every pass with the scene-wide mutual check, however many copies are found.
-SCENE_WIDE = {"mutual_window": None}
+#: The windowed check once peeling has accepted `HEAP_MIN_COPIES` copies (the scan is a heap).
+HEAP_SWITCH = {"mutual_window": "auto"}
 #: Matching arguments per method (the others: `register_point_clouds`' defaults).
 MATCHING = {
     "pointclm (all matches)": ALL_MATCHES,
     "pointclm (windowed mutual)": WINDOWED_MATCHES,
-    "pointclm (scene-wide mutual)": SCENE_WIDE,
+    "pointclm (heap switch)": HEAP_SWITCH,
     "pointclm (no flips)": {"flips": False},
 }
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
@@ -108,7 +107,7 @@ METHODS = (
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",
-    "pointclm (scene-wide mutual)",
+    "pointclm (heap switch)",
     "pointclm (no flips)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",

@@ -313,7 +313,7 @@ def register_point_clouds(
     mutual: bool = True,
     n_samples: int | None = 1000,
     k: int = 1,
-    mutual_window: float | str | None = "auto",
+    mutual_window: float | str | None = None,
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
