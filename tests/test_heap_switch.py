@@ -11,17 +11,9 @@ import pointclm
 import pointclm.point_clouds as pc
 import pointclm.preprocessing as pp
 import pytest
-from pointclm.datasets.bins import BinParams, make_bin_scene
+from pointclm.datasets.bins import make_bin_scene
 from pointclm.errors import InputError
-
-#: A small bin of procedural boxes (no data folder): about a second per registration.
-SMALL = BinParams(
-    model="box",
-    copies=(18, 22),
-    bin_size=(0.2, 0.15, 0.1),
-    sensor_height=0.5,
-    resolution=(200, 150),
-)
+from test_bins import SMALL  # a small bin of procedural boxes: about a second per registration
 
 
 @pytest.fixture(scope="module")

@@ -434,7 +434,7 @@ def _checked_arguments(
 
 def _window_diagonals(window: float | str | None, mutual: bool, k: int) -> float | str | None:
     """`mutual_window` checked before the files are read."""
-    if window is None or (isinstance(window, str) and window == "auto"):
+    if window is None or window == "auto":
         return window
     if isinstance(window, str):
         raise InputError(f'mutual_window must be a number, "auto" or None, got {window!r}')
@@ -720,13 +720,13 @@ def _rejected(run: _Run, first: Pass) -> str:
 
 
 def _match(
-    run: _Run, rows: np.ndarray, seed: int, heap: bool = False
+    run: _Run, rows: np.ndarray, seed: int, matching: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Correspondences between the model and the scan points `rows` (and the normals at
     their ends when the run uses normals), by the run's
-    :class:`pointclm.preprocessing.DescriptorMatcher`, with the heap's matching if `heap`."""
-    matching = run.heap_matching if heap and run.heap_matching is not None else run.matching
-    m = run.matcher.match(rows, seed=seed, **matching)
+    :class:`pointclm.preprocessing.DescriptorMatcher` with `matching` (the run's own when
+    None)."""
+    m = run.matcher.match(rows, seed=seed, **(run.matching if matching is None else matching))
     corr = m.correspondences(run.src_d.points, run.tgt_d.points)
     return corr, m.normals(run.src_d.normals, run.tgt_d.normals) if run.normals else None
 
@@ -742,6 +742,13 @@ def unexplained_points(
     posed = np.concatenate([source_points @ T[:3, :3].T + T[:3, 3] for T in transformations])
     d, _ = cKDTree(posed).query(target_points, k=1, distance_upper_bound=radius)
     return ~np.isfinite(d)
+
+
+def _unexplained(run: _Run, transformations: np.ndarray) -> np.ndarray:
+    """Mask of the scan points no copy at `transformations` explains (within
+    `PEEL_RADIUS_VOXELS`)."""
+    radius = PEEL_RADIUS_VOXELS * run.voxel
+    return unexplained_points(run.tgt_d.points, run.src_d.points, transformations, radius)
 
 
 def _peel(
@@ -765,17 +772,14 @@ def _peel(
     from scipy.spatial import cKDTree
 
     scan_tree = cKDTree(run.tgt_d.points)
-    radius = PEEL_RADIUS_VOXELS * run.voxel
-    unexplained = unexplained_points(
-        run.tgt_d.points, run.src_d.points, refined.transformations, radius
-    )
+    unexplained = _unexplained(run, refined.transformations)
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
         # Judged before every round on the copies accepted so far.
-        heap = _is_heap(run, tags)
+        matching = run.heap_matching if _is_heap(run, tags) else run.matching
         free = np.flatnonzero(unexplained)
         if len(free) < 3:
             break
-        step = _peel_round(run, refined, tags, cfg, round_, free, heap, scan_tree, unexplained)
+        step = _peel_round(run, refined, tags, cfg, round_, free, matching, scan_tree, unexplained)
         if step is None:
             break
         refined, tags, unexplained, done = step
@@ -797,14 +801,15 @@ def _peel_round(
     cfg: Config,
     round_: int,
     free: np.ndarray,
-    heap: bool,
+    matching: dict[str, Any] | None,
     scan_tree: Any,
     unexplained: np.ndarray,
 ) -> tuple[RefinedPoses, list[tuple[int, int]], np.ndarray, Pass] | None:
-    """One peeling round over the scan points `free`: the accepted poses, tags and unexplained
-    mask after it, and its pass; None when matching leaves fewer than 3 correspondences."""
+    """One peeling round over the scan points `free`, matched with `matching`: the accepted
+    poses, tags and unexplained mask after it, and its pass; None when matching leaves fewer
+    than 3 correspondences."""
     seed = run.seed + round_
-    corr, pair_normals = _match(run, free, seed, heap)
+    corr, pair_normals = _match(run, free, seed, matching)
     if len(corr) < 3:
         return None
     features = run.features(corr, cfg)
@@ -816,10 +821,7 @@ def _peel_round(
     elif len(new.origin):
         refined, tags = _reverify(run, refined, tags, new, round_)
         # Re-verification may also drop accepted poses: recompute what is explained.
-        radius = PEEL_RADIUS_VOXELS * run.voxel
-        unexplained = unexplained_points(
-            run.tgt_d.points, run.src_d.points, refined.transformations, radius
-        )
+        unexplained = _unexplained(run, refined.transformations)
     added = sum(t[0] == round_ for t in tags)  # the copies this round added
     return refined, tags, unexplained, Pass(corr, result, free, added)
 
@@ -843,10 +845,7 @@ def _add_seen(
     kept = _take(new, keep)
     refined, tags = _merge(refined, tags, kept, [(round_, int(new.origin[i])) for i in keep])
     # The accepted set only grew: the new copies' points join the explained ones.
-    radius = PEEL_RADIUS_VOXELS * run.voxel
-    unexplained &= unexplained_points(
-        run.tgt_d.points, run.src_d.points, kept.transformations, radius
-    )
+    unexplained &= _unexplained(run, kept.transformations)
     return refined, tags
 
 
