@@ -88,7 +88,7 @@ SCENES_PER_SLOT = 1000
 SEED_RANGE = 1_000_000
 
 #: Bump when the cached arrays change meaning.
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus")
 #: The N = 50,000 scenes: one held-out model with real scans, one mesh.
@@ -162,6 +162,8 @@ _ARRAYS = (
     "target_ids",
     "real_scan",
 )
+#: Kept when the scene has them (cues of networks that take more than coordinates).
+_OPTIONAL_ARRAYS = ("pair_normals", "match_distance")
 
 
 def cache_path(cache: Path, model: str, seed: int, params: Any) -> Path:
@@ -178,6 +180,7 @@ def save_scene(path: Path, scene: Any) -> None:
     np.savez_compressed(
         tmp,
         **{k: getattr(scene, k) for k in _ARRAYS},
+        **{k: getattr(scene, k) for k in _OPTIONAL_ARRAYS if getattr(scene, k) is not None},
         voxel_size=scene.voxel_size,
         diameter=scene.diameter,
         model=np.array(scene.model),
@@ -196,6 +199,7 @@ def load_scene(path: Path) -> Any:
     with np.load(path, allow_pickle=False) as z:
         return RealisticScene(
             **{k: z[k] for k in _ARRAYS},
+            **{k: z[k] for k in _OPTIONAL_ARRAYS if k in z.files},
             voxel_size=float(z["voxel_size"]),
             diameter=float(z["diameter"]),
             model=str(z["model"]),
@@ -271,12 +275,14 @@ def _refine(scene: Any, poses: np.ndarray) -> np.ndarray:
 
 
 def _pointclm(model: str | None, refine: bool) -> Callable[[Any], np.ndarray]:
-    from pointclm.evaluation import register_scaled
+    from pointclm.evaluation import register_scaled, scene_cues
 
     def run(scene: Any) -> np.ndarray:
         # The pipeline's own defaults for raw or refined poses (or the model's recommended
         # thresholds), scaled to the voxel, exactly as `register_point_clouds` picks them.
-        r = register_scaled(scene.correspondences, scene.voxel_size, None, 0, 1, model, refine)
+        r = register_scaled(
+            scene.correspondences, scene.voxel_size, None, 0, 1, model, refine, scene_cues(scene)
+        )
         poses = _poses(r.transformations)
         return _refine(scene, poses) if refine else poses
 

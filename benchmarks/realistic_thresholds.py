@@ -31,12 +31,15 @@ import itertools
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pointclm
+from pointclm.embedding import resolve
+from pointclm.evaluation import scene_cues
 from pointclm.metrics import score_scene, summarize
-from pointclm.point_clouds import REFINED_THRESHOLDS, embed_scaled, scaled_config
-from pointclm.training.realistic import SceneBank, score_bank
+from pointclm.point_clouds import REFINED_THRESHOLDS, scaled_config
+from pointclm.training.realistic import SceneBank, bank_cues, score_bank
 from realistic_models import load_scenes, scene_params, threshold_seeds
 
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
@@ -45,13 +48,21 @@ MIN_CLUSTER = (3, 4, 5, 7, 10)
 
 
 def bank_sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
-    feats = [
-        None
-        if model is None
-        else embed_scaled(c.astype(np.float64), model, scaled_config(float(v)), None)
-        for c, v in zip(bank.correspondences, bank.voxels, strict=True)
+    feats: list[np.ndarray | None] = []
+    normals: list[np.ndarray | None] = []
+    emb = None if model is None else resolve(model)
+    for i, (c, v) in enumerate(zip(bank.correspondences, bank.voxels, strict=True)):
+        if emb is None:
+            feats.append(None)
+            normals.append(None)
+            continue
+        n, sims = bank_cues(bank, i, emb.inputs)
+        cfg = scaled_config(float(v))
+        feats.append(emb.embed(c.astype(np.float64), cfg.sigma_d, normals=n, similarity=sims))
+        normals.append(n)  # the pipeline gets them too, as register_point_clouds gives them
+    return [
+        (params, score_bank(bank, feats, pointclm.Config(**params), normals)) for params in grid
     ]
-    return [(params, score_bank(bank, feats, pointclm.Config(**params))) for params in grid]
 
 
 class Scorer:
@@ -87,30 +98,33 @@ class Scorer:
     def sweep(
         self, model: str | None, grid: list[dict], scenes: list[int], refine: bool
     ) -> list[tuple[dict, dict]]:
-        feats = {
-            i: None
-            if model is None
-            else embed_scaled(
-                self.scenes[i].correspondences,
-                model,
-                scaled_config(self.scenes[i].voxel_size),
-                None,
-            )
-            for i in scenes
-        }
+        feats = {i: _features(self.scenes[i], model) for i in scenes}
         out = []
         for params in grid:
             scores = []
             for i in scenes:
                 sc = self.scenes[i]
                 cfg = scaled_config(sc.voxel_size, pointclm.Config(**params))
-                raw = pointclm.register(sc.correspondences, feats[i], cfg, seed=0)
+                f, normals = feats[i]
+                raw = pointclm.register(sc.correspondences, f, cfg, seed=0, normals=normals)
                 poses = np.asarray(raw.transformations).reshape(-1, 4, 4)
                 if refine:
                     poses = self.refined(i, poses)
                 scores.append(score_scene(poses, sc.poses, 15.0, sc.max_translation))
             out.append((params, summarize(scores).as_dict()))
         return out
+
+
+def _features(scene: Any, model: str | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A scene's embedding with the cues its network takes, and the normals the pipeline
+    gets with it (as `register_point_clouds` runs such a network); (None, None) without one."""
+    if model is None:
+        return None, None
+    emb = resolve(model)
+    normals, sims = scene_cues(scene)
+    cfg = scaled_config(scene.voxel_size)
+    f = emb.embed(scene.correspondences, cfg.sigma_d, normals=normals, similarity=sims)
+    return f, normals if "normals" in emb.inputs else None
 
 
 def _concat(banks: list[SceneBank], every: int) -> SceneBank:

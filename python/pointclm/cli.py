@@ -555,7 +555,6 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise FileNotFoundError(2, "no such training config file", args.config)
     if args.max_minutes is not None and args.max_minutes < 0:
         raise ValueError(f"--max-minutes must be >= 0, got {args.max_minutes}")
-    _check_device(args.device)
     overrides = {
         k: v
         for k, v in (
@@ -563,6 +562,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             ("shape_bank", args.shape_bank),
             ("iterations", args.iterations),
             ("num_workers", args.num_workers),
+            ("realistic_bank", args.realistic_bank),
+            ("val_realistic_bank", args.val_realistic_bank),
         )
         if v is not None
     }
@@ -570,6 +571,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         cfg = TrainConfig.from_file(args.config, **overrides)
     else:
         cfg = TrainConfig.preset(args.preset, **overrides)
+    if args.banks_only:
+        return _build_banks(cfg, Path(args.out), not args.quiet)
+    args.device = _check_device(args.device)
     result = train(
         cfg,
         args.out,
@@ -594,8 +598,26 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_device(device: str) -> None:
+def _build_banks(cfg: Any, out: Path, progress: bool) -> int:
+    """Build the realistic training and validation banks on every core into `out`, for a
+    machine that trains but cannot build them (no data folder, or its time is precious)."""
+    from .training.loop import training_bank, validation_bank
+
+    if cfg.realistic_fraction <= 0:
+        raise ValueError("this config trains on no realistic scenes: there is no bank to build")
+    out.mkdir(parents=True, exist_ok=True)
+    for name, build in (("scene_bank.npz", training_bank), ("val_scene_bank.npz", validation_bank)):
+        bank = build(cfg, progress=progress)
+        bank.save(out / name)
+        print(f"{out / name}: {len(bank)} scenes of {len(bank.models)} models")
+    return 0
+
+
+def _check_device(device: str) -> str:
     import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
 
     try:
         kind = torch.device(device).type
@@ -605,6 +627,7 @@ def _check_device(device: str) -> None:
         ) from None
     if kind == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"--device {device}: CUDA is not available on this machine")
+    return device
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -780,10 +803,14 @@ def _add_train_parser(sub: Any) -> None:
     t = sub.add_parser("train", help="train the correspondence embedding (needs torch)")
     t.add_argument("--config", help='JSON file of TrainConfig fields ("preset" to start from)')
     t.add_argument(
-        "--preset", default="cpu", help="cpu (default), realistic-cpu, compact-gpu, paper, smoke"
+        "--preset",
+        default="cpu",
+        help="cpu (default), realistic-cpu, realistic-gpu, compact-gpu, paper, smoke",
     )
     t.add_argument("--out", required=True, help="output folder (weights, checkpoints, log)")
-    t.add_argument("--device", default="cpu", help="cpu or cuda")
+    t.add_argument(
+        "--device", default="auto", help="auto (default: cuda when available), cpu or cuda"
+    )
     t.add_argument(
         "--resume",
         action="store_true",
@@ -796,6 +823,13 @@ def _add_train_parser(sub: Any) -> None:
     t.add_argument("--num-workers", type=_int_at_least(0), dest="num_workers")
     t.add_argument("--data-dir", help="folder with the training meshes (e.g. ../shared/data)")
     t.add_argument("--shape-bank", help="a shape_bank.npz from an earlier run (no meshes needed)")
+    t.add_argument("--realistic-bank", help="a scene_bank.npz built earlier (--banks-only)")
+    t.add_argument("--val-realistic-bank", help="a val_scene_bank.npz built earlier")
+    t.add_argument(
+        "--banks-only",
+        action="store_true",
+        help="build the realistic scene banks into OUT on every core, then stop",
+    )
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=cmd_train)
 

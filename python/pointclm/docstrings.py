@@ -74,7 +74,14 @@ PARAMETERS: dict[str, str] = _entries(
             correspondence (any length, any sign). A rigid motion preserves the angle between two
             normals and each point's distance from the other's tangent plane, so spatial
             consistency also asks these to agree, which makes pruning and clustering far sharper.
-            :func:`pointclm.register_point_clouds` passes its clouds' normals.
+            :func:`pointclm.register_point_clouds` passes its clouds' normals. A network that
+            takes normals (``model.inputs``) reads them too, and needs them.
+        """,
+    similarity="""
+        similarity : array_like, optional
+            (N,) descriptor similarity of each match (:func:`pointclm.cues.similarity` of the
+            descriptor distances), for a network that takes it (``model.inputs``); ignored
+            otherwise. :func:`pointclm.register_point_clouds` computes it from its matches.
         """,
     # --- `register_point_clouds`: a model and a scan (also `register_files`' options) -------
     voxel_size="""

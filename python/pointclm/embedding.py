@@ -31,6 +31,7 @@ import numpy as np
 
 from . import _core
 from .config import Config
+from .cues import needed, pack
 from .errors import ConfigError, InputError
 from .model.weights import SHIPPED, load_metadata, load_network, weights_path
 
@@ -136,25 +137,43 @@ class Embedding:
         arch = getattr(self.network, "config", None)
         return float(getattr(arch, "sigma_d", Config().sigma_d))
 
+    @property
+    def inputs(self) -> tuple[str, ...]:
+        """What the network takes besides coordinates (:data:`pointclm.cues.INPUTS`)."""
+        if self.backend == "rust":
+            return tuple(getattr(self.network, "inputs", ()))
+        arch = getattr(self.network, "config", None)
+        return tuple(getattr(arch, "inputs", ()))
+
     def in_training_units(self, sigma_d: float) -> bool:
         """Whether coordinates whose pipeline tolerance is `sigma_d` are already in the
         network's units (then they go to it as they are)."""
         return bool(sigma_d == self.sigma_d)
 
     def embed(
-        self, corr: np.ndarray, sigma_d: float | None = None, *, num_threads: int | None = None
+        self,
+        corr: np.ndarray,
+        sigma_d: float | None = None,
+        *,
+        num_threads: int | None = None,
+        normals: Any = None,
+        similarity: Any = None,
     ) -> np.ndarray:
         """(N, 6) correspondences -> (N, C) unit embeddings (float64).
 
         With `sigma_d` (the pipeline's tolerance in the units of `corr`) the network sees
-        them in its training units (:func:`network_units`); None: as they are.
+        them in its training units (:func:`network_units`); None: as they are. `normals`
+        ((N, 6)) and `similarity` ((N,)) are the cues of :mod:`pointclm.cues`, needed when
+        the network takes them (:attr:`inputs`) and ignored otherwise.
         """
         x = corr if sigma_d is None else network_units(corr, sigma_d, self.sigma_d)
+        inputs = self.inputs
         if self.backend == "rust":
-            return np.asarray(self.network.embed(x, num_threads=num_threads))
+            cues = needed(inputs, len(x), normals, similarity)
+            return np.asarray(self.network.embed(x, num_threads=num_threads, **cues))
         from .model.embed import embed  # torch is imported only when asked for
 
-        return embed(x, self.network, device=self.device)
+        return embed(pack(x, inputs, normals, similarity), self.network, device=self.device)
 
     def recommended_config(self, purpose: RecommendedFor = "correspondences") -> Config | None:
         """The thresholds chosen with this network (in the synthetic protocol's units), or

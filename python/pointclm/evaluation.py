@@ -10,6 +10,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .config import Config
+from .cues import similarity
 from .embedding import resolve
 from .errors import ConfigError
 from .metrics import SceneScore, Summary, score_scene, summarize
@@ -148,7 +149,14 @@ def _found_poses(
         return np.asarray(result.transformations).reshape(-1, 4, 4)
     voxel = scene.voxel_size
     result = register_scaled(
-        scene.correspondences, voxel, config, seed, num_threads, model, kind == "refined"
+        scene.correspondences,
+        voxel,
+        config,
+        seed,
+        num_threads,
+        model,
+        kind == "refined",
+        scene_cues(scene),
     )
     poses = np.asarray(result.transformations).reshape(-1, 4, 4)
     if kind == "refined":
@@ -160,6 +168,13 @@ def _found_poses(
     return poses
 
 
+def scene_cues(scene: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A realistic scene's pair normals and match similarities (None where it has none)."""
+    normals = getattr(scene, "pair_normals", None)
+    distance = getattr(scene, "match_distance", None)
+    return normals, None if distance is None else similarity(distance)
+
+
 def register_scaled(
     corr: np.ndarray,
     voxel: float,
@@ -168,16 +183,24 @@ def register_scaled(
     num_threads: int | None,
     model: Any,
     refine: bool,
+    cues: tuple[Any, Any] = (None, None),
 ) -> Any:
     """Register correspondences in real units as `register_point_clouds` does: `config`
     (synthetic units) scaled to `voxel`, or without one the default thresholds for refined
     poses if `refine` (:func:`pointclm.point_clouds.cloud_config`; the refinement itself is the
-    caller's). The benchmarks call it too."""
+    caller's). `cues` (normals, similarity) go to a network that takes them, and the normals
+    to the pipeline too when it does, as `register_point_clouds` gives them. The benchmarks
+    call it too."""
     from .point_clouds import cloud_base_config
 
     base = config if config is not None else cloud_base_config(model, refine)
     cfg = Config.for_voxel(voxel, base)
     features = None
+    normals = None
     if model is not None:
-        features = resolve(model).embed(corr, cfg.sigma_d, num_threads=num_threads)
-    return register(corr, features, cfg, seed, num_threads=num_threads)
+        emb = resolve(model)
+        features = emb.embed(
+            corr, cfg.sigma_d, num_threads=num_threads, normals=cues[0], similarity=cues[1]
+        )
+        normals = cues[0] if "normals" in emb.inputs else None
+    return register(corr, features, cfg, seed, num_threads=num_threads, normals=normals)

@@ -24,6 +24,7 @@ from . import _core
 from . import preprocessing as pp
 from ._core import Instance, RegistrationResult
 from .config import Config
+from .cues import similarity
 from .docstrings import fill
 from .embedding import Embedding, resolve
 from .errors import InputError
@@ -496,11 +497,20 @@ class _Run:
             num_threads=self.num_threads,
         )
 
-    def features(self, corr: np.ndarray, cfg: Config) -> np.ndarray | None:
-        """The learned embedding of `corr` (in the units of `cfg`), or None without one."""
+    def features(
+        self,
+        corr: np.ndarray,
+        cfg: Config,
+        normals: np.ndarray | None = None,
+        sims: np.ndarray | None = None,
+    ) -> np.ndarray | None:
+        """The learned embedding of `corr` (in the units of `cfg`) with the cues its network
+        takes, or None without one."""
         if self.model is None:
             return None
-        return self.model.embed(corr, cfg.sigma_d, num_threads=self.num_threads)
+        return self.model.embed(
+            corr, cfg.sigma_d, num_threads=self.num_threads, normals=normals, similarity=sims
+        )
 
 
 def _describe_scan(
@@ -573,7 +583,7 @@ def _register(
     after the clouds are described."""
     t1 = time.perf_counter()
     everything = np.arange(len(run.tgt_d.points))
-    corr, pair_normals = _match(run, everything, run.seed)
+    corr, pair_normals, sims = _match(run, everything, run.seed)
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
@@ -581,7 +591,7 @@ def _register(
             "similar local shapes (try mutual=False, a smaller voxel_size, or check the units)"
         )
     cfg = _config(config, run.voxel, run.model, refine, peel)
-    features = run.features(corr, cfg)
+    features = run.features(corr, cfg, pair_normals, sims)
     t3 = time.perf_counter()
     result = register(
         corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
@@ -721,14 +731,19 @@ def _rejected(run: _Run, first: Pass) -> str:
 
 def _match(
     run: _Run, rows: np.ndarray, seed: int, matching: dict[str, Any] | None = None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Correspondences between the model and the scan points `rows` (and the normals at
-    their ends when the run uses normals), by the run's
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Correspondences between the model and the scan points `rows`, by the run's
     :class:`pointclm.preprocessing.DescriptorMatcher` with `matching` (the run's own when
-    None)."""
+    None); the normals at their ends when the run uses normals or its network takes them,
+    and their descriptor similarity when the network takes it (else None)."""
     m = run.matcher.match(rows, seed=seed, **(run.matching if matching is None else matching))
     corr = m.correspondences(run.src_d.points, run.tgt_d.points)
-    return corr, m.normals(run.src_d.normals, run.tgt_d.normals) if run.normals else None
+    inputs = () if run.model is None else run.model.inputs
+    normals = None
+    if run.normals or "normals" in inputs:
+        normals = m.normals(run.src_d.normals, run.tgt_d.normals)
+    sims = similarity(m.distance) if "similarity" in inputs and len(corr) else None
+    return corr, normals, sims
 
 
 def unexplained_points(
@@ -809,10 +824,10 @@ def _peel_round(
     poses, tags and unexplained mask after it, and its pass; None when matching leaves fewer
     than 3 correspondences."""
     seed = run.seed + round_
-    corr, pair_normals = _match(run, free, seed, matching)
+    corr, pair_normals, sims = _match(run, free, seed, matching)
     if len(corr) < 3:
         return None
-    features = run.features(corr, cfg)
+    features = run.features(corr, cfg, pair_normals, sims)
     result = register(corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals)
     candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
     new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)

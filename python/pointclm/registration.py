@@ -137,6 +137,7 @@ def register(
     backend: str = "rust",
     device: str | None = None,
     normals: ArrayLike | None = None,
+    similarity: ArrayLike | None = None,
 ) -> RegistrationResult:
     """Find every copy of the source object in the target.
 
@@ -157,6 +158,7 @@ def register(
     %(backend)s
     %(device)s
     %(normals)s
+    %(similarity)s
 
     Returns
     -------
@@ -173,7 +175,9 @@ def register(
     if model is not None:
         if feats is not None:
             raise InputError("pass either features or model, not both")
-        network, embedded, config = _embedding(model, backend, device, config, [corr], num_threads)
+        network, embedded, config = _embedding(
+            model, backend, device, config, [corr], num_threads, [(normals, similarity)]
+        )
         feats = None if embedded is None else embedded[0]
     return _core.register(
         rows,
@@ -208,6 +212,7 @@ def _embedding(
     config: Config | dict[str, Any] | None,
     corrs: list[np.ndarray],
     num_threads: int | None,
+    cues: list[tuple[Any, Any]] | None = None,
 ) -> tuple[_core.Network | None, list[np.ndarray] | None, Any]:
     """The network for the core to run, or else each scene's embedding computed here; and the
     config: the caller's, else the one recommended with the network.
@@ -222,12 +227,20 @@ def _embedding(
     if config is None:
         config = default_config(emb)
     sigma_d = as_config(config)["sigma_d"]
-    if not emb.in_training_units(sigma_d):
-        threads = as_threads(num_threads)
-        return None, [emb.embed(c, sigma_d, num_threads=threads) for c in corrs], config
-    if emb.backend == "rust":
+    cues = cues or [(None, None)] * len(corrs)
+    # A network with inputs beyond coordinates is run here, where its cues are at hand.
+    if emb.backend == "rust" and emb.in_training_units(sigma_d) and not emb.inputs:
         return emb.network, None, config
-    return None, [emb.embed(c) for c in corrs], config
+    units = None if emb.in_training_units(sigma_d) else sigma_d
+    threads = as_threads(num_threads)
+    return (
+        None,
+        [
+            emb.embed(c, units, num_threads=threads, normals=n, similarity=s)
+            for c, (n, s) in zip(corrs, cues, strict=True)
+        ],
+        config,
+    )
 
 
 def _scene_arrays(item: Any, k: int) -> tuple[np.ndarray, np.ndarray | None]:

@@ -171,6 +171,10 @@ class RealisticScene:
     voxel_size, diameter : float, the voxel and the model's bounding-box diagonal.
     real_scan : (M,) bool, instances taken from a real range scan.
     viewpoint : (3,) float64, the sensor's position (None for scenes built elsewhere).
+    pair_normals : (N, 6) float64, the unit normals at both ends of each correspondence
+        (the model's facing outwards, the scan's towards the sensor), as FPFH used them.
+    match_distance : (N,) float64, each match's descriptor distance (see
+        :func:`pointclm.cues.similarity`). Both None for scenes built elsewhere.
     """
 
     correspondences: np.ndarray
@@ -186,6 +190,8 @@ class RealisticScene:
     seed: int
     timings: dict[str, float] = field(default_factory=dict)
     viewpoint: np.ndarray | None = None
+    pair_normals: np.ndarray | None = None
+    match_distance: np.ndarray | None = None
 
     @property
     def n_instances(self) -> int:
@@ -422,6 +428,8 @@ def make_realistic_scene(seed: int = 0, params: SceneParams | None = None) -> Re
             "total": t_end - t_start,
         },
         viewpoint=sensor.eye,
+        pair_normals=matches.normals(source.normals, target.normals),
+        match_distance=np.asarray(matches.distance, dtype=np.float64),
     )
 
 

@@ -76,6 +76,14 @@ class TrainConfig:
         default_factory=lambda: {"tau_n": 3, "min_cluster_size": 5}
     )
     init_weights: str | None = None  # start from these weights (fine-tuning)
+    # Inputs beyond coordinates (pointclm.cues.INPUTS): only realistic scenes carry them, so
+    # a network with inputs trains on the realistic bank alone (realistic_fraction 1).
+    inputs: tuple[str, ...] = ()
+    normal_tolerance: float = 0.5
+    # Random procedural shapes (pointclm.datasets.procedural_family_names) added to the
+    # realistic training models, so the embedding learns consistency rather than shapes.
+    procedural_shapes: int = 0
+    procedural_scenes_per_shape: int = 4
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -102,6 +110,17 @@ class TrainConfig:
             raise ValueError(
                 f"realistic_fraction must lie in [0, 1], got {self.realistic_fraction}"
             )
+        from ..cues import check_inputs
+
+        if tuple(self.inputs) != check_inputs(self.inputs):
+            raise ValueError(f"inputs must be in the order {check_inputs(self.inputs)}")
+        if self.inputs and self.realistic_fraction < 1.0:
+            raise ValueError(
+                f"a network with inputs {self.inputs} trains on realistic scenes only "
+                "(synthetic ones carry no cues): set realistic_fraction to 1"
+            )
+        if self.procedural_shapes < 0 or self.procedural_scenes_per_shape < 1:
+            raise ValueError("need procedural_shapes >= 0 and procedural_scenes_per_shape >= 1")
 
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> TrainConfig:
@@ -134,7 +153,7 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"unknown training config fields: {sorted(unknown)}")
         merged = {**base, **raw, **overrides}
-        for key in ("train_shapes", "val_shapes", "realistic_models"):
+        for key in ("train_shapes", "val_shapes", "realistic_models", "inputs"):
             if isinstance(merged.get(key), list):
                 merged[key] = tuple(merged[key])
         return cls(**merged)
@@ -143,6 +162,7 @@ class TrainConfig:
         d = asdict(self)
         d["train_shapes"], d["val_shapes"] = list(self.train_shapes), list(self.val_shapes)
         d["realistic_models"] = list(self.realistic_models)
+        d["inputs"] = list(self.inputs)
         return d
 
     def save(self, path: str | Path) -> None:
@@ -217,6 +237,24 @@ PRESETS: dict[str, dict[str, Any]] = {
         "val_every": 250,
         "checkpoint_every": 250,
         "val_scenes": 32,
+    },
+    # Realistic scenes only, of 3 data models and 300 random procedural shapes, the network
+    # taking normals and match similarity: sized for a GPU (the bank, about 1,500 scenes,
+    # is built beforehand on every core: `pointclm train --build-banks`).
+    "realistic-gpu": {
+        "depth": 6,
+        "width": 64,
+        "iterations": 8000,
+        "batch_size": 16,
+        "lr": 1e-3,
+        "realistic_fraction": 1.0,
+        "realistic_scenes_per_model": 100,
+        "procedural_shapes": 300,
+        "procedural_scenes_per_shape": 4,
+        "inputs": ("normals", "similarity"),
+        "val_every": 500,
+        "checkpoint_every": 500,
+        "num_workers": 4,
     },
     # A few steps, for tests and CI.
     "smoke": {

@@ -20,9 +20,9 @@ from ..registration import register
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .data import ShapeBank, make_batch
-from .realistic import SceneBank, realistic_sample, score_bank
+from .realistic import SceneBank, bank_cues, realistic_sample, score_bank
 
-__all__ = ["train", "validate", "validate_realistic"]
+__all__ = ["train", "training_bank", "validate", "validate_realistic", "validation_bank"]
 
 
 def _seed_for(base: int, *parts: int) -> int:
@@ -39,7 +39,7 @@ class _Batches:
     A batch is a list of groups of equal-sized scenes: the synthetic scenes stacked, then each
     realistic scene alone (their correspondence counts differ)."""
 
-    def __init__(self, cfg: TrainConfig, bank: ShapeBank, scenes: SceneBank | None) -> None:
+    def __init__(self, cfg: TrainConfig, bank: ShapeBank | None, scenes: SceneBank | None) -> None:
         self.cfg, self.bank, self.scenes = cfg, bank, scenes
 
     def __len__(self) -> int:
@@ -51,6 +51,7 @@ class _Batches:
         n_real = round(c.batch_size * c.realistic_fraction) if scenes is not None else 0
         groups: list[Group] = []
         if c.batch_size > n_real:
+            assert self.bank is not None  # realistic_fraction < 1 builds one
             groups.append(
                 make_batch(
                     self.bank,
@@ -66,7 +67,7 @@ class _Batches:
         for _ in range(n_real):
             assert scenes is not None  # n_real > 0 only with a bank
             x, y = realistic_sample(
-                scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels
+                scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels, c.inputs
             )
             groups.append((x[None], y[None]))
         return groups
@@ -85,7 +86,10 @@ def _scene_bank(path: str | None, out: Path, name: str, build: Any) -> SceneBank
     return bank
 
 
-def validation_scenes(cfg: TrainConfig, bank: ShapeBank) -> list[Any]:
+def validation_scenes(cfg: TrainConfig, bank: ShapeBank | None) -> list[Any]:
+    """The synthetic validation scenes; none when training is realistic only."""
+    if bank is None:
+        return []
     rng = np.random.default_rng(_seed_for(cfg.seed, 2))
     scenes = []
     for k in range(cfg.val_scenes):
@@ -121,22 +125,28 @@ def validate(
 def validate_realistic(
     model: Any, bank: SceneBank, device: str, config: Config | None = None
 ) -> dict[str, float]:
-    """The same on realistic scenes, in real units (:func:`score_bank`)."""
+    """The same on realistic scenes, in real units (:func:`score_bank`), with the cues the
+    network takes."""
     import torch
 
+    from ..cues import pack
     from ..embedding import network_units
     from ..point_clouds import scaled_config
 
+    inputs = tuple(getattr(model.config, "inputs", ()))
     model.eval()
-    feats = []
+    feats, pipeline_normals = [], []
     with torch.no_grad():
         for i in range(len(bank)):
             sigma_d = scaled_config(float(bank.voxels[i])).sigma_d
             x = network_units(bank.correspondences[i], sigma_d, model.config.sigma_d)
+            normals, sims = bank_cues(bank, i, inputs)
+            x = pack(x, inputs, normals, sims)
             out = model(torch.tensor(x, dtype=torch.float32, device=device)[None])[0]
             feats.append(out.double().cpu().numpy())
+            pipeline_normals.append(normals)  # as register_point_clouds gives them
     model.train()
-    return score_bank(bank, feats, config)
+    return score_bank(bank, feats, config, pipeline_normals)
 
 
 def _batch_loss(model: Any, groups: list[Any], cfg: TrainConfig, device: str, gen: Any) -> Any:
@@ -240,7 +250,7 @@ def train(
     }
 
 
-def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank, Any]:
+def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank | None, Any]:
     """The run folder with its config and shape bank, torch seeded, and the network
     (initialised from the seed, or from ``cfg.init_weights``)."""
     import torch
@@ -251,13 +261,22 @@ def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank, Any]:
     cfg.save(out / "train_config.json")
     torch.manual_seed(cfg.seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
-    bank = (
-        ShapeBank.load(cfg.shape_bank)
-        if cfg.shape_bank
-        else ShapeBank.build([*cfg.train_shapes, *cfg.val_shapes], cfg.data_dir, cfg.seed)
+    bank = None
+    if cfg.realistic_fraction < 1:  # synthetic scenes are drawn from the shape bank
+        bank = (
+            ShapeBank.load(cfg.shape_bank)
+            if cfg.shape_bank
+            else ShapeBank.build([*cfg.train_shapes, *cfg.val_shapes], cfg.data_dir, cfg.seed)
+        )
+        bank.save(out / "shape_bank.npz")
+    arch = EmbeddingConfig(
+        cfg.depth,
+        cfg.width,
+        cfg.sigma_d,
+        inputs=cfg.inputs,
+        normal_tolerance=cfg.normal_tolerance,
     )
-    bank.save(out / "shape_bank.npz")
-    model = SCNonlocal(EmbeddingConfig(cfg.depth, cfg.width, cfg.sigma_d)).to(device)
+    model = SCNonlocal(arch).to(device)
     if cfg.init_weights:
         init = load_model(cfg.init_weights, device=device)
         if init.config != model.config:
@@ -276,30 +295,48 @@ def _realistic_banks(
     if cfg.realistic_fraction <= 0:
         return None, None
     scenes = _scene_bank(
-        cfg.realistic_bank,
-        out,
-        "scene_bank.npz",
-        lambda: SceneBank.build(
-            cfg.realistic_models,
-            cfg.realistic_scenes_per_model,
-            cfg.seed,
-            cfg.data_dir,
-            progress=progress,
-        ),
+        cfg.realistic_bank, out, "scene_bank.npz", lambda: training_bank(cfg, progress=progress)
     )
     val_real = _scene_bank(
         cfg.val_realistic_bank,
         out,
         "val_scene_bank.npz",
-        lambda: SceneBank.build(
-            cfg.val_shapes,
-            cfg.val_realistic_scenes_per_model,
-            cfg.seed + 1,
-            cfg.data_dir,
-            progress=progress,
-        ),
+        lambda: validation_bank(cfg, progress=progress),
     )
     return scenes, val_real
+
+
+def training_bank(
+    cfg: TrainConfig, workers: int | None = None, progress: bool = False
+) -> SceneBank:
+    """The realistic training bank `cfg` describes: its data models and random procedural
+    shapes, built in `workers` processes (default: every core)."""
+    from ..datasets.procedural import procedural_family_names
+
+    shapes = procedural_family_names(cfg.procedural_shapes, cfg.seed)
+    return SceneBank.build(
+        [*cfg.realistic_models, *shapes],
+        [cfg.realistic_scenes_per_model] * len(cfg.realistic_models)
+        + [cfg.procedural_scenes_per_shape] * len(shapes),
+        cfg.seed,
+        cfg.data_dir,
+        workers,
+        progress=progress,
+    )
+
+
+def validation_bank(
+    cfg: TrainConfig, workers: int | None = None, progress: bool = False
+) -> SceneBank:
+    """The realistic validation bank: `cfg.val_shapes`, never trained on."""
+    return SceneBank.build(
+        cfg.val_shapes,
+        cfg.val_realistic_scenes_per_model,
+        cfg.seed + 1,
+        cfg.data_dir,
+        workers,
+        progress=progress,
+    )
 
 
 def _resume(out: Path, model: Any, opt: Any, device: str) -> tuple[int, Any, float]:
@@ -325,7 +362,7 @@ def _cosine_schedule(cfg: TrainConfig, opt: Any, start: int) -> Any:
     )
 
 
-def _loader(cfg: TrainConfig, bank: ShapeBank, scenes: SceneBank | None, start: int) -> Any:
+def _loader(cfg: TrainConfig, bank: ShapeBank | None, scenes: SceneBank | None, start: int) -> Any:
     """The batches of iterations ``start + 1 ...`` in order (seeded by iteration)."""
     import torch
 
@@ -377,6 +414,12 @@ class _Validator:
     ) -> tuple[float, float]:
         """Validate, record the metrics in the log row and progress bar, and return the
         key the best weights are chosen by."""
+        if not self.scenes:  # realistic training only: its validation alone decides
+            assert self.real is not None
+            real = validate_realistic(model, self.real, self.device, self.real_config)
+            row["val"] = row["val_realistic"] = real
+            postfix["val_real_MF"] = f"{100 * real['mean_f1']:.2f}"
+            return (real["mean_f1"], real["strict_f1"])
         metrics = validate(model, self.scenes, self.device, self.config)
         row["val"] = metrics
         key = (metrics["mean_f1"], metrics["strict_f1"])

@@ -3,14 +3,16 @@
 A realistic scene costs about a second to build (FPFH on some 20,000 scene points dominates),
 against milliseconds for a synthetic one, so training cannot build them on the fly. The bank
 builds each once, from seeds derived from the run's seed, in worker processes, and keeps only
-what training reads: the correspondences, their labels and the voxel. It is saved as one
+what training reads: the correspondences, their labels, the voxel, and the cues a network may
+take besides coordinates (the normals at both ends and the descriptor similarity of each
+match, :mod:`pointclm.cues`). It is saved as one
 ``.npz`` so that a machine without the data folder (a GPU box) trains on exactly the same
 scenes.
 
 A sample is a bank scene in the network's units (lengths over ``3 voxels / sigma_d``, the
 ratio that ``Config.for_voxel`` and ``pointclm.embedding`` use at inference), each side centred and
-turned by its own random rotation: spatial consistency and labels are unchanged, and the
-network cannot learn a scene's frame instead of its geometry.
+turned by its own random rotation (its normals with it): spatial consistency and labels are
+unchanged, and the network cannot learn a scene's frame instead of its geometry.
 """
 
 from __future__ import annotations
@@ -24,13 +26,22 @@ from typing import Any
 
 import numpy as np
 
+from ..cues import check_inputs, pack, similarity
 from ..embedding import network_units
 from ..io.arrays import read_npz_members
 from ..io.files import read_checked
 from ..point_clouds import scaled_config
 from .config import VAL_SHAPES
 
-__all__ = ["SceneBank", "bank_scene", "near_misses", "realistic_sample", "scene_seed", "score_bank"]
+__all__ = [
+    "SceneBank",
+    "bank_cues",
+    "bank_scene",
+    "near_misses",
+    "realistic_sample",
+    "scene_seed",
+    "score_bank",
+]
 
 
 def scene_seed(base: int, model_index: int, k: int) -> int:
@@ -51,9 +62,7 @@ def bank_scene(model: str, seed: int, data_dir: str | None) -> Any:
     )
 
 
-def _build_one(
-    job: tuple[str, int, str | None],
-) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
+def _build_one(job: tuple[str, int, str | None]) -> tuple[Any, ...]:
     scene = bank_scene(*job)
     return (
         scene.correspondences.astype(np.float32),
@@ -61,13 +70,16 @@ def _build_one(
         scene.voxel_size,
         scene.diameter,
         scene.poses,
+        scene.pair_normals.astype(np.float32),
+        similarity(scene.match_distance).astype(np.float32),
     )
 
 
 @dataclass
 class SceneBank:
     """Realistic scenes reduced to correspondences, labels, voxel, diameter and true poses
-    (validation scores with them), grouped by model."""
+    (validation scores with them), grouped by model, with each row's cues: the normals at
+    both ends and the similarity of its match (None in banks saved before they were kept)."""
 
     correspondences: list[np.ndarray]
     labels: list[np.ndarray]
@@ -76,6 +88,8 @@ class SceneBank:
     poses: list[np.ndarray]
     models: list[str]
     model_of: np.ndarray
+    normals: list[np.ndarray] | None = None
+    similarities: list[np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.correspondences)
@@ -84,16 +98,25 @@ class SceneBank:
     def build(
         cls,
         models: Sequence[str],
-        scenes_per_model: int,
+        scenes_per_model: int | Sequence[int],
         seed: int,
         data_dir: str | None = None,
         workers: int | None = None,
         progress: bool = False,
     ) -> SceneBank:
+        """`scenes_per_model` scenes of each model (one count, or one per model), built in
+        `workers` processes (default: every core)."""
+        counts = (
+            [int(scenes_per_model)] * len(models)
+            if isinstance(scenes_per_model, int)
+            else [int(c) for c in scenes_per_model]
+        )
+        if len(counts) != len(models):
+            raise ValueError(f"need one scene count per model: {len(models)} models")
         jobs = [
             (m, scene_seed(seed, i, k), data_dir)
             for i, m in enumerate(models)
-            for k in range(scenes_per_model)
+            for k in range(counts[i])
         ]
         workers = workers or os.cpu_count() or 1
         if workers > 1:
@@ -111,7 +134,28 @@ class SceneBank:
             np.array([b[3] for b in built]),
             [b[4] for b in built],
             list(models),
-            np.repeat(np.arange(len(models)), scenes_per_model),
+            np.repeat(np.arange(len(models)), counts),
+            [b[5] for b in built],
+            [b[6] for b in built],
+        )
+
+    @classmethod
+    def concat(cls, banks: Sequence[SceneBank]) -> SceneBank:
+        """Banks of the same model list built in parts (e.g. some models' counts 0 in each)
+        joined in order: the bank one build of all the parts would give."""
+        if not banks or any(b.models != banks[0].models for b in banks):
+            raise ValueError("need at least one bank, all built over the same model list")
+        with_cues = all(b.normals is not None and b.similarities is not None for b in banks)
+        return cls(
+            [c for b in banks for c in b.correspondences],
+            [y for b in banks for y in b.labels],
+            np.concatenate([b.voxels for b in banks]),
+            np.concatenate([b.diameters for b in banks]),
+            [p for b in banks for p in b.poses],
+            list(banks[0].models),
+            np.concatenate([b.model_of for b in banks]),
+            [n for b in banks for n in b.normals or []] if with_cues else None,
+            [s for b in banks for s in b.similarities or []] if with_cues else None,
         )
 
     @classmethod
@@ -154,6 +198,12 @@ class SceneBank:
             raise ValueError("its arrays have inconsistent shapes")
         split = np.cumsum(counts)[:-1]
         pose_split = np.cumsum(instances)[:-1]
+        normals = sims = None
+        if "normals" in z and "similarities" in z:
+            if z["normals"].shape != (len(corr), 6) or z["similarities"].shape != (len(corr),):
+                raise ValueError("its cues do not match its correspondences")
+            normals = list(np.split(z["normals"].astype(np.float32), split))
+            sims = list(np.split(z["similarities"].astype(np.float32), split))
         return cls(
             list(np.split(corr, split)),
             list(np.split(labels, split)),
@@ -162,11 +212,24 @@ class SceneBank:
             list(np.split(poses, pose_split)),
             [str(m) for m in z["models"]],
             z["model_of"],
+            normals,
+            sims,
         )
 
     def save(self, path: str | Path) -> None:
+        # Cues in half precision: a normal to 1e-3 is finer than FPFH's estimate of it, and
+        # the bank must fit on a GPU machine that cannot build it.
+        cues = (
+            {}
+            if self.normals is None or self.similarities is None
+            else {
+                "normals": np.concatenate(self.normals).astype(np.float16),
+                "similarities": np.concatenate(self.similarities).astype(np.float16),
+            }
+        )
         np.savez_compressed(
             path,
+            **cues,
             correspondences=np.concatenate(self.correspondences),
             labels=np.concatenate(self.labels),
             counts=np.array([len(c) for c in self.correspondences]),
@@ -214,33 +277,63 @@ def realistic_sample(
     sigma_d: float,
     max_correspondences: int,
     ignore_voxels: float = 0.0,
+    inputs: Sequence[str] = (),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One scene of the bank in network units, augmented: (N, 6) float32, (N,) int64.
+    """One scene of the bank in network units, augmented: (N, C) float32 rows packed as
+    :func:`pointclm.cues.pack` packs them for `inputs` (C = 6 without cues), (N,) int64.
 
     Outliers within `ignore_voxels` of an instance under its true pose (beyond the label's 2
     voxels: near misses, as many as the inliers with FPFH) are labelled `IGNORE`: the pose
     stage counts them as support, so the loss should neither pull nor push them."""
     from ..model.loss import IGNORE
 
+    inputs = check_inputs(inputs)
     i = int(rng.integers(len(bank)))
     corr = bank.correspondences[i].astype(np.float64)
     labels = bank.labels[i].astype(np.int64)
+    normals, sims = bank_cues(bank, i, inputs)
     if ignore_voxels > 0:
         near = near_misses(corr, labels, bank.poses[i], ignore_voxels * float(bank.voxels[i]))
         labels[near] = IGNORE
     if len(corr) > max_correspondences:
         keep = np.sort(rng.choice(len(corr), max_correspondences, replace=False))
         corr, labels = corr[keep], labels[keep]
+        normals = None if normals is None else normals[keep]
+        sims = None if sims is None else sims[keep]
     x = network_units(corr, scaled_config(float(bank.voxels[i])).sigma_d, sigma_d)
-    x = np.hstack([x[:, :3] @ _random_rotation(rng).T, x[:, 3:] @ _random_rotation(rng).T])
-    return x.astype(np.float32), labels
+    rs, rt = _random_rotation(rng), _random_rotation(rng)
+    x = np.hstack([x[:, :3] @ rs.T, x[:, 3:] @ rt.T])
+    if normals is not None:
+        normals = np.hstack([normals[:, :3] @ rs.T, normals[:, 3:] @ rt.T])
+    return pack(x, inputs, normals, sims).astype(np.float32), labels
 
 
-def score_bank(bank: SceneBank, features: Sequence[np.ndarray | None], config: Any) -> dict:
+def bank_cues(
+    bank: SceneBank, i: int, inputs: Sequence[str]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Scene `i`'s normals and similarities where `inputs` name them (float64), else None;
+    ValueError when the bank lacks a cue the network takes."""
+    if inputs and (bank.normals is None or bank.similarities is None):
+        raise ValueError(
+            f"the network takes {', '.join(inputs)}, but this scene bank holds no cues "
+            "(saved before they were kept): build it again"
+        )
+    normals = bank.normals[i].astype(np.float64) if "normals" in inputs else None  # type: ignore[index]
+    sims = bank.similarities[i].astype(np.float64) if "similarity" in inputs else None  # type: ignore[index]
+    return normals, sims
+
+
+def score_bank(
+    bank: SceneBank,
+    features: Sequence[np.ndarray | None],
+    config: Any,
+    normals: Sequence[np.ndarray | None] | None = None,
+) -> dict:
     """Paper MR/MP/MF and strict F1 over the bank's scenes, registered in real units as
     `register_point_clouds(refine=False)` runs them (a bank keeps no clouds to refine on):
     `config` (synthetic units, default `Config()`) scaled to each scene's voxel, the TE
-    threshold 10 % of the model's diagonal."""
+    threshold 10 % of the model's diagonal; each scene's `normals` (if given) go to the
+    pipeline."""
     from ..metrics import score_scene, summarize
     from ..registration import register
 
@@ -248,7 +341,8 @@ def score_bank(bank: SceneBank, features: Sequence[np.ndarray | None], config: A
     for i in range(len(bank)):
         corr = bank.correspondences[i].astype(np.float64)
         cfg = scaled_config(float(bank.voxels[i]), config)
-        r = register(corr, features[i], cfg, seed=0)
+        n = None if normals is None else normals[i]
+        r = register(corr, features[i], cfg, seed=0, normals=n)
         scores.append(
             score_scene(r.transformations, bank.poses[i], max_translation=0.1 * bank.diameters[i])
         )
