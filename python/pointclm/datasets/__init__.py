@@ -10,7 +10,13 @@ ModelNet40's HDF5 release needs h5py; both are imported only when used.
 from __future__ import annotations
 
 from .bins import BinParams, BinScene, make_bin_scene
-from .procedural import PROCEDURAL_SHAPES, procedural_mesh
+from .procedural import (
+    PROCEDURAL_FAMILIES,
+    PROCEDURAL_SHAPES,
+    is_procedural,
+    procedural_family_names,
+    procedural_mesh,
+)
 from .shapes import (
     MESH_SUFFIXES,
     available_shapes,
@@ -32,9 +38,11 @@ __all__ = [
     "BinParams",
     "BinScene",
     "MESH_SUFFIXES",
+    "PROCEDURAL_FAMILIES",
     "PROCEDURAL_SHAPES",
     "SyntheticScene",
     "available_shapes",
+    "is_procedural",
     "label_correspondences",
     "load_mesh",
     "load_shape",
@@ -44,6 +52,7 @@ __all__ = [
     "make_scenes",
     "modelnet40_shapes",
     "normalize_unit_sphere",
+    "procedural_family_names",
     "procedural_mesh",
     "sample_surface",
 ]

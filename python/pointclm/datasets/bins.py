@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PathNotFoundError
-from .procedural import PROCEDURAL_SHAPES
+from .procedural import PROCEDURAL_FAMILIES, PROCEDURAL_SHAPES, is_procedural
 from .scenes import HELDOUT_MODELS, MODEL_FILES, VALIDATION_MODELS, default_data_dir, dense_model
 
 __all__ = [
@@ -179,7 +179,7 @@ class BinScene:
 def _model_points(name: str, data_dir: str | None) -> np.ndarray:
     """Dense samples of a model by name: the realistic scenes' models, procedural shapes, or
     ``common3d/<mesh>`` from the data folder."""
-    if name in MODEL_FILES or name in PROCEDURAL_SHAPES or name == "bunny":
+    if name in MODEL_FILES or is_procedural(name) or name == "bunny":
         return dense_model(name, data_dir)[0]
     if name.startswith("common3d/"):
         if data_dir is None:
@@ -192,7 +192,8 @@ def _model_points(name: str, data_dir: str | None) -> np.ndarray:
         return dense_model(str(path), data_dir)[0]
     raise ValueError(
         f"unknown model {name!r}: use one of {sorted(MODEL_FILES)}, common3d/<mesh> or a "
-        f"procedural shape {list(PROCEDURAL_SHAPES)}"
+        f"procedural shape {list(PROCEDURAL_SHAPES)} or '<family>-<seed>' with <family> one "
+        f"of {list(PROCEDURAL_FAMILIES)} (e.g. 'superquadric-17')"
     )
 
 

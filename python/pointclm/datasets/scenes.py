@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..point_clouds import scaled_config as scene_config
-from .procedural import PROCEDURAL_SHAPES, procedural_mesh
+from .procedural import PROCEDURAL_FAMILIES, PROCEDURAL_SHAPES, is_procedural, procedural_mesh
 from .shapes import bunny_mesh, sample_surface
 
 __all__ = [
@@ -223,7 +223,7 @@ def dense_model(name: str, data_dir: str | None) -> tuple[np.ndarray, str]:
     if name == "bunny":
         v, f = bunny_mesh()
         return sample_surface(v, f, _DENSE, rng), "y"
-    if name in PROCEDURAL_SHAPES:
+    if is_procedural(name):
         v, f = procedural_mesh(name)
         return sample_surface(v, f, _DENSE, rng), "z"
     from ..io import read_point_cloud
@@ -238,6 +238,8 @@ def dense_model(name: str, data_dir: str | None) -> tuple[np.ndarray, str]:
         path = Path(data_dir) / rel
     else:
         path, up = Path(name), "z"
+        if name.partition("-")[0] in PROCEDURAL_FAMILIES and not path.exists():
+            procedural_mesh(name)  # a malformed family name: raises, saying what a valid one is
     pts = read_point_cloud(path, n_samples=_DENSE, seed=12345).points
     return pts, up
 
@@ -451,7 +453,7 @@ def _place(rng: np.random.Generator, params: SceneParams, model: _Model, dd: str
     n_inst = int(rng.integers(params.instances[0], params.instances[1] + 1))
     clutter_pool = [m for m in params.clutter_models if m != params.model]
     if dd is None:
-        clutter_pool = [m for m in clutter_pool if m in PROCEDURAL_SHAPES or m == "bunny"]
+        clutter_pool = [m for m in clutter_pool if is_procedural(m) or m == "bunny"]
     n_clut = int(rng.integers(params.clutter[0], params.clutter[1] + 1)) if clutter_pool else 0
     radii = [model.radius] * n_inst
     clutter: list[tuple[np.ndarray, float]] = []

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import PathNotFoundError
 from ..io.mesh import sample_mesh
 from ..io.reader import MESH_SUFFIXES, read_mesh
-from .procedural import PROCEDURAL_SHAPES, procedural_mesh
+from .procedural import PROCEDURAL_FAMILIES, PROCEDURAL_SHAPES, is_procedural, procedural_mesh
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -225,8 +225,9 @@ def load_shape(
     ----------
     name_or_path : str or os.PathLike
         ``"bunny"`` (packaged, numpy only), a procedural shape (``"torus"``, ``"box"``,
-        ``"cylinder"``, ``"cone"``, ``"capsule"``, ``"helix-tube"``), a name from
-        :func:`available_shapes` ``(data_dir)``, or a mesh/point file path.
+        ``"cylinder"``, ``"cone"``, ``"capsule"``, ``"helix-tube"``, or a random one of a
+        family such as ``"superquadric-17"``: :func:`pointclm.datasets.procedural_mesh`), a
+        name from :func:`available_shapes` ``(data_dir)``, or a mesh/point file path.
     n_points : int, default 2048
         Number of points.
     rng : numpy.random.Generator or int or None, default 0
@@ -258,7 +259,7 @@ def load_shape(
     if key == "bunny":
         verts, faces = bunny_mesh()
         return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
-    if key in PROCEDURAL_SHAPES:
+    if is_procedural(key):
         verts, faces = procedural_mesh(key)
         return normalize_unit_sphere(sample_surface(verts, faces, n_points, gen))
     path = _shape_file(key, data_dir)
@@ -278,12 +279,15 @@ def _shape_file(key: str, data_dir: PathLike | None) -> Path:
         if key in files:
             path = files[key]
     if not path.is_file():
+        if not path.suffix and key.partition("-")[0] in PROCEDURAL_FAMILIES:
+            procedural_mesh(key)  # a malformed family name: raises, saying what a valid one is
         hint = "" if data_dir is not None else " (pass data_dir= to resolve data-folder names)"
         # a name with a file suffix was meant as a file: a missing file, not an unknown name
         error = PathNotFoundError if path.suffix else ValueError
         raise error(
             f"{key!r} is neither a known shape nor an existing file{hint}; known shapes: "
-            f"{', '.join(available_shapes(data_dir))}"
+            f"{', '.join(available_shapes(data_dir))}, and random ones named '<family>-<seed>' "
+            f"with <family> one of {', '.join(PROCEDURAL_FAMILIES)} (e.g. 'superquadric-17')"
         )
     return path
 
