@@ -175,3 +175,42 @@ def test_a_network_with_cues_trains_and_registers_on_every_path(
         scene.source_points, scene.target_points, model=str(weights), num_threads=1
     )
     assert out.transformations.shape[1:] == (4, 4)
+
+
+def _normal_beta_reference(corr: np.ndarray, normals: np.ndarray, sigma: float, tol: float):
+    """The core's `NormalRow::beta` (consistency.rs), one pair at a time in float64."""
+    n = len(corr)
+    out = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            ds, dt = corr[j, :3] - corr[i, :3], corr[j, 3:] - corr[i, 3:]
+            ls, lt = np.linalg.norm(ds), np.linalg.norm(dt)
+            length = max(0.0, 1 - (ls - lt) ** 2 / sigma**2)
+            nsi, nti, nsj, ntj = normals[i, :3], normals[i, 3:], normals[j, :3], normals[j, 3:]
+            da = abs(nsi @ nsj) - abs(nti @ ntj)
+            dp = abs(nsi @ ds) - abs(nti @ dt)
+            dq = abs(nsj @ ds) - abs(ntj @ dt)
+            w = tol * 0.5 * (ls + lt) + sigma
+            planes = max(0.0, 1 - dp**2 / w**2) * max(0.0, 1 - dq**2 / w**2)
+            out[i, j] = length * max(0.0, 1 - da**2 / tol**2) * planes
+    return out
+
+
+def test_the_torch_normal_term_is_the_cores() -> None:
+    torch = pytest.importorskip("torch")
+    from pointclm.model.network import normal_consistency
+
+    rng = np.random.default_rng(2)
+    src = rng.normal(size=(30, 3)) * 0.2
+    rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    nrm = rng.normal(size=(30, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    corr = np.hstack([src, src @ rot.T + rng.normal(scale=0.01, size=(30, 3))])
+    normals = np.hstack([nrm, nrm @ rot.T + rng.normal(scale=0.05, size=(30, 3))])
+    normals[:, 3:] /= np.linalg.norm(normals[:, 3:], axis=1, keepdims=True)
+    want = _normal_beta_reference(corr, normals, 0.05, 0.5)
+    got = normal_consistency(torch.tensor(corr)[None], torch.tensor(normals)[None], 0.05, 0.5)[
+        0
+    ].numpy()
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert 0.1 < (want > 0).mean() < 1  # the test exercises both sides of the clamps

@@ -144,7 +144,7 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
         raise WeightsNotFoundError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
     try:
         arch = json.loads(cfg_path.read_text())["architecture"]
-        model = SCNonlocal(EmbeddingConfig(**arch))
+        model = SCNonlocal(EmbeddingConfig(**{**arch, "inputs": tuple(arch.get("inputs", ()))}))
         state = load_file(str(path), device=device)
     except (KeyError, TypeError, json.JSONDecodeError, OSError) as e:
         raise WeightsError(f"unreadable weights {path}: {e}") from None
