@@ -12,13 +12,17 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 import pointclm  # noqa: E402
+from helpers import scene_with_inputs  # noqa: E402
+from pointclm import _core  # noqa: E402
 from pointclm.datasets import make_scene  # noqa: E402
 from pointclm.model import (  # noqa: E402
     EmbeddingConfig,
     SCNonlocal,
     contrastive_loss,
+    load_metadata,
     load_model,
     negative_distances,
+    normal_consistency,
     save_model,
     spatial_consistency,
 )
@@ -124,6 +128,95 @@ def test_bad_weight_files_give_clear_errors(tmp_path: Path) -> None:
     path.write_bytes(b"not a safetensors file")
     with pytest.raises(ValueError, match="unreadable"):
         load_model(path)
+
+
+def test_embedding_config_inputs_are_checked_and_canonical() -> None:
+    cfg = EmbeddingConfig(depth=1, width=8, inputs=["similarity", "normals"])  # type: ignore[arg-type]
+    assert cfg.inputs == ("normals", "similarity") and cfg.input_channels == 13
+    assert cfg == EmbeddingConfig(depth=1, width=8, inputs=("normals", "similarity"))
+    assert EmbeddingConfig(inputs=("normals",)).input_channels == 12
+    assert EmbeddingConfig(inputs=("similarity",)).input_channels == 7
+    assert EmbeddingConfig().input_channels == 6
+    assert EmbeddingConfig().as_dict() == {"depth": 12, "width": 128, "sigma_d": 0.05}
+    assert cfg.as_dict() == {
+        "depth": 1,
+        "width": 8,
+        "sigma_d": 0.05,
+        "inputs": ["normals", "similarity"],
+        "normal_tolerance": 0.5,
+    }
+    for bad, match in [
+        ({"inputs": ("colour",)}, "unknown network inputs \\['colour'\\]"),
+        ({"inputs": "normals"}, "sequence of input names"),
+        ({"inputs": ("normals", "normals")}, "twice"),
+        ({"normal_tolerance": 0.0}, "normal_tolerance"),
+        ({"normal_tolerance": 2.5}, "normal_tolerance"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            EmbeddingConfig(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="reads 13 input channels .*got 6"):
+        SCNonlocal(cfg)(torch.zeros(1, 5, 6))
+
+
+def test_inputs_round_trip_through_weight_files(tmp_path: Path) -> None:
+    plain_keys = {"depth", "width", "sigma_d"}
+    for inputs in [(), ("normals",), ("similarity",), ("normals", "similarity")]:
+        cfg = EmbeddingConfig(depth=1, width=8, inputs=inputs, normal_tolerance=0.3)
+        path = save_model(SCNonlocal(cfg), tmp_path / f"m{len(inputs)}{inputs[:1]}.safetensors")
+        arch = load_metadata(path)["architecture"]
+        # the plain network's metadata is what it was before inputs existed
+        assert set(arch) == plain_keys | ({"inputs", "normal_tolerance"} if inputs else set())
+        model = load_model(path)
+        assert model.config == (cfg if inputs else EmbeddingConfig(depth=1, width=8))
+        assert model.lift.in_channels == cfg.input_channels
+        assert pointclm.Network(path).inputs == inputs
+    meta = path.with_suffix(".json")
+    meta.write_text(meta.read_text().replace('"similarity"', '"colour"'))
+    with pytest.raises(ValueError, match="colour"):
+        load_model(path)
+    with pytest.raises(ValueError, match='unknown network input "colour"'):
+        pointclm.Network(path)
+
+
+def test_normal_beta_equals_the_rust_core() -> None:
+    corr, nrm, _ = scene_with_inputs(3)
+    corr, nrm = corr[:500], nrm[:500]
+    ours = normal_consistency(torch.tensor(corr)[None], torch.tensor(nrm)[None], 0.05, 0.5)[0]
+    # (N, 12) rows give the core's normal term at its default tolerance, 0.5
+    want = _core.spatial_consistency(np.hstack([corr, nrm]), 0.05)
+    np.testing.assert_allclose(ours.numpy(), want, rtol=0, atol=1e-12)
+    assert torch.equal(ours, ours.T)
+    plain = spatial_consistency(torch.tensor(corr)[None], 0.05)[0]
+    assert int((ours < plain - 0.1).sum()) > 100  # the normal term cuts pairs
+
+
+def _rigid(
+    rng: np.random.Generator, points: np.ndarray, normals: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`points` and `normals` (N, 3) moved by one random rigid motion, normals' signs flipped
+    at random (beta ignores them)."""
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    r = q * np.sign(np.linalg.det(q))
+    flips = rng.choice([-1.0, 1.0], size=(len(normals), 1))
+    return points @ r.T + rng.uniform(-2, 2, size=3), flips * normals @ r.T
+
+
+def test_normal_beta_is_invariant_to_rigid_motions_of_each_side() -> None:
+    """The network's embedding is not rotation invariant (it reads raw coordinates), but its
+    beta is: each side's points and normals rotated together leave it unchanged."""
+    corr, nrm, sim = scene_with_inputs(5)
+    rng = np.random.default_rng(5)
+    src, ns = _rigid(rng, corr[:, :3], nrm[:, :3])
+    dst, nt = _rigid(rng, corr[:, 3:], nrm[:, 3:])
+    net = SCNonlocal(EmbeddingConfig(depth=1, width=8, inputs=("normals", "similarity")))
+    net = net.double()
+    before = net.consistency(torch.tensor(np.hstack([corr, nrm, sim[:, None]]))[None])
+    after = net.consistency(torch.tensor(np.hstack([src, dst, ns, nt, sim[:, None]]))[None])
+    np.testing.assert_allclose(after.numpy(), before.numpy(), rtol=0, atol=1e-9)
+    assert float(before.sum()) > len(corr)  # more than the diagonal
+    # the normals do enter beta: turning the source normals alone changes it
+    turned = np.hstack([corr, ns, nrm[:, 3:], sim[:, None]])
+    assert not torch.allclose(net.consistency(torch.tensor(turned)[None]), before)
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="needs ../shared/data for the training shapes")

@@ -11,11 +11,12 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pointclm
 import pytest
-from helpers import assert_same_result
+from helpers import assert_same_result, scene_with_inputs
 from pointclm import Config, Network
 from pointclm.datasets import make_scene
 from pointclm.model import SHIPPED, load_network
@@ -77,7 +78,9 @@ def test_register_batch_is_independent_of_threads(scenes: list[np.ndarray]) -> N
 
 def test_embedding_is_independent_of_threads(scenes: list[np.ndarray]) -> None:
     net = load_network("default")
-    np.testing.assert_array_equal(net.embed(scenes[0], 1), net.embed(scenes[0], 2))
+    np.testing.assert_array_equal(
+        net.embed(scenes[0], num_threads=1), net.embed(scenes[0], num_threads=2)
+    )
 
 
 def test_network_object_and_recommended_config(scenes: list[np.ndarray]) -> None:
@@ -211,3 +214,109 @@ def test_rust_backend_needs_no_torch(tmp_path: Path) -> None:
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
+
+
+# ---- inputs beyond the coordinates (normals, similarity) ----
+
+INPUT_SETS = [("normals",), ("similarity",), ("normals", "similarity")]
+
+
+def _packed(
+    inputs: tuple[str, ...], corr: np.ndarray, nrm: np.ndarray, sim: np.ndarray
+) -> np.ndarray:
+    """The torch network's input columns for `inputs`."""
+    extra = [nrm] if "normals" in inputs else []
+    return np.hstack([corr, *extra, *([sim[:, None]] if "similarity" in inputs else [])])
+
+
+def _random_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tuple[Any, Path]:
+    """A depth-3, width-32 torch network with random BatchNorm statistics and its
+    convolutions scaled up (sharper attention, so that beta's normal term shows in the
+    embedding), saved under `tmp_path`: (torch module, path)."""
+    from pointclm.model import EmbeddingConfig, SCNonlocal, save_model
+
+    torch.manual_seed(len(inputs))
+    net = SCNonlocal(EmbeddingConfig(depth=3, width=32, inputs=inputs))
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                c = m.num_features
+                m.running_mean.copy_(0.3 * torch.randn(c))
+                m.running_var.copy_(0.5 + torch.rand(c))
+                m.weight.copy_(0.5 + torch.rand(c))
+                m.bias.copy_(0.2 * torch.randn(c))
+            elif isinstance(m, torch.nn.Conv1d):
+                m.weight.mul_(2.0)
+    net.eval()
+    return net, save_model(net, tmp_path / f"{'_'.join(inputs)}.safetensors")
+
+
+@pytest.mark.parametrize("inputs", INPUT_SETS, ids="+".join)
+def test_networks_with_inputs_equal_torch(inputs: tuple[str, ...], tmp_path: Path) -> None:
+    torch = pytest.importorskip("torch")
+    net, path = _random_network(torch, inputs, tmp_path)
+    rust = Network(path)
+    assert rust.inputs == inputs and rust.normal_tolerance == 0.5
+    assert f"inputs={inputs!r}" in repr(rust)
+    worst, moved = 0.0, 0.0
+    for seed in range(6):
+        corr, nrm, sim = scene_with_inputs(seed)
+        x = torch.tensor(_packed(inputs, corr, nrm, sim), dtype=torch.float32)[None]
+        with torch.no_grad():
+            want = net(x)[0].double().numpy()
+            plain_beta = net(x, beta=net._beta(x[..., :6], None))[0].double().numpy()
+        worst = max(worst, float(np.abs(rust.embed(corr, nrm, sim) - want).max()))
+        moved = max(moved, float(np.abs(plain_beta - want).max()))
+    # measured <= 1.3e-6: float32 rounding, as for the plain networks
+    assert worst <= PARITY, f"max abs difference {worst:.2e}"
+    # the normal term of beta changes the embedding far beyond the parity tolerance
+    assert ("normals" not in inputs) or moved > 100 * PARITY, moved
+
+
+def test_missing_inputs_are_value_errors_naming_them(tmp_path: Path) -> None:
+    torch = pytest.importorskip("torch")
+    corr, nrm, sim = scene_with_inputs(1)
+    both = Network(_random_network(torch, INPUT_SETS[2], tmp_path)[1])
+    with pytest.raises(ValueError, match='needs the input "normals".*normals='):
+        both.embed(corr, similarity=sim)
+    with pytest.raises(ValueError, match='needs the input "similarity".*similarity='):
+        both.embed(corr, normals=nrm)
+    with pytest.raises(ValueError, match="normals"):
+        pointclm._core.register(corr, network=both)
+    # (N, 12) correspondences carry the normals too
+    np.testing.assert_array_equal(
+        both.embed(np.hstack([corr, nrm]), similarity=sim), both.embed(corr, nrm, sim)
+    )
+    # normals are rescaled to unit length, as Correspondences.with_normals does
+    np.testing.assert_array_equal(both.embed(corr, 3 * nrm, sim), both.embed(corr, nrm, sim))
+
+
+def test_bad_inputs_are_value_errors_naming_the_argument() -> None:
+    net = load_network("default")
+    corr, nrm, sim = scene_with_inputs(2)
+    n = len(corr)
+    for bad, match in [
+        (dict(normals=nrm[:, :3]), "normals must have shape \\(N, 6\\)"),
+        (dict(normals=nrm[:-1]), "normals must have shape"),
+        (dict(normals=nrm.ravel()), "normals must be a 2-D array"),
+        (dict(normals=np.zeros((n, 6))), "source normals"),
+        (dict(normals=np.full((n, 6), np.nan)), "normals has a non-finite value"),
+        (dict(similarity=sim[:, None]), "similarity must be a 1-D array"),
+        (dict(similarity=sim[:-1]), "similarity must have shape \\(N,\\)"),
+        (
+            dict(similarity=np.where(np.arange(n) == 4, np.inf, sim)),
+            r"similarity has a non-finite value .* in row 4",
+        ),
+        (dict(similarity=["a"] * n), "similarity must hold real numbers"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            net.embed(corr, **bad)
+    with pytest.raises(ValueError, match="not both"):
+        net.embed(np.hstack([corr, nrm]), normals=nrm)
+
+
+def test_the_plain_network_ignores_inputs_it_does_not_read() -> None:
+    net = load_network("default")
+    assert net.inputs == () and "inputs" not in repr(net)
+    corr, nrm, sim = scene_with_inputs(3)
+    np.testing.assert_array_equal(net.embed(corr, nrm, sim), net.embed(corr))

@@ -29,7 +29,10 @@ def resolve_model(model: Any, device: str = "cpu") -> Any:
 def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cpu") -> np.ndarray:
     """(N, 6) float64 correspondences -> (N, C) float64 unit embeddings, with torch.
 
-    `pointclm.model.load_network(model).embed(...)` computes the same in Rust without torch.
+    A network with inputs beyond the coordinates reads (N, `config.input_channels`) rows
+    packed as `SCNonlocal` documents them (coordinates, normals, similarity).
+    `pointclm.model.load_network(model).embed(...)` computes the same in Rust without torch
+    (with `normals=` and `similarity=` as separate arguments).
     """
     torch = require_torch()
 

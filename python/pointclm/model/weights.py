@@ -114,7 +114,10 @@ def _cached_network(path: str, _stamps: tuple[Any, ...]) -> _core.Network:
 
 
 def save_model(model: SCNonlocal, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
-    """Write `path` (.safetensors) and `path` with .json (architecture + `extra` metadata)."""
+    """Write `path` (.safetensors) and `path` with .json (architecture + `extra` metadata).
+
+    The architecture holds `depth`, `width`, `sigma_d` and, for a network with inputs beyond
+    the coordinates, `inputs` and `normal_tolerance` (`EmbeddingConfig.as_dict`)."""
     from safetensors.torch import save_file
 
     path = Path(path)
@@ -144,7 +147,7 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
         raise WeightsNotFoundError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
     try:
         arch = json.loads(cfg_path.read_text())["architecture"]
-        model = SCNonlocal(EmbeddingConfig(**{**arch, "inputs": tuple(arch.get("inputs", ()))}))
+        model = SCNonlocal(EmbeddingConfig(**arch))
         state = load_file(str(path), device=device)
     except (KeyError, TypeError, json.JSONDecodeError, OSError) as e:
         raise WeightsError(f"unreadable weights {path}: {e}") from None

@@ -7,7 +7,10 @@
 //! PyO3 prefixes only TypeErrors with the argument's name, so the name must be in our own
 //! message.
 
-use numpy::{PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{
+    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3,
+};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyList};
 
@@ -113,6 +116,14 @@ fn float_array<'py>(
     np.call_method("asarray", (a,), Some(&kwargs))
 }
 
+pub fn vector<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray1<'py, f64>> {
+    if let Ok(a) = obj.cast::<PyArray1<f64>>() {
+        return Ok(a.readonly());
+    }
+    let a = float_array(obj, name, 1)?;
+    Ok(a.cast_into::<PyArray1<f64>>()?.readonly())
+}
+
 pub fn matrix<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
     if let Ok(a) = obj.cast::<PyArray2<f64>>() {
         return Ok(a.readonly());
@@ -211,6 +222,12 @@ pub fn optional_normals<'py>(
     obj: &Bound<'py, PyAny>,
 ) -> PyResult<Option<PyReadonlyArray2<'py, f64>>> {
     optional(obj, |o| matrix(o, "normals"))
+}
+
+pub fn optional_similarity<'py>(
+    obj: &Bound<'py, PyAny>,
+) -> PyResult<Option<PyReadonlyArray1<'py, f64>>> {
+    optional(obj, |o| vector(o, "similarity"))
 }
 
 pub fn optional_target_normals<'py>(

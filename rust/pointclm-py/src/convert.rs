@@ -2,7 +2,7 @@
 //! float64; these still check shapes so that a direct `_core` caller gets an InputError too.
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pointclm::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use pointclm::{Correspondences, Features};
 use pyo3::prelude::*;
@@ -31,19 +31,78 @@ pub fn correspondences(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Correspondence
     if v.ncols() == 6 {
         return Ok(c);
     }
-    let (ns, nt) = (column(6), column(9));
+    with_pair_normals(c, &column(6), &column(9), DEFAULT_NORMAL_TOLERANCE)
+}
+
+/// `c` with the normals `ns` (source ends) and `nt` (target ends), non-finite ones named as
+/// `normals` (the argument they came from).
+fn with_pair_normals(
+    c: Correspondences,
+    ns: &[[f64; 3]],
+    nt: &[[f64; 3]],
+    tolerance: f64,
+) -> PyResult<Correspondences> {
     if let Some(row) = ns
         .iter()
-        .chain(&nt)
+        .chain(nt)
         .position(|n| !n.iter().all(|x| x.is_finite()))
     {
         return Err(to_py_err(pointclm::Error::NonFinite {
             what: "normals",
-            row: row % v.nrows(),
+            row: row % ns.len().max(1),
         }));
     }
-    c.with_normals(&ns, &nt, DEFAULT_NORMAL_TOLERANCE)
-        .map_err(to_py_err)
+    c.with_normals(ns, nt, tolerance).map_err(to_py_err)
+}
+
+/// `c` with the inputs of `Network.embed` beyond the coordinates: `normals` (N, 6) = (source
+/// normal | target normal), with `tolerance` (the network's, which its `beta` uses anyway),
+/// and `similarity` (N,).
+pub fn network_inputs(
+    c: Correspondences,
+    normals: Option<&PyReadonlyArray2<'_, f64>>,
+    similarity: Option<&PyReadonlyArray1<'_, f64>>,
+    tolerance: f64,
+) -> PyResult<Correspondences> {
+    let n = c.len();
+    let mut c = c;
+    if let Some(a) = normals {
+        let v = a.as_array();
+        if v.shape() != [n, 6] {
+            return Err(InputError::new_err(format!(
+                "normals must have shape (N, 6) = (source normal | target normal) with N = {n} \
+                 correspondences, got {:?}",
+                v.shape()
+            )));
+        }
+        if c.has_normals() {
+            return Err(InputError::new_err(
+                "pass the normals either as columns 7-12 of correspondences or as normals=, \
+                 not both",
+            ));
+        }
+        let side = |k: usize| -> Vec<[f64; 3]> {
+            v.rows()
+                .into_iter()
+                .map(|r| [r[k], r[k + 1], r[k + 2]])
+                .collect()
+        };
+        c = with_pair_normals(c, &side(0), &side(3), tolerance)?;
+    }
+    if let Some(a) = similarity {
+        let v = a.as_array();
+        if v.len() != n {
+            return Err(InputError::new_err(format!(
+                "similarity must have shape (N,) = one value per correspondence with N = {n}, \
+                 got {:?}",
+                v.shape()
+            )));
+        }
+        c = c
+            .with_similarity(&v.iter().copied().collect::<Vec<_>>())
+            .map_err(to_py_err)?;
+    }
+    Ok(c)
 }
 
 pub fn features(a: Option<&PyReadonlyArray2<'_, f64>>) -> PyResult<Option<Features>> {

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyTuple};
 
 use crate::pools::{guarded, pool};
 use crate::{args, config, convert};
@@ -57,21 +57,46 @@ impl PyNetwork {
         self.inner.architecture().sigma_d
     }
 
+    /// The inputs beyond the coordinates that the network reads ("normals", "similarity"), in
+    /// the order of its input channels; empty for the plain network.
+    #[getter]
+    fn inputs<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        PyTuple::new(py, self.inner.architecture().inputs.names())
+    }
+
+    /// Cosine tolerance of the normal term of `beta` (used with the "normals" input only).
+    #[getter]
+    fn normal_tolerance(&self) -> f64 {
+        self.inner.architecture().normal_tolerance
+    }
+
     /// The config (all fields) with the thresholds recommended in the weights' metadata.
     fn recommended_config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         config::to_dict(py, &self.inner.recommended_config())
     }
 
     /// (N, 6) correspondences (any real dtype; converted to float64) -> (N, width) unit-norm
-    /// float64 embeddings.
-    #[pyo3(signature = (correspondences, num_threads=None))]
+    /// float64 embeddings. A network with `inputs` also needs `normals` ((N, 6), source normal
+    /// | target normal, rescaled to unit length; or given as columns 7-12 of (N, 12)
+    /// correspondences) and `similarity` ((N,), the descriptor similarity of each match) where
+    /// it reads them; those it does not read are ignored.
+    #[pyo3(signature = (correspondences, normals=None, similarity=None, num_threads=None))]
     fn embed<'py>(
         &self,
         py: Python<'py>,
         #[pyo3(from_py_with = args::correspondences)] correspondences: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::optional_normals)] normals: Option<PyReadonlyArray2<'py, f64>>,
+        #[pyo3(from_py_with = args::optional_similarity)] similarity: Option<
+            PyReadonlyArray1<'py, f64>,
+        >,
         #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let c = convert::correspondences(&correspondences)?;
+        let c = convert::network_inputs(
+            convert::correspondences(&correspondences)?,
+            normals.as_ref(),
+            similarity.as_ref(),
+            self.inner.architecture().normal_tolerance,
+        )?;
         let p = num_threads.map(pool).transpose()?;
         let net = self.inner.clone();
         let f = guarded(py, p, move || net.embed(&c))?;
@@ -82,12 +107,24 @@ impl PyNetwork {
 
     fn __repr__(&self) -> String {
         let a = self.inner.architecture();
-        format!(
-            "Network(path={:?}, depth={}, width={}, sigma_d={})",
+        let mut r = format!(
+            "Network(path={:?}, depth={}, width={}, sigma_d={}",
             self.path.display().to_string(),
             a.depth,
             a.width,
             a.sigma_d
-        )
+        );
+        let names = a.inputs.names();
+        if !names.is_empty() {
+            // Python's tuple repr, one-element tuples included
+            let quoted: Vec<String> = names.iter().map(|n| format!("'{n}'")).collect();
+            let comma = if names.len() == 1 { "," } else { "" };
+            r += &format!(
+                ", inputs=({}{comma}), normal_tolerance={}",
+                quoted.join(", "),
+                a.normal_tolerance
+            );
+        }
+        r + ")"
     }
 }

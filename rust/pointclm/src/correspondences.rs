@@ -1,5 +1,5 @@
 //! Validated input: correspondences (source point, target point), optional surface normals at
-//! both ends, and optional features.
+//! both ends and descriptor similarities, and optional features.
 
 use crate::error::{Error, Result};
 
@@ -19,6 +19,8 @@ pub struct Correspondences {
     src: [Vec<f64>; 3],
     dst: [Vec<f64>; 3],
     normals: Option<Box<PairNormals>>,
+    /// One descriptor similarity per correspondence, an input of the embedding network only.
+    similarity: Option<Box<[f64]>>,
 }
 
 /// Unit surface normals at both ends of every correspondence, stored as columns like the
@@ -79,6 +81,7 @@ impl Correspondences {
             src,
             dst,
             normals: None,
+            similarity: None,
         })
     }
 
@@ -164,6 +167,35 @@ impl Correspondences {
 
     pub(crate) fn pair_normals(&self) -> Option<&PairNormals> {
         self.normals.as_deref()
+    }
+
+    /// Adds the descriptor similarity of every correspondence's match (one finite value per
+    /// row; the data that trains the network defines it, in (0, 1]). Only an embedding network
+    /// trained with the `similarity` input reads it; spatial consistency does not.
+    ///
+    /// Errors: [`Error::LengthMismatch`] when there is not one value per correspondence,
+    /// [`Error::NonFinite`] for a NaN or infinite value.
+    pub fn with_similarity(mut self, values: &[f64]) -> Result<Self> {
+        if values.len() != self.len() {
+            return Err(Error::LengthMismatch {
+                what: "similarity values (one per correspondence)",
+                expected: self.len(),
+                got: values.len(),
+            });
+        }
+        if let Some(row) = values.iter().position(|v| !v.is_finite()) {
+            return Err(Error::NonFinite {
+                what: "similarity",
+                row,
+            });
+        }
+        self.similarity = Some(values.into());
+        Ok(self)
+    }
+
+    /// The descriptor similarities given by [`Correspondences::with_similarity`], one per row.
+    pub fn similarity(&self) -> Option<&[f64]> {
+        self.similarity.as_deref()
     }
 
     /// From rows `(x, y, z, x', y', z')`: source point then target point.

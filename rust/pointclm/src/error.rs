@@ -92,6 +92,14 @@ pub enum Error {
         got: Vec<usize>,
     },
 
+    /// An input that the embedding network was trained with (its architecture's `inputs`) and
+    /// that the correspondences lack; `hint` says how to give it.
+    #[error("the network needs the input {input:?}, which the correspondences lack: {hint}")]
+    MissingInput {
+        input: &'static str,
+        hint: &'static str,
+    },
+
     /// An allocation sized by the input that the system refused (or that could not even be
     /// sized without overflow): the input is too large for this machine's memory.
     #[error("{what}: cannot allocate {bytes} bytes (input too large for the available memory)")]

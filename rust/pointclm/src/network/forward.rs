@@ -13,8 +13,8 @@ use rayon::prelude::*;
 
 use super::layers::{attention_rows, AttentionScratch, Geometry};
 use super::sparse_attention::{attention_rows_sparse, SparseBeta, Strided, MAX_SPARSE_SHARE};
-use super::{Block, Network};
-use crate::correspondences::{Correspondences, Features};
+use super::{Architecture, Block, Network};
+use crate::correspondences::{Correspondences, Features, PairNormals};
 use crate::error::{checked_elements, try_filled, Error, Result};
 
 /// Rows per block: the attention holds `BLOCK_ROWS x N` logits per thread (0.5 MB at
@@ -53,9 +53,14 @@ pub(crate) fn embed_with(
     max_sparse_share: f64,
 ) -> Result<Features> {
     let n = c.len();
-    let w = net.architecture.width;
-    let input = centred_input(c)?;
-    let geometry = Geometry::new(c, net.architecture.sigma_d);
+    let arch = &net.architecture;
+    let (w, channels) = (arch.width, arch.input_channels());
+    let (normals, similarity) = required_inputs(c, arch)?;
+    let input = network_input(c, normals, similarity)?;
+    let mut geometry = Geometry::new(c, arch.sigma_d);
+    if let Some(pn) = normals {
+        geometry = geometry.with_normals(pn, arch.sigma_d, arch.normal_tolerance);
+    }
     let sparse = SparseBeta::new(&geometry, parallel, max_sparse_share);
     let scale = (w as f64).powf(-0.5) as f32;
 
@@ -68,8 +73,9 @@ pub(crate) fn embed_with(
         };
 
     for_blocks(&mut feat, block_rows * w, &|k, out, _| {
-        let x = block(&input, 6, k, block_rows);
-        net.lift.apply(x.len() / 6, (x, 6), (out, w), false);
+        let x = block(&input, channels, k, block_rows);
+        net.lift
+            .apply(x.len() / channels, (x, channels), (out, w), false);
     });
     for layer in &net.blocks {
         crate::cancel::check()?;
@@ -289,7 +295,80 @@ fn for_blocks(
     }
 }
 
-/// The network's input: each correspondence minus the scene mean, in f32. Like torch, the
+/// The inputs beyond the coordinates that the architecture needs, read from `c` (`None` for
+/// those it does not need, even where `c` has them); [`Error::MissingInput`] when `c` lacks
+/// one.
+fn required_inputs<'c>(
+    c: &'c Correspondences,
+    arch: &Architecture,
+) -> Result<(Option<&'c PairNormals>, Option<&'c [f64]>)> {
+    let normals = match (arch.inputs.normals, c.pair_normals()) {
+        (false, _) => None,
+        (true, Some(pn)) => Some(pn),
+        (true, None) => {
+            return Err(Error::MissingInput {
+                input: "normals",
+                hint: "give the unit normals at both ends with Correspondences::with_normals \
+                       (in Python: Network.embed(..., normals=) with an (N, 6) array of source \
+                       normal | target normal, or (N, 12) correspondences)",
+            })
+        }
+    };
+    let similarity = match (arch.inputs.similarity, c.similarity()) {
+        (false, _) => None,
+        (true, Some(v)) => Some(v),
+        (true, None) => {
+            return Err(Error::MissingInput {
+                input: "similarity",
+                hint: "give the descriptor similarity of each match with \
+                       Correspondences::with_similarity (in Python: Network.embed(..., \
+                       similarity=) with an (N,) array)",
+            })
+        }
+    };
+    Ok((normals, similarity))
+}
+
+/// The network's input rows in f32: the centred coordinates ([`centred_input`]), then, not
+/// centred, the unit normals at both ends and the similarity where the network reads them
+/// (the channel order of `pointclm.model.network.SCNonlocal`).
+fn network_input(
+    c: &Correspondences,
+    normals: Option<&PairNormals>,
+    similarity: Option<&[f64]>,
+) -> Result<Vec<f32>> {
+    let xyz = centred_input(c)?;
+    if normals.is_none() && similarity.is_none() {
+        return Ok(xyz);
+    }
+    let channels = 6 + 6 * usize::from(normals.is_some()) + usize::from(similarity.is_some());
+    let mut x = Vec::with_capacity(c.len() * channels);
+    for (i, row) in xyz.chunks_exact(6).enumerate() {
+        x.extend_from_slice(row);
+        if let Some(pn) = normals {
+            // unit vectors: always within f32
+            x.extend(
+                pn.source(i)
+                    .into_iter()
+                    .chain(pn.target(i))
+                    .map(|v| v as f32),
+            );
+        }
+        if let Some(values) = similarity {
+            let v = values[i] as f32;
+            if !v.is_finite() {
+                return Err(Error::NonFinite {
+                    what: "similarity (beyond the f32 range of the network)",
+                    row: i,
+                });
+            }
+            x.push(v);
+        }
+    }
+    Ok(x)
+}
+
+/// The coordinates of each correspondence minus the scene mean, in f32. Like torch, the
 /// coordinates are rounded to f32 first and the mean is taken of the rounded values.
 fn centred_input(c: &Correspondences) -> Result<Vec<f32>> {
     let n = c.len();

@@ -7,7 +7,7 @@
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 
-use crate::correspondences::Correspondences;
+use crate::correspondences::{Correspondences, PairNormals};
 
 /// PyTorch's default `BatchNorm1d` epsilon, which the shipped networks were trained with.
 pub(crate) const BN_EPS: f64 = 1e-5;
@@ -100,6 +100,18 @@ pub(crate) struct Geometry {
     src: [Vec<f32>; 3],
     dst: [Vec<f32>; 3],
     sigma_sq: f32,
+    /// The normal term, for a network with the `normals` input.
+    normals: Option<Box<NormalGeometry>>,
+}
+
+/// The unit normals at both ends in `f32` and the normal term's constants, rounded to f32
+/// as torch rounds the Python floats it multiplies tensors by.
+struct NormalGeometry {
+    src: [Vec<f32>; 3],
+    dst: [Vec<f32>; 3],
+    sigma: f32,
+    half_tolerance: f32,
+    tolerance_sq: f32,
 }
 
 impl Geometry {
@@ -117,16 +129,43 @@ impl Geometry {
             dst: [cols(0, false), cols(1, false), cols(2, false)],
             // torch divides by the Python float sigma^2, which it rounds to the tensor's dtype
             sigma_sq: (sigma_d * sigma_d) as f32,
+            normals: None,
         }
+    }
+
+    /// `beta` times the normal term of the normals `pn` (one pair per row of `self`) with
+    /// cosine tolerance `tolerance`: the formula of the core's `NormalRow::beta` in f32.
+    pub(crate) fn with_normals(mut self, pn: &PairNormals, sigma_d: f64, tolerance: f64) -> Self {
+        let cols = |side: &[Vec<f64>; 3]| -> [Vec<f32>; 3] {
+            std::array::from_fn(|k| side[k].iter().map(|&x| x as f32).collect())
+        };
+        self.normals = Some(Box::new(NormalGeometry {
+            src: cols(&pn.src),
+            dst: cols(&pn.dst),
+            sigma: sigma_d as f32,
+            half_tolerance: (tolerance * 0.5) as f32,
+            tolerance_sq: (tolerance * tolerance) as f32,
+        }));
+        self
     }
 
     pub(crate) fn len(&self) -> usize {
         self.src[0].len()
     }
 
-    /// Multiplies `row[j]` by `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`, for all `j`.
+    /// Multiplies `row[j]` by `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`, times the normal term
+    /// where there are normals, for all `j`.
     #[inline(always)]
     pub(crate) fn scale_by_beta(&self, i: usize, row: &mut [f32]) {
+        // one branch per row: the plain loop stays as lean as it was without normals
+        match &self.normals {
+            None => self.scale_by_length_beta(i, row),
+            Some(normals) => self.scale_by_normal_beta(normals, i, row),
+        }
+    }
+
+    #[inline(always)]
+    fn scale_by_length_beta(&self, i: usize, row: &mut [f32]) {
         let n = self.len();
         let (s, t) = (&self.src, &self.dst);
         let (sx, sy, sz) = (s[0][i], s[1][i], s[2][i]);
@@ -141,6 +180,45 @@ impl Geometry {
             *v *= (1.0 - dist * dist / sigma_sq).max(0.0);
         }
     }
+
+    /// The length term times the normal term (see `Correspondences::with_normals`), each
+    /// operation in the order `pointclm.model.network.normal_consistency` does it in torch.
+    #[inline(always)]
+    fn scale_by_normal_beta(&self, g: &NormalGeometry, i: usize, row: &mut [f32]) {
+        let n = self.len();
+        let (s, t, m, u) = (&self.src, &self.dst, &g.src, &g.dst);
+        let (si, ti) = ([s[0][i], s[1][i], s[2][i]], [t[0][i], t[1][i], t[2][i]]);
+        let (mi, ui) = ([m[0][i], m[1][i], m[2][i]], [u[0][i], u[1][i], u[2][i]]);
+        let (s0, s1, s2) = (&s[0][..n], &s[1][..n], &s[2][..n]);
+        let (t0, t1, t2) = (&t[0][..n], &t[1][..n], &t[2][..n]);
+        let (m0, m1, m2) = (&m[0][..n], &m[1][..n], &m[2][..n]);
+        let (u0, u1, u2) = (&u[0][..n], &u[1][..n], &u[2][..n]);
+        let (sigma_sq, sigma) = (self.sigma_sq, g.sigma);
+        let (half_tol, tol_sq) = (g.half_tolerance, g.tolerance_sq);
+        for (j, v) in row[..n].iter_mut().enumerate() {
+            let ds = [s0[j] - si[0], s1[j] - si[1], s2[j] - si[2]];
+            let dt = [t0[j] - ti[0], t1[j] - ti[1], t2[j] - ti[2]];
+            let (mj, uj) = ([m0[j], m1[j], m2[j]], [u0[j], u1[j], u2[j]]);
+            let (ls, lt) = (dot3(ds, ds).sqrt(), dot3(dt, dt).sqrt());
+            let d = ls - lt;
+            let length = (1.0 - d * d / sigma_sq).max(0.0);
+            // absolute values: normal signs are not trusted (see `with_normals`)
+            let da = dot3(mi, mj).abs() - dot3(ui, uj).abs();
+            let dp = dot3(mi, ds).abs() - dot3(ui, dt).abs();
+            let dq = dot3(mj, ds).abs() - dot3(uj, dt).abs();
+            let w = half_tol * (ls + lt) + sigma;
+            let w_sq = w * w;
+            // (i, j) and (j, i) swap dp and dq: their product first keeps beta symmetric
+            let planes = (1.0 - dp * dp / w_sq).max(0.0) * (1.0 - dq * dq / w_sq).max(0.0);
+            *v *= length * (1.0 - da * da / tol_sq).max(0.0) * planes;
+        }
+    }
+}
+
+/// `a . b` summed in index order (as torch's per-component sums).
+#[inline(always)]
+fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// Lanes of the reductions below: fixed, so that sums do not depend on the SIMD width.

@@ -3,7 +3,25 @@
 //!
 //! The network reads the weights that `pointclm.model.save_model` writes: a safetensors file
 //! of the torch state dict and, beside it with the extension `.json`, the metadata holding
-//! `architecture` (`depth`, `width`, `sigma_d`) and optionally `recommended_config`.
+//! `architecture` (`depth`, `width`, `sigma_d`, and for a network with inputs beyond the
+//! coordinates `inputs` and `normal_tolerance`) and optionally `recommended_config`.
+//!
+//! # Inputs
+//!
+//! Every network sees the 6 coordinates of each correspondence (source xyz | target xyz)
+//! minus their scene mean, and scales its attention logits by the spatial consistency
+//! `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`. A network trained with [`Inputs`] beyond them
+//! reads, after those 6 input channels and not centred:
+//!
+//! - `normals`: the unit surface normals at both ends (source normal | target normal, 6
+//!   channels, from [`Correspondences::with_normals`]). Its `beta` is also multiplied by the
+//!   normal term of spatial consistency (see `with_normals`), with the architecture's
+//!   `normal_tolerance` rather than the tolerance the correspondences were given.
+//! - `similarity`: the descriptor similarity of each match (1 channel, from
+//!   [`Correspondences::with_similarity`]); it does not enter `beta`.
+//!
+//! [`Network::embed`] fails with [`Error::MissingInput`](crate::Error::MissingInput) when
+//! the correspondences lack an input the network needs, and ignores those it does not need.
 //!
 //! The forward pass computes in `f32`, as torch does, so that it reproduces torch's
 //! embeddings to about 1e-6; every eval-mode BatchNorm is folded into the convolution before
@@ -38,7 +56,7 @@ use std::fmt;
 use std::path::Path;
 
 use crate::config::Config;
-use crate::correspondences::{Correspondences, Features};
+use crate::correspondences::{Correspondences, Features, DEFAULT_NORMAL_TOLERANCE};
 use crate::error::Result;
 
 use layers::Dense;
@@ -52,6 +70,58 @@ pub struct Architecture {
     pub width: usize,
     /// Length tolerance of the `beta` that scales the attention logits.
     pub sigma_d: f64,
+    /// The inputs beyond the 6 coordinates (none for the plain network).
+    pub inputs: Inputs,
+    /// Cosine tolerance of the normal term of `beta` (used with [`Inputs::normals`] only;
+    /// [`DEFAULT_NORMAL_TOLERANCE`] where the metadata gives none).
+    pub normal_tolerance: f64,
+}
+
+impl Architecture {
+    /// The plain network (coordinates only) of this shape.
+    pub fn plain(depth: usize, width: usize, sigma_d: f64) -> Self {
+        Self {
+            depth,
+            width,
+            sigma_d,
+            inputs: Inputs::default(),
+            normal_tolerance: DEFAULT_NORMAL_TOLERANCE,
+        }
+    }
+
+    /// Channels of the network's input: 6 coordinates, then those of [`Inputs`].
+    pub fn input_channels(&self) -> usize {
+        6 + self.inputs.channels()
+    }
+}
+
+/// The inputs a network reads beyond the coordinates, in the order of their input channels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Inputs {
+    /// Unit normals at both ends (6 channels), which also enter the attention's `beta`.
+    pub normals: bool,
+    /// The descriptor similarity of each match (1 channel).
+    pub similarity: bool,
+}
+
+impl Inputs {
+    /// The input names as the weights' metadata writes them, in channel order.
+    pub const NAMES: [&'static str; 2] = ["normals", "similarity"];
+
+    /// The names of the inputs in use, in channel order.
+    pub fn names(&self) -> Vec<&'static str> {
+        let used = [self.normals, self.similarity];
+        Self::NAMES
+            .into_iter()
+            .zip(used)
+            .filter_map(|(name, on)| on.then_some(name))
+            .collect()
+    }
+
+    /// Input channels beyond the 6 coordinates.
+    pub fn channels(&self) -> usize {
+        6 * usize::from(self.normals) + usize::from(self.similarity)
+    }
 }
 
 /// A trained embedding network, ready to evaluate: `Send + Sync`, so one loaded network
@@ -89,7 +159,7 @@ impl Network {
         weights::from_bytes(safetensors, metadata, name)
     }
 
-    /// Depth, width and `sigma_d` of the network.
+    /// Depth, width, `sigma_d` and inputs of the network.
     pub fn architecture(&self) -> Architecture {
         self.architecture
     }
@@ -106,7 +176,9 @@ impl Network {
     /// Blocks of rows run in parallel on the current rayon pool; the result is bit-identical
     /// whatever the number of threads, since the blocks are fixed and each is computed
     /// sequentially. Errors with [`Error::NonFinite`](crate::Error::NonFinite) when
-    /// coordinates are too large for `f32`.
+    /// coordinates are too large for `f32`, and with
+    /// [`Error::MissingInput`](crate::Error::MissingInput) when `c` lacks an input of the
+    /// [architecture](Architecture::inputs) (normals or similarities).
     pub fn embed(&self, c: &Correspondences) -> Result<Features> {
         forward::embed(self, c, true, forward::BLOCK_ROWS)
     }

@@ -8,8 +8,9 @@ use safetensors::{Dtype, SafeTensors};
 use serde_json::{Map, Value};
 
 use super::layers::{BatchNorm, Dense};
-use super::{Architecture, Block, Network};
+use super::{Architecture, Block, Inputs, Network};
 use crate::config::{Assignment, Config, Pruning};
+use crate::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use crate::error::{Error, Result};
 
 /// The largest weight file read: far above any SCNonlocal (the paper's is 4 MB), far below
@@ -88,7 +89,7 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
         used: BTreeSet::new(),
     };
     let w = architecture.width;
-    let lift = r.conv("lift", w, 6, None)?;
+    let lift = r.conv("lift", w, architecture.input_channels(), None)?;
     let mut blocks = Vec::with_capacity(architecture.depth);
     for b in 0..architecture.depth {
         blocks.push(r.block(b, w)?);
@@ -132,7 +133,7 @@ fn metadata(meta: &str) -> std::result::Result<(Architecture, Config), String> {
 /// Refuses an architecture that the file cannot hold before anything is allocated for it: a
 /// JSON that says `"depth": 1000000000` must not make the reader reserve a billion blocks.
 /// Every block has [`TENSORS_PER_BLOCK`] tensors and at least `4 width^2` f32 values (pointcn
-/// and q, k, v), the lift `6 width`.
+/// and q, k, v), the lift `input_channels x width`.
 fn check_capacity(
     a: &Architecture,
     st: &SafeTensors<'_>,
@@ -152,7 +153,7 @@ fn check_capacity(
         .saturating_mul(16)
         .saturating_mul(w)
         .saturating_mul(w)
-        .saturating_add(24 * w);
+        .saturating_add(4 * a.input_channels() as u128 * w);
     if needed > file_bytes as u128 {
         return Err(format!(
             "architecture depth {}, width {} needs at least {needed} bytes of f32 tensors; \
@@ -277,13 +278,16 @@ impl Reader<'_, '_> {
     }
 }
 
+/// The keys of `architecture` in the metadata.
+const ARCHITECTURE_KEYS: [&str; 5] = ["depth", "width", "sigma_d", "inputs", "normal_tolerance"];
+
 fn architecture(v: &Value) -> std::result::Result<Architecture, String> {
     let obj = v
         .as_object()
         .ok_or_else(|| format!("architecture must be an object, got {v}"))?;
     if let Some(k) = obj
         .keys()
-        .find(|k| !["depth", "width", "sigma_d"].contains(&k.as_str()))
+        .find(|k| !ARCHITECTURE_KEYS.contains(&k.as_str()))
     {
         return Err(format!("unknown architecture key {k:?}"));
     }
@@ -310,7 +314,52 @@ fn architecture(v: &Value) -> std::result::Result<Architecture, String> {
         depth,
         width,
         sigma_d,
+        inputs: inputs(obj.get("inputs"))?,
+        normal_tolerance: normal_tolerance(obj.get("normal_tolerance"))?,
     })
+}
+
+/// `architecture.inputs`: a list of distinct input names (absent: the plain network).
+fn inputs(v: Option<&Value>) -> std::result::Result<Inputs, String> {
+    let mut inputs = Inputs::default();
+    let Some(v) = v else {
+        return Ok(inputs);
+    };
+    let names = v
+        .as_array()
+        .ok_or_else(|| format!("architecture.inputs must be a list of input names, got {v}"))?;
+    for name in names {
+        let flag = match name.as_str() {
+            Some("normals") => &mut inputs.normals,
+            Some("similarity") => &mut inputs.similarity,
+            _ => {
+                return Err(format!(
+                    "unknown network input {name} in architecture.inputs (known: {})",
+                    Inputs::NAMES.join(", ")
+                ))
+            }
+        };
+        if std::mem::replace(flag, true) {
+            return Err(format!(
+                "network input {name} listed twice in architecture.inputs"
+            ));
+        }
+    }
+    Ok(inputs)
+}
+
+/// `architecture.normal_tolerance`, in (0, 2] as
+/// [`with_normals`](crate::Correspondences::with_normals) requires (absent: the default).
+fn normal_tolerance(v: Option<&Value>) -> std::result::Result<f64, String> {
+    let Some(v) = v else {
+        return Ok(DEFAULT_NORMAL_TOLERANCE);
+    };
+    match v.as_f64() {
+        Some(t) if t.is_finite() && t > 0.0 && t <= 2.0 => Ok(t),
+        _ => Err(format!(
+            "architecture.normal_tolerance must be a number in (0, 2], got {v}"
+        )),
+    }
 }
 
 /// The defaults overridden by the fields of a JSON object (the names of [`Config`]'s fields,

@@ -16,7 +16,7 @@ use super::layers::{
 };
 use super::*;
 use crate::error::Error;
-use crate::testing::random_scene;
+use crate::testing::{random_scene, with_normals};
 
 fn shipped(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -279,14 +279,7 @@ fn embedding_ignores_a_shift_of_both_clouds_through_beta_and_the_centring() {
 fn shipped_networks_load_with_their_recommended_config() {
     for (name, depth, width) in [("default", 6, 64), ("paper", 12, 128)] {
         let net = Network::from_file(shipped(name)).unwrap();
-        assert_eq!(
-            net.architecture(),
-            Architecture {
-                depth,
-                width,
-                sigma_d: 0.05
-            }
-        );
+        assert_eq!(net.architecture(), Architecture::plain(depth, width, 0.05));
         let cfg = net.recommended_config();
         assert_eq!((cfg.tau_n, cfg.tau_s), (5, 0.85));
         assert_eq!(cfg.max_kept, Config::default().max_kept);
@@ -310,6 +303,11 @@ const META: &str = r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}
 
 /// The state dict of a depth-1, width-4 network with arbitrary values (as torch names it).
 fn tiny_state() -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    tiny_state_for(6)
+}
+
+/// [`tiny_state`] with `channels` input channels.
+fn tiny_state_for(channels: usize) -> Vec<(String, Vec<usize>, Vec<f32>)> {
     let mut t = Vec::new();
     let mut conv = |name: &str, out: usize, inp: usize| {
         t.push((
@@ -319,7 +317,7 @@ fn tiny_state() -> Vec<(String, Vec<usize>, Vec<f32>)> {
         ));
         t.push((format!("{name}.bias"), vec![out], vec![0.01; out]));
     };
-    conv("lift", 4, 6);
+    conv("lift", 4, channels);
     conv("pointcn.0.0", 4, 4);
     for p in ["q", "k", "v"] {
         conv(&format!("nonlocal_blocks.0.{p}"), 4, 4);
@@ -585,6 +583,216 @@ fn the_sparse_forward_pass_matches_the_dense_one() {
     assert!(super::sparse_attention::SparseBeta::new(&geo, false, share).is_some());
     let sparse = forward::embed(&net, &scene.corr, false, 128).unwrap();
     let dense = forward::embed_with(&net, &scene.corr, false, 128, 0.0).unwrap();
+    let mut worst = 0.0f64;
+    for i in 0..sparse.len() {
+        for (a, b) in sparse.row(i).iter().zip(dense.row(i)) {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(worst < 1e-4, "max difference {worst}");
+}
+
+// ---- inputs beyond the coordinates ----
+
+/// The metadata of the tiny network with `inputs` (a JSON list) and `normal_tolerance`.
+fn meta_with(inputs: &str, tolerance: &str) -> String {
+    format!(
+        r#"{{"architecture": {{"depth": 1, "width": 4, "sigma_d": 0.05, "inputs": {inputs}, "normal_tolerance": {tolerance}}}}}"#
+    )
+}
+
+/// [`tiny_state_for`] with the convolutions' weights and biases drawn uniformly in
+/// [-1, 1), so that every input channel moves the embedding.
+fn random_state(channels: usize, seed: u64) -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut state = tiny_state_for(channels);
+    for (name, _, values) in &mut state {
+        if !name.contains(".1.") && !name.contains(".4.") {
+            for v in values.iter_mut() {
+                *v = rng.random_range(-1.0..1.0);
+            }
+        }
+    }
+    state
+}
+
+/// `c` with the descriptor similarities `0.1 + 0.9 (i mod 7) / 6`.
+fn with_some_similarity(c: Correspondences) -> Correspondences {
+    let values: Vec<f64> = (0..c.len()).map(|i| 0.1 + 0.15 * (i % 7) as f64).collect();
+    c.with_similarity(&values).unwrap()
+}
+
+#[test]
+fn inputs_are_read_from_the_metadata() {
+    for (inputs, channels, want) in [
+        (r#"["normals", "similarity"]"#, 13, (true, true)),
+        (r#"["similarity", "normals"]"#, 13, (true, true)),
+        (r#"["normals"]"#, 12, (true, false)),
+        (r#"["similarity"]"#, 7, (false, true)),
+        ("[]", 6, (false, false)),
+    ] {
+        let meta = meta_with(inputs, "0.25");
+        let net = Network::from_bytes(&to_bytes(&tiny_state_for(channels)), &meta, "x").unwrap();
+        let a = net.architecture();
+        assert_eq!((a.inputs.normals, a.inputs.similarity), want, "{inputs}");
+        assert_eq!((a.input_channels(), a.normal_tolerance), (channels, 0.25));
+        // the lift must read exactly the declared channels
+        let err = Network::from_bytes(&to_bytes(&tiny_state()), &meta, "x");
+        if channels != 6 {
+            assert!(
+                matches!(err, Err(Error::TensorShape { ref name, ref expected, .. })
+                    if name == "lift.weight" && expected == &[4, channels, 1]),
+                "{err:?}"
+            );
+        }
+    }
+    assert_eq!(
+        Inputs {
+            normals: true,
+            similarity: true
+        }
+        .names(),
+        ["normals", "similarity"]
+    );
+    // a plain file (no inputs) has the default tolerance
+    let plain = Network::from_bytes(&to_bytes(&tiny_state()), META, "x").unwrap();
+    assert_eq!(plain.architecture(), Architecture::plain(1, 4, 0.05));
+    assert_eq!(plain.architecture().normal_tolerance, 0.5);
+}
+
+#[test]
+fn bad_inputs_in_the_metadata_are_malformed_and_named() {
+    let bytes = to_bytes(&tiny_state_for(12));
+    for (inputs, tolerance, named) in [
+        (r#"["normals", "colour"]"#, "0.5", "colour"),
+        (r#"["normals", "normals"]"#, "0.5", "twice"),
+        (r#""normals""#, "0.5", "list"),
+        (r#"[3]"#, "0.5", "3"),
+        (r#"["normals"]"#, "0", "normal_tolerance"),
+        (r#"["normals"]"#, "2.5", "normal_tolerance"),
+        (r#"["normals"]"#, r#""wide""#, "normal_tolerance"),
+    ] {
+        match Network::from_bytes(&bytes, &meta_with(inputs, tolerance), "x") {
+            Err(Error::WeightsMalformed { reason, .. }) => {
+                assert!(reason.contains(named), "{inputs}: {reason}")
+            }
+            other => panic!("{inputs}, {tolerance}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn a_missing_input_is_a_typed_error_that_says_how_to_give_it() {
+    let meta = meta_with(r#"["normals", "similarity"]"#, "0.5");
+    let net = Network::from_bytes(&to_bytes(&random_state(13, 1)), &meta, "x").unwrap();
+    let scene = random_scene(60, 2, 0.3, 11);
+    let err = net.embed(&scene.corr).unwrap_err();
+    assert!(matches!(
+        err,
+        Error::MissingInput {
+            input: "normals",
+            ..
+        }
+    ));
+    assert!(err.to_string().contains("with_normals"), "{err}");
+    let normals = with_normals(&scene, 12);
+    let err = net.embed(&normals).unwrap_err();
+    assert!(matches!(
+        err,
+        Error::MissingInput {
+            input: "similarity",
+            ..
+        }
+    ));
+    assert!(err.to_string().contains("similarity="), "{err}");
+    let err = net.embed(&with_some_similarity(scene.corr.clone()));
+    assert!(matches!(
+        err,
+        Err(Error::MissingInput {
+            input: "normals",
+            ..
+        })
+    ));
+    let both = with_some_similarity(normals);
+    let f = net.embed(&both).unwrap();
+    assert_eq!((f.len(), f.dim()), (60, 4));
+    // every input moves the embedding
+    let other = with_some_similarity(with_normals(&scene, 13));
+    assert_ne!(net.embed(&other).unwrap(), f);
+    let values: Vec<f64> = (0..60).map(|i| 1.0 - 0.01 * i as f64).collect();
+    let resimilar = both.clone().with_similarity(&values).unwrap();
+    assert_ne!(net.embed(&resimilar).unwrap(), f);
+}
+
+#[test]
+fn inputs_a_network_does_not_read_are_ignored() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    let scene = random_scene(300, 3, 0.2, 14);
+    let extra = with_some_similarity(with_normals(&scene, 15));
+    assert_eq!(net.embed(&extra).unwrap(), net.embed(&scene.corr).unwrap());
+    let meta = meta_with(r#"["similarity"]"#, "0.5");
+    let similar = Network::from_bytes(&to_bytes(&random_state(7, 2)), &meta, "x").unwrap();
+    let no_normals = with_some_similarity(scene.corr.clone());
+    assert_eq!(
+        similar.embed(&extra).unwrap(),
+        similar.embed(&no_normals).unwrap()
+    );
+}
+
+/// `beta` of every pair from `geo`, row-major.
+fn beta_matrix(geo: &Geometry) -> Vec<f32> {
+    let n = geo.len();
+    let mut beta = vec![1.0f32; n * n];
+    for (i, row) in beta.chunks_exact_mut(n).enumerate() {
+        geo.scale_by_beta(i, row);
+    }
+    beta
+}
+
+#[test]
+fn the_normal_term_of_beta_is_symmetric_and_equals_the_core_one() {
+    let scene = random_scene(240, 2, 0.3, 16);
+    let c = with_normals(&scene, 17);
+    let n = c.len();
+    let (ns, nt): (Vec<_>, Vec<_>) = (0..n).map(|i| c.normals(i).unwrap()).unzip();
+    for (sigma, tol) in [(0.05, 0.5), (0.3, 0.3), (0.3, 0.1)] {
+        let geo = Geometry::new(&c, sigma).with_normals(c.pair_normals().unwrap(), sigma, tol);
+        let got = beta_matrix(&geo);
+        let core = scene.corr.clone().with_normals(&ns, &nt, tol).unwrap();
+        let want = crate::consistency::spatial_consistency(&core, sigma).unwrap();
+        let plain = beta_matrix(&Geometry::new(&c, sigma));
+        let mut worst = 0.0f64;
+        let mut cut = 0;
+        for i in 0..n {
+            for j in 0..n {
+                assert_eq!(got[i * n + j], got[j * n + i], "({i}, {j})");
+                worst = worst.max((f64::from(got[i * n + j]) - want[i * n + j]).abs());
+                cut += usize::from(got[i * n + j] < 0.5 * plain[i * n + j]);
+            }
+        }
+        // f32 coordinates (up to ~6, rounded by 3e-7) move a length difference by ~1e-6 and
+        // the length term by up to 2 / sigma times that: 4e-5 at sigma = 0.05 (measured 6e-6)
+        assert!(
+            worst < 4e-5,
+            "sigma {sigma}, tol {tol}: max difference {worst}"
+        );
+        assert!(
+            cut > 100,
+            "sigma {sigma}, tol {tol}: the normal term cut {cut} pairs"
+        );
+    }
+}
+
+#[test]
+fn the_sparse_forward_pass_with_normals_matches_the_dense_one() {
+    let meta = meta_with(r#"["normals", "similarity"]"#, "0.5");
+    let net = Network::from_bytes(&to_bytes(&random_state(13, 3)), &meta, "x").unwrap();
+    let scene = random_scene(500, 3, 0.15, 18);
+    let c = with_some_similarity(with_normals(&scene, 19));
+    let sparse = forward::embed(&net, &c, false, 128).unwrap();
+    let dense = forward::embed_with(&net, &c, false, 128, 0.0).unwrap();
+    let parallel = net.embed(&c).unwrap();
+    assert_eq!(parallel, sparse);
     let mut worst = 0.0f64;
     for i in 0..sparse.len() {
         for (a, b) in sparse.row(i).iter().zip(dense.row(i)) {

@@ -77,3 +77,36 @@ pub(crate) fn random_scene(
         poses,
     }
 }
+
+/// The scene's correspondences with a random unit normal at each source point, carried by the
+/// true pose to the target for inliers (every third one flipped, as a model's outward normal
+/// and a scan's sensor-facing one may disagree) and random for outliers.
+pub(crate) fn with_normals(scene: &PlantedScene, seed: u64) -> Correspondences {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut unit = || {
+        let v: [f64; 3] = std::array::from_fn(|_| rng.random::<f64>() * 2.0 - 1.0);
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|x| x / n)
+    };
+    let n = scene.corr.len();
+    let (mut ns, mut nt) = (vec![], vec![]);
+    for i in 0..n {
+        let a = unit();
+        let b = match scene.labels[i] {
+            k if k >= 0 => {
+                let r = scene.poses[k as usize].rotation * Vector3::from(a);
+                let s = if i % 3 == 0 { -1.0 } else { 1.0 };
+                [s * r[0], s * r[1], s * r[2]]
+            }
+            _ => unit(),
+        };
+        ns.push(a);
+        // Not unit length on purpose: the constructor rescales.
+        nt.push(b.map(|x| 2.0 * x));
+    }
+    scene
+        .corr
+        .clone()
+        .with_normals(&ns, &nt, crate::correspondences::DEFAULT_NORMAL_TOLERANCE)
+        .unwrap()
+}
