@@ -29,6 +29,7 @@ from torch import nn
 
 __all__ = [
     "INPUTS",
+    "NORMALIZATIONS",
     "EmbeddingConfig",
     "SCNonlocal",
     "normal_consistency",
@@ -37,6 +38,8 @@ __all__ = [
 
 # The inputs beyond the coordinates, in the order of their input channels.
 INPUTS = ("normals", "similarity")
+#: What the BatchNorms normalise with at inference (see `EmbeddingConfig`).
+NORMALIZATIONS = ("running", "scene")
 # Each input's channels.
 _CHANNELS = {"normals": 6, "similarity": 1}
 
@@ -47,6 +50,13 @@ class EmbeddingConfig:
 
     `inputs` is a subset of `INPUTS` (stored in that order); `normal_tolerance` is the
     cosine tolerance of beta's normal term, in (0, 2], used with "normals" only.
+
+    `normalization` says what every BatchNorm normalises with at inference: "running" (the
+    statistics gathered in training, folded into the convolutions: the paper's and the
+    shipped networks') or "scene" (the mean and variance over the scene's own rows, as in
+    training when each batch holds one scene). Realistic scenes differ so much from one
+    another (extent, density, inlier share) that averaged statistics fit none of them: a
+    network trained one scene per batch collapses every embedding to one vector with them.
     """
 
     depth: int = 12
@@ -54,6 +64,7 @@ class EmbeddingConfig:
     sigma_d: float = 0.05
     inputs: tuple[str, ...] = ()
     normal_tolerance: float = 0.5
+    normalization: str = "running"
 
     def __post_init__(self) -> None:
         if self.depth < 1 or self.width < 4 or self.width % 2:
@@ -72,6 +83,10 @@ class EmbeddingConfig:
         object.__setattr__(self, "inputs", tuple(n for n in INPUTS if n in names))
         if not 0 < self.normal_tolerance <= 2:
             raise ValueError(f"normal_tolerance must lie in (0, 2], got {self.normal_tolerance}")
+        if self.normalization not in NORMALIZATIONS:
+            raise ValueError(
+                f"normalization must be one of {NORMALIZATIONS}, got {self.normalization!r}"
+            )
 
     @property
     def input_channels(self) -> int:
@@ -85,6 +100,8 @@ class EmbeddingConfig:
         if self.inputs:
             d["inputs"] = list(self.inputs)
             d["normal_tolerance"] = self.normal_tolerance
+        if self.normalization != "running":
+            d["normalization"] = self.normalization
         return d
 
 
@@ -152,6 +169,23 @@ def normal_consistency(
     return beta * (plane * plane.transpose(-1, -2))
 
 
+class SceneBatchNorm(nn.BatchNorm1d):
+    """BatchNorm1d that, with ``per_scene``, normalises by the statistics of its input also
+    in eval mode (each scene alone: a batch holds one). Its buffers stay those of
+    BatchNorm1d, so weight files of either kind load alike."""
+
+    per_scene = False
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.training or not self.per_scene:
+            return super().forward(x)
+        if x.shape[0] != 1:
+            # Statistics pooled over several scenes would make each scene's embedding
+            # depend on the others.
+            raise ValueError("a network with per-scene normalization embeds one scene at a time")
+        return nn.functional.batch_norm(x, None, None, self.weight, self.bias, True, 0.0, self.eps)
+
+
 class NonLocalBlock(nn.Module):
     def __init__(self, width: int) -> None:
         super().__init__()
@@ -161,10 +195,10 @@ class NonLocalBlock(nn.Module):
         self.v = nn.Conv1d(width, width, 1)
         self.message = nn.Sequential(
             nn.Conv1d(width, half, 1),
-            nn.BatchNorm1d(half),
+            SceneBatchNorm(half),
             nn.ReLU(inplace=True),
             nn.Conv1d(half, half, 1),
-            nn.BatchNorm1d(half),
+            SceneBatchNorm(half),
             nn.ReLU(inplace=True),
             nn.Conv1d(half, width, 1),
         )
@@ -191,10 +225,13 @@ class SCNonlocal(nn.Module):
         w = self.config.width
         self.lift = nn.Conv1d(self.config.input_channels, w, 1)
         self.pointcn = nn.ModuleList(
-            nn.Sequential(nn.Conv1d(w, w, 1), nn.BatchNorm1d(w), nn.ReLU(inplace=True))
+            nn.Sequential(nn.Conv1d(w, w, 1), SceneBatchNorm(w), nn.ReLU(inplace=True))
             for _ in range(self.config.depth)
         )
         self.nonlocal_blocks = nn.ModuleList(NonLocalBlock(w) for _ in range(self.config.depth))
+        for m in self.modules():
+            if isinstance(m, SceneBatchNorm):
+                m.per_scene = self.config.normalization == "scene"
 
     def _unit_normals(self, x: torch.Tensor) -> torch.Tensor | None:
         """The (B, N, 6) normals of the packed input rescaled to unit length, if it has them."""

@@ -238,22 +238,22 @@ PRESETS: dict[str, dict[str, Any]] = {
         "checkpoint_every": 250,
         "val_scenes": 32,
     },
-    # Realistic scenes only, of 3 data models and 300 random procedural shapes, the network
-    # taking normals and match similarity: sized for a GPU (the bank, about 1,500 scenes,
+    # Realistic scenes only, of 3 data models and 600 random procedural shapes, the network
+    # taking normals and match similarity: sized for a GPU (the bank, 2,700 scenes,
     # is built beforehand on every core: `pointclm train --build-banks`).
     "realistic-gpu": {
         "depth": 6,
         "width": 64,
-        "iterations": 8000,
+        "iterations": 4000,
         "batch_size": 16,
         "lr": 1e-3,
         "realistic_fraction": 1.0,
         "realistic_scenes_per_model": 100,
-        "procedural_shapes": 300,
+        "procedural_shapes": 600,
         "procedural_scenes_per_shape": 4,
         "inputs": ("normals", "similarity"),
-        "val_every": 500,
-        "checkpoint_every": 500,
+        "val_every": 250,
+        "checkpoint_every": 250,
         "num_workers": 4,
     },
     # A few steps, for tests and CI.
