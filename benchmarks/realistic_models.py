@@ -93,6 +93,8 @@ CACHE_VERSION = 3
 QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus")
 #: The N = 50,000 scenes: one held-out model with real scans, one mesh.
 SCALE_MODELS = ("stanford/bunny", "common3d/teapot")
+#: Where learned embeddings are computed ("rust", or "torch" with --backend torch).
+BACKEND = "rust"
 #: Runs of each method per scene; the fastest is its time (see `run_methods`).
 TIMED_RUNS = 2
 
@@ -275,13 +277,17 @@ def _refine(scene: Any, poses: np.ndarray) -> np.ndarray:
 
 
 def _pointclm(model: str | None, refine: bool) -> Callable[[Any], np.ndarray]:
+    from pointclm.embedding import resolve
     from pointclm.evaluation import register_scaled, scene_cues
+
+    # The network loaded once, on the backend asked for (--backend).
+    net = None if model is None else resolve(model, BACKEND)
 
     def run(scene: Any) -> np.ndarray:
         # The pipeline's own defaults for raw or refined poses (or the model's recommended
         # thresholds), scaled to the voxel, exactly as `register_point_clouds` picks them.
         r = register_scaled(
-            scene.correspondences, scene.voxel_size, None, 0, 1, model, refine, scene_cues(scene)
+            scene.correspondences, scene.voxel_size, None, 0, 1, net, refine, scene_cues(scene)
         )
         poses = _poses(r.transformations)
         return _refine(scene, poses) if refine else poses
@@ -652,6 +658,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--scenes-per-model", type=int, default=8)
     ap.add_argument("--n", type=int, default=1000, help="correspondences per scene (1000, 5000)")
     ap.add_argument("--model", action="append", default=[], help="learned embedding(s)")
+    ap.add_argument("--backend", default="rust", choices=["rust", "torch"], help="of --model")
     ap.add_argument("--scale", type=int, default=50_000, help="N of the timed run (0: skip)")
     ap.add_argument("--no-ransac", action="store_true", help="leave the slow RANSAC peer out")
     ap.add_argument("--quick", action="store_true", help="CI-sized: 2 scenes of 4 models")
@@ -692,6 +699,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     seeds = {m: pick(m, args.scenes_per_model) for m in models}
     jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds[m]]
     scenes = load_scenes(jobs, cache, args.workers)
+    global BACKEND
+    BACKEND = args.backend
     methods = make_methods(args.model, ransac=not args.no_ransac)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
     rows = run_methods(scenes, methods)

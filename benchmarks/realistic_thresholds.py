@@ -42,6 +42,8 @@ from pointclm.point_clouds import REFINED_THRESHOLDS, scaled_config
 from pointclm.training.realistic import SceneBank, bank_cues, score_bank
 from realistic_models import load_scenes, scene_params, threshold_seeds
 
+#: Where networks run ("rust", or "torch" with --backend torch).
+BACKEND = "rust"
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)
 MIN_CLUSTER = (3, 4, 5, 7, 10)
@@ -50,7 +52,7 @@ MIN_CLUSTER = (3, 4, 5, 7, 10)
 def bank_sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
     feats: list[np.ndarray | None] = []
     normals: list[np.ndarray | None] = []
-    emb = None if model is None else resolve(model)
+    emb = None if model is None else resolve(model, BACKEND)
     for i, (c, v) in enumerate(zip(bank.correspondences, bank.voxels, strict=True)):
         if emb is None:
             feats.append(None)
@@ -120,7 +122,7 @@ def _features(scene: Any, model: str | None) -> tuple[np.ndarray | None, np.ndar
     gets with it (as `register_point_clouds` runs such a network); (None, None) without one."""
     if model is None:
         return None, None
-    emb = resolve(model)
+    emb = resolve(model, BACKEND)
     normals, sims = scene_cues(scene)
     cfg = scaled_config(scene.voxel_size)
     f = emb.embed(scene.correspondences, cfg.sigma_d, normals=normals, similarity=sims)
@@ -178,6 +180,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=1000, help="correspondences per scene")
     ap.add_argument("--refine", action="store_true", help="also score refined, verified poses")
     ap.add_argument("--model", action="append", default=[], help="network(s); repeatable")
+    ap.add_argument("--backend", default="rust", choices=["rust", "torch"], help="of --model")
     ap.add_argument("--cache", default="out/realistic_scenes", help="built scenes (npz)")
     ap.add_argument("--data-dir", default=None)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
@@ -185,6 +188,8 @@ def main() -> None:
     ap.add_argument("--bank", action="append", default=[], help="sweep saved SceneBank(s)")
     ap.add_argument("--every", type=int, default=1, help="--bank: every k-th scene")
     args = ap.parse_args()
+    global BACKEND
+    BACKEND = args.backend
     grid = [
         {"tau_s": s, "tau_n": n, "min_cluster_size": m}
         for s, n, m in itertools.product(TAU_S, TAU_N, MIN_CLUSTER)

@@ -214,3 +214,68 @@ def test_the_torch_normal_term_is_the_cores() -> None:
     ].numpy()
     np.testing.assert_allclose(got, want, atol=1e-12)
     assert 0.1 < (want > 0).mean() < 1  # the test exercises both sides of the clamps
+
+
+def test_scene_normalization_normalises_each_scene_by_its_own_rows(tmp_path: Path) -> None:
+    torch = pytest.importorskip("torch")
+    from pointclm.model import EmbeddingConfig, SCNonlocal, load_model, save_model
+
+    torch.manual_seed(0)
+    net = SCNonlocal(EmbeddingConfig(2, 16, normalization="scene"))
+    x = torch.randn(1, 60, 6)
+    net.train()
+    for _ in range(3):
+        net(torch.randn(1, 60, 6) * 5.0)  # running statistics far from this scene's
+    with torch.no_grad():
+        net.train()
+        trained = net(x)
+        net.eval()
+        inferred = net(x)
+    # Eval mode normalises as training did: by the scene's own statistics.
+    torch.testing.assert_close(inferred, trained)
+    save_model(net, tmp_path / "scene.safetensors")
+    loaded = load_model(tmp_path / "scene.safetensors")
+    assert loaded.config.normalization == "scene"
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(x), inferred)
+        running = SCNonlocal(EmbeddingConfig(2, 16))
+        running.load_state_dict(net.state_dict())
+        running.eval()
+        assert (running(x) - inferred).abs().max() > 1e-2  # the test can tell them apart
+        with pytest.raises(ValueError, match="one scene at a time"):
+            loaded(torch.randn(2, 60, 6))
+    assert "normalization" not in EmbeddingConfig(2, 16).as_dict()  # plain files unchanged
+    with pytest.raises(ValueError, match="normalization must be one of"):
+        EmbeddingConfig(2, 16, normalization="layer")
+    with pytest.raises(ValueError, match="batches of one scene"):
+        TrainConfig(normalization="scene", realistic_fraction=0.5)
+
+
+def test_banks_only_builds_both_banks_for_another_machine(tmp_path: Path) -> None:
+    import json
+
+    from pointclm.cli import main
+
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(
+        json.dumps(
+            {
+                "preset": "smoke",
+                "realistic_fraction": 1.0,
+                "realistic_models": ["torus"],
+                "realistic_scenes_per_model": 1,
+                "procedural_shapes": 1,
+                "procedural_scenes_per_shape": 1,
+                "val_shapes": ["bunny"],
+                "val_realistic_scenes_per_model": 1,
+                "num_workers": 0,
+            }
+        )
+    )
+    out = tmp_path / "banks"
+    assert main(["train", "--config", str(cfg), "--out", str(out), "--banks-only"]) == 0
+    bank = SceneBank.load(out / "scene_bank.npz")
+    assert len(bank) == 2 and bank.models[0] == "torus" and bank.normals is not None
+    assert bank.models[1].split("-")[0] in ("superquadric", "blend", "extrusion")
+    assert len(SceneBank.load(out / "val_scene_bank.npz")) == 1
+    assert main(["train", "--preset", "smoke", "--out", str(out), "--banks-only"]) == 2

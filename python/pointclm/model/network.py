@@ -27,6 +27,10 @@ from typing import Any
 import torch
 from torch import nn
 
+# The inputs beyond the coordinates, in the order of their input channels: one definition,
+# shared with the data side.
+from ..cues import INPUTS, input_channels
+
 __all__ = [
     "INPUTS",
     "NORMALIZATIONS",
@@ -36,12 +40,8 @@ __all__ = [
     "spatial_consistency",
 ]
 
-# The inputs beyond the coordinates, in the order of their input channels.
-INPUTS = ("normals", "similarity")
 #: What the BatchNorms normalise with at inference (see `EmbeddingConfig`).
 NORMALIZATIONS = ("running", "scene")
-# Each input's channels.
-_CHANNELS = {"normals": 6, "similarity": 1}
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ class EmbeddingConfig:
     @property
     def input_channels(self) -> int:
         """6 coordinates, then 6 for "normals" and 1 for "similarity"."""
-        return 6 + sum(_CHANNELS[n] for n in self.inputs)
+        return input_channels(self.inputs)
 
     def as_dict(self) -> dict[str, Any]:
         """The weights' `architecture`: without `inputs` and `normal_tolerance` for the plain

@@ -80,6 +80,10 @@ class TrainConfig:
     # a network with inputs trains on the realistic bank alone (realistic_fraction 1).
     inputs: tuple[str, ...] = ()
     normal_tolerance: float = 0.5
+    # What the BatchNorms normalise with at inference (EmbeddingConfig.normalization):
+    # "scene" where every batch holds one scene (realistic training), so that inference
+    # normalises as training did.
+    normalization: str = "running"
     # Random procedural shapes (pointclm.datasets.procedural_family_names) added to the
     # realistic training models, so the embedding learns consistency rather than shapes.
     procedural_shapes: int = 0
@@ -118,6 +122,11 @@ class TrainConfig:
             raise ValueError(
                 f"a network with inputs {self.inputs} trains on realistic scenes only "
                 "(synthetic ones carry no cues): set realistic_fraction to 1"
+            )
+        if self.normalization == "scene" and self.realistic_fraction < 1.0:
+            raise ValueError(
+                "normalization 'scene' needs batches of one scene: set realistic_fraction to 1 "
+                "(synthetic scenes are stacked several to a batch)"
             )
         if self.procedural_shapes < 0 or self.procedural_scenes_per_shape < 1:
             raise ValueError("need procedural_shapes >= 0 and procedural_scenes_per_shape >= 1")
@@ -252,6 +261,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         "procedural_shapes": 600,
         "procedural_scenes_per_shape": 4,
         "inputs": ("normals", "similarity"),
+        "normalization": "scene",
         "val_every": 250,
         "checkpoint_every": 250,
         "num_workers": 4,

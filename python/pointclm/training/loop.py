@@ -275,6 +275,7 @@ def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank | None, 
         cfg.sigma_d,
         inputs=cfg.inputs,
         normal_tolerance=cfg.normal_tolerance,
+        normalization=cfg.normalization,
     )
     model = SCNonlocal(arch).to(device)
     if cfg.init_weights:
