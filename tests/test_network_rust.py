@@ -6,6 +6,7 @@ Only the torch comparisons need torch; everything else runs on a torch-free inst
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -320,3 +321,68 @@ def test_the_plain_network_ignores_inputs_it_does_not_read() -> None:
     assert net.inputs == () and "inputs" not in repr(net)
     corr, nrm, sim = scene_with_inputs(3)
     np.testing.assert_array_equal(net.embed(corr, nrm, sim), net.embed(corr))
+
+
+SCENE_INPUT_SETS = [(), ("normals",), ("normals", "similarity")]
+
+
+def _scene_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tuple[Any, Path]:
+    """A torch network with per-scene normalization, saved under `tmp_path`: the shipped
+    default's trained convolutions (the lift's columns of `inputs` random), random BatchNorm
+    weights, biases and running statistics. (Random convolutions make a poor test: their
+    attention output is nearly constant over the rows, and normalising it by its tiny spread
+    amplifies float32 rounding until torch itself differs from float64 torch by ~1e-3.)"""
+    from pointclm.model import SCNonlocal, load_model, save_model
+
+    torch.manual_seed(10 + len(inputs))
+    trained = load_model("default")
+    config = dataclasses.replace(trained.config, inputs=inputs, normalization="scene")
+    net = SCNonlocal(config)
+    state = trained.state_dict()
+    with torch.no_grad():
+        lift = net.lift.weight.clone()
+        lift[:, :6] = state["lift.weight"]
+        net.load_state_dict({**state, "lift.weight": lift})
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                c = m.num_features
+                m.running_mean.copy_(0.3 * torch.randn(c))
+                m.running_var.copy_(0.5 + torch.rand(c))
+                m.weight.copy_(0.5 + torch.rand(c))
+                m.bias.copy_(0.2 * torch.randn(c))
+    net.eval()
+    return net, save_model(net, tmp_path / f"scene_{'_'.join(inputs)}.safetensors")
+
+
+@pytest.mark.parametrize("inputs", SCENE_INPUT_SETS, ids=lambda t: "+".join(t) or "plain")
+def test_scene_normalization_equals_torch(inputs: tuple[str, ...], tmp_path: Path) -> None:
+    torch = pytest.importorskip("torch")
+    from pointclm.model import SCNonlocal
+
+    net, path = _scene_network(torch, inputs, tmp_path)
+    rust = Network(path)
+    assert rust.normalization == "scene" and rust.inputs == inputs
+    assert "normalization='scene'" in repr(rust)
+    # the same weights with their (random) running statistics: a wrong use of them shows
+    running = SCNonlocal(dataclasses.replace(net.config, normalization="running"))
+    running.load_state_dict(net.state_dict())
+    running.eval()
+    worst, moved = 0.0, 0.0
+    for seed in range(6):
+        corr, nrm, sim = scene_with_inputs(seed)
+        x = torch.tensor(_packed(inputs, corr, nrm, sim), dtype=torch.float32)[None]
+        with torch.no_grad():
+            want = net(x)[0].double().numpy()
+            other = running(x)[0].double().numpy()
+        worst = max(worst, float(np.abs(rust.embed(corr, nrm, sim) - want).max()))
+        moved = max(moved, float(np.abs(other - want).max()))
+    # measured <= 2.7e-5 (float32 rounding, amplified where a channel varies little)
+    assert worst <= PARITY, f"max abs difference {worst:.2e}"
+    # per-scene statistics change the embedding far beyond the parity tolerance
+    assert moved > 100 * PARITY, moved
+
+
+def test_running_normalization_is_the_default() -> None:
+    net = load_network()
+    assert net.normalization == "running"
+    assert "normalization" not in repr(net)

@@ -116,8 +116,9 @@ def _cached_network(path: str, _stamps: tuple[Any, ...]) -> _core.Network:
 def save_model(model: SCNonlocal, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
     """Write `path` (.safetensors) and `path` with .json (architecture + `extra` metadata).
 
-    The architecture holds `depth`, `width`, `sigma_d` and, for a network with inputs beyond
-    the coordinates, `inputs` and `normal_tolerance` (`EmbeddingConfig.as_dict`)."""
+    The architecture holds `depth`, `width`, `sigma_d`, for a network with inputs beyond the
+    coordinates `inputs` and `normal_tolerance`, and for one with per-scene normalization
+    `normalization` (`EmbeddingConfig.as_dict`)."""
     from safetensors.torch import save_file
 
     path = Path(path)

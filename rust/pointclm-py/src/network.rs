@@ -70,6 +70,13 @@ impl PyNetwork {
         self.inner.architecture().normal_tolerance
     }
 
+    /// What the BatchNorms normalise with: "running" (the statistics gathered in training)
+    /// or "scene" (the mean and variance over the embedded scene's own correspondences).
+    #[getter]
+    fn normalization(&self) -> &'static str {
+        self.inner.architecture().normalization.name()
+    }
+
     /// The config (all fields) with the thresholds recommended in the weights' metadata.
     fn recommended_config<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         config::to_dict(py, &self.inner.recommended_config())
@@ -124,6 +131,9 @@ impl PyNetwork {
                 quoted.join(", "),
                 a.normal_tolerance
             );
+        }
+        if a.normalization != pointclm::Normalization::Running {
+            r += &format!(", normalization='{}'", a.normalization.name());
         }
         r + ")"
     }

@@ -77,7 +77,7 @@ pub use matching::{
     match_features, match_features_given, nearest_sources, Matches, MatchingConfig, NearestSources,
 };
 #[cfg(feature = "network")]
-pub use network::{Architecture, Inputs, Network};
+pub use network::{Architecture, Inputs, Network, Normalization};
 pub use pipeline::{register, register_batch, Registration, Scene, StageTimings};
 #[cfg(feature = "network")]
 pub use pipeline::{register_batch_with_network, register_with_network};

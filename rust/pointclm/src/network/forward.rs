@@ -5,6 +5,8 @@
 //! the same fixed blocks: (A) pointcn and q/k/v for every block, then (B) attention, message
 //! MLP and residual for every block. The blocks do not depend on the thread count and each is
 //! computed sequentially, so the result is bit-identical however the sweeps are scheduled.
+//! With per-scene normalization each sweep splits further at its BatchNorms
+//! ([`super::scene_norm`]).
 
 use std::sync::Mutex;
 
@@ -13,7 +15,7 @@ use rayon::prelude::*;
 
 use super::layers::{attention_rows, AttentionScratch, Geometry};
 use super::sparse_attention::{attention_rows_sparse, SparseBeta, Strided, MAX_SPARSE_SHARE};
-use super::{Architecture, Block, Network};
+use super::{scene_norm, Architecture, Block, Network, Normalization};
 use crate::correspondences::{Correspondences, Features, PairNormals};
 use crate::error::{checked_elements, try_filled, Error, Result};
 
@@ -23,12 +25,52 @@ pub(crate) const BLOCK_ROWS: usize = 128;
 
 /// Per-thread buffers.
 #[derive(Default)]
-struct Scratch {
-    pointcn: Vec<f32>,
+pub(super) struct Scratch {
+    pub pointcn: Vec<f32>,
     attention: AttentionScratch,
-    message: Vec<f32>,
-    hidden: [Vec<f32>; 2],
-    update: Vec<f32>,
+    pub message: Vec<f32>,
+    pub hidden: [Vec<f32>; 2],
+    pub update: Vec<f32>,
+}
+
+/// What every sweep of one forward pass shares: the fixed blocks, the geometry, and one
+/// scratch per thread.
+pub(super) struct Pass<'a> {
+    pub parallel: bool,
+    pub block_rows: usize,
+    pub width: usize,
+    geometry: &'a Geometry,
+    sparse: Option<&'a SparseBeta>,
+    scale: f32,
+    scratch: Vec<Mutex<Scratch>>,
+}
+
+impl Pass<'_> {
+    /// Runs `f(k, rows_of_block_k, scratch)` over the chunks of `buf` (`chunk` values each)
+    /// ([`for_blocks`]).
+    pub(super) fn for_blocks(
+        &self,
+        buf: &mut [f32],
+        chunk: usize,
+        f: &(dyn Fn(usize, &mut [f32], &mut Scratch) + Sync),
+    ) {
+        for_blocks(self.parallel, buf, chunk, &self.scratch, f)
+    }
+
+    /// Calls `f` with what sweep (B) reads from the activations `act` (rows of `4w`:
+    /// pointcn, q, k, v), including the sum of all values where the sparse attention runs.
+    pub(super) fn with_all_rows<R>(&self, act: &[f32], f: impl FnOnce(&AllRows) -> R) -> R {
+        let (n, w) = (act.len() / (4 * self.width), self.width);
+        let v_total = self.sparse.map(|_| strided(act, 3 * w, w).column_sums(n));
+        let sparse_view = self.sparse.zip(v_total.as_deref());
+        f(&AllRows::new(
+            act,
+            w,
+            self.geometry,
+            self.scale,
+            sparse_view,
+        ))
+    }
 }
 
 /// The embedding of every correspondence: the lift, then per block sweep (A) pointcn and
@@ -62,38 +104,52 @@ pub(crate) fn embed_with(
         geometry = geometry.with_normals(pn, arch.sigma_d, arch.normal_tolerance);
     }
     let sparse = SparseBeta::new(&geometry, parallel, max_sparse_share);
-    let scale = (w as f64).powf(-0.5) as f32;
+    let pass = Pass {
+        parallel,
+        block_rows,
+        width: w,
+        geometry: &geometry,
+        sparse: sparse.as_ref(),
+        scale: (w as f64).powf(-0.5) as f32,
+        scratch: thread_scratch(parallel),
+    };
 
     let (mut feat, mut act) = buffers(n, w)?;
-    let aw = 4 * w;
-    let scratch = thread_scratch(parallel);
-    let for_blocks =
-        |buf: &mut [f32], chunk: usize, f: &(dyn Fn(usize, &mut [f32], &mut Scratch) + Sync)| {
-            for_blocks(parallel, buf, chunk, &scratch, f)
-        };
-
-    for_blocks(&mut feat, block_rows * w, &|k, out, _| {
+    // per-scene normalization's message MLP activations; empty (unused) otherwise
+    let mut hidden = match net.architecture.normalization {
+        Normalization::Running => Vec::new(),
+        Normalization::Scene => scene_norm::hidden_buffer(n, w)?,
+    };
+    pass.for_blocks(&mut feat, block_rows * w, &|k, out, _| {
         let x = block(&input, channels, k, block_rows);
         net.lift
             .apply(x.len() / channels, (x, channels), (out, w), false);
     });
     for layer in &net.blocks {
         crate::cancel::check()?;
-        for_blocks(&mut act, block_rows * aw, &|k, out, s| {
-            pointcn_and_qkv(layer, block(&feat, w, k, block_rows), w, out, s);
-        });
-        let v_total = sparse
-            .as_ref()
-            .map(|_| strided(&act, 3 * w, w).column_sums(n));
-        let sparse_view = sparse.as_ref().zip(v_total.as_deref());
-        let all = AllRows::new(&act, w, &geometry, scale, sparse_view);
-        for_blocks(&mut feat, block_rows * w, &|k, out, s| {
-            let first = k * block_rows;
-            let rows = &act[first * aw..(first + out.len() / w) * aw];
-            non_local(layer, &all, first, rows, out, s);
-        });
+        match &layer.scene {
+            None => running_layer(&pass, layer, &mut feat, &mut act),
+            Some(norms) => scene_norm::layer(&pass, layer, norms, &mut feat, &mut act, &mut hidden),
+        }
     }
     normalised(&feat, w)
+}
+
+/// One block with folded BatchNorms: sweep (A) pointcn and q/k/v ([`pointcn_and_qkv`]),
+/// then sweep (B) attention, message MLP and residual ([`non_local`]).
+fn running_layer(pass: &Pass, layer: &Block, feat: &mut [f32], act: &mut [f32]) {
+    let (w, block_rows) = (pass.width, pass.block_rows);
+    let aw = 4 * w;
+    pass.for_blocks(act, block_rows * aw, &|k, out, s| {
+        pointcn_and_qkv(layer, block(feat, w, k, block_rows), w, out, s);
+    });
+    pass.with_all_rows(act, |all| {
+        pass.for_blocks(feat, block_rows * w, &|k, out, s| {
+            let first = k * block_rows;
+            let rows = &act[first * aw..(first + out.len() / w) * aw];
+            non_local(layer, all, first, rows, out, s);
+        });
+    });
 }
 
 /// `feat`, the running feature (N x w), and `act`, per row the pointcn output then q, k and
@@ -153,7 +209,7 @@ fn pointcn_and_qkv(layer: &Block, x: &[f32], w: usize, out: &mut [f32], s: &mut 
 
 /// What sweep (B) of a layer reads for every block: the keys and values of all rows, the
 /// geometry of the correspondences and the attention's logit scale.
-struct AllRows<'a> {
+pub(super) struct AllRows<'a> {
     keys: MatRef<'a, f32>,
     values: MatRef<'a, f32>,
     geometry: &'a Geometry,
@@ -207,8 +263,39 @@ fn non_local(
     s: &mut Scratch,
 ) {
     let w = all.keys.ncols();
-    let aw = 4 * w;
     let count = out.len() / w;
+    attend(all, first, rows, count, s);
+    let [m0, m1, m2] = &layer.message;
+    let [h0, h1] = &mut s.hidden;
+    h0.resize(count * m0.outputs(), 0.0);
+    h1.resize(count * m1.outputs(), 0.0);
+    s.update.resize(count * w, 0.0);
+    m0.apply(count, (&s.message, w), (h0, m0.outputs()), true);
+    m1.apply(count, (h0, m0.outputs()), (h1, m1.outputs()), true);
+    m2.apply(count, (h1, m1.outputs()), (&mut s.update, w), false);
+    add_residual(out, rows, &s.update, w);
+}
+
+/// `out = pointcn output + update`, row by row: the residual adds the input of the non-local
+/// block. `rows` are the block's sweep (A) outputs (`4w` columns), `out` and `update` have
+/// `w` columns.
+pub(super) fn add_residual(out: &mut [f32], rows: &[f32], update: &[f32], w: usize) {
+    for ((o, pc), u) in out
+        .chunks_exact_mut(w)
+        .zip(rows.chunks_exact(4 * w))
+        .zip(update.chunks_exact(w))
+    {
+        for ((o, &p), &u) in o.iter_mut().zip(&pc[..w]).zip(u) {
+            *o = p + u;
+        }
+    }
+}
+
+/// The attention of the `count` rows starting at row `first` into `s.message` (`count x w`):
+/// `rows` are their sweep (A) outputs (`4w` columns: pointcn, q, k, v).
+pub(super) fn attend(all: &AllRows, first: usize, rows: &[f32], count: usize, s: &mut Scratch) {
+    let w = all.keys.ncols();
+    let aw = 4 * w;
     let queries = MatRef::from_row_major_slice_with_stride(&rows[w..], count, w, aw);
     s.message.resize(count * w, 0.0);
     match &all.sparse {
@@ -239,28 +326,10 @@ fn non_local(
             &mut s.message,
         ),
     }
-    let [m0, m1, m2] = &layer.message;
-    let [h0, h1] = &mut s.hidden;
-    h0.resize(count * m0.outputs(), 0.0);
-    h1.resize(count * m1.outputs(), 0.0);
-    s.update.resize(count * w, 0.0);
-    m0.apply(count, (&s.message, w), (h0, m0.outputs()), true);
-    m1.apply(count, (h0, m0.outputs()), (h1, m1.outputs()), true);
-    m2.apply(count, (h1, m1.outputs()), (&mut s.update, w), false);
-    // the residual adds the pointcn output, the input of the non-local block
-    for ((o, pc), u) in out
-        .chunks_exact_mut(w)
-        .zip(rows.chunks_exact(aw))
-        .zip(s.update.chunks_exact(w))
-    {
-        for ((o, &p), &u) in o.iter_mut().zip(&pc[..w]).zip(u) {
-            *o = p + u;
-        }
-    }
 }
 
 /// Rows of block `k` of a row-major matrix with `cols` columns.
-fn block(m: &[f32], cols: usize, k: usize, block_rows: usize) -> &[f32] {
+pub(super) fn block(m: &[f32], cols: usize, k: usize, block_rows: usize) -> &[f32] {
     let start = k * block_rows * cols;
     &m[start..(start + block_rows * cols).min(m.len())]
 }

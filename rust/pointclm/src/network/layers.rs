@@ -20,6 +20,67 @@ pub(crate) struct BatchNorm {
     pub var: Vec<f64>,
 }
 
+/// The affine parameters (gamma, beta) of a BatchNorm that normalises by the statistics of
+/// its own input over the scene ([`Normalization::Scene`](super::Normalization::Scene)):
+/// `gamma (z - mean) / sqrt(var + eps) + beta`, with [`BN_EPS`].
+pub(crate) struct SceneNorm {
+    pub gamma: Vec<f64>,
+    pub beta: Vec<f64>,
+}
+
+impl SceneNorm {
+    /// The map for one scene, from the per-channel mean and biased variance of the input.
+    pub(crate) fn with_stats(&self, mean: &[f64], var: &[f64]) -> Normaliser {
+        // the mean as an unevaluated f32 sum hi + lo (see `Normaliser::relu`)
+        let mean_hi: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+        let mean_lo = mean
+            .iter()
+            .zip(&mean_hi)
+            .map(|(&m, &hi)| (m - f64::from(hi)) as f32)
+            .collect();
+        let scale = self
+            .gamma
+            .iter()
+            .zip(var)
+            .map(|(g, v)| (g / (v + BN_EPS).sqrt()) as f32)
+            .collect();
+        Normaliser {
+            mean_hi,
+            mean_lo,
+            scale,
+            beta: self.beta.iter().map(|&b| b as f32).collect(),
+        }
+    }
+}
+
+/// A [`SceneNorm`] with one scene's statistics, in f32.
+pub(crate) struct Normaliser {
+    mean_hi: Vec<f32>,
+    mean_lo: Vec<f32>,
+    scale: Vec<f32>,
+    beta: Vec<f32>,
+}
+
+impl Normaliser {
+    /// `y = ReLU(scale (x - mean) + beta)` for `rows` rows of `x` and `y` (row strides as
+    /// given). The mean is subtracted as `(x - hi) - lo`: `x - hi` is exact near the mean
+    /// and otherwise rounded relative to itself, so the centred value keeps f32 precision
+    /// even where the mean is hundreds of standard deviations (a channel that varies little
+    /// over the scene), unlike torch's fused `x * alpha + (beta - mean * alpha)`. All in
+    /// f32 with plain indexed loops, so that it vectorises.
+    pub(crate) fn relu(&self, rows: usize, (x, xs): (&[f32], usize), (y, ys): (&mut [f32], usize)) {
+        let c = self.scale.len();
+        let (hi, lo) = (&self.mean_hi[..c], &self.mean_lo[..c]);
+        let (scale, beta) = (&self.scale[..c], &self.beta[..c]);
+        for r in 0..rows {
+            let (x, y) = (&x[r * xs..r * xs + c], &mut y[r * ys..r * ys + c]);
+            for k in 0..c {
+                y[k] = (((x[k] - hi[k]) - lo[k]) * scale[k] + beta[k]).max(0.0);
+            }
+        }
+    }
+}
+
 /// A 1x1 convolution `y = W x + b` with the eval-mode BatchNorm that follows it, if any,
 /// folded in: that BatchNorm is the per-channel affine map `gamma (z - mu) / sqrt(var + eps)
 /// + beta`, so conv and BN compose into one product and one bias.

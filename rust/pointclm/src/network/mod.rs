@@ -3,8 +3,9 @@
 //!
 //! The network reads the weights that `pointclm.model.save_model` writes: a safetensors file
 //! of the torch state dict and, beside it with the extension `.json`, the metadata holding
-//! `architecture` (`depth`, `width`, `sigma_d`, and for a network with inputs beyond the
-//! coordinates `inputs` and `normal_tolerance`) and optionally `recommended_config`.
+//! `architecture` (`depth`, `width`, `sigma_d`, for a network with inputs beyond the
+//! coordinates `inputs` and `normal_tolerance`, and for one with per-scene normalization
+//! `normalization`) and optionally `recommended_config`.
 //!
 //! # Inputs
 //!
@@ -24,10 +25,23 @@
 //! the correspondences lack an input the network needs, and ignores those it does not need.
 //!
 //! The forward pass computes in `f32`, as torch does, so that it reproduces torch's
-//! embeddings to about 1e-6; every eval-mode BatchNorm is folded into the convolution before
-//! it at load time. The attention `softmax_j(beta_ij q_i . k_j / sqrt(width))` is evaluated
+//! embeddings to about 1e-6. The attention `softmax_j(beta_ij q_i . k_j / sqrt(width))` is evaluated
 //! for a block of rows at a time, recomputing `beta` on the fly, so memory stays
 //! O(N x block) and no N x N matrix is ever formed.
+//!
+//! # Normalization
+//!
+//! What the BatchNorms normalise with ([`Normalization`], `architecture.normalization`):
+//!
+//! - `running` (the default, and the shipped networks'): the statistics gathered in
+//!   training. Each eval-mode BatchNorm is then an affine map, folded into the convolution
+//!   before it at load time.
+//! - `scene`: the mean and biased variance of the BatchNorm's own input over the scene's N
+//!   rows, as torch's `SceneBatchNorm` does at inference too (for networks trained one scene
+//!   per batch, whose running statistics fit no scene). Every BatchNorm then needs all N
+//!   rows before any row can go on, so the forward pass splits its sweeps at each of them
+//!   (see `scene_norm`); the running statistics in the file are read but unused. A scene of
+//!   one correspondence has variance 0 and gets each BatchNorm's bias.
 //!
 //! ```
 //! # fn main() -> pointclm::Result<()> {
@@ -49,6 +63,7 @@
 
 mod forward;
 pub(crate) mod layers;
+mod scene_norm;
 pub(crate) mod sparse_attention;
 mod weights;
 
@@ -59,7 +74,7 @@ use crate::config::Config;
 use crate::correspondences::{Correspondences, Features, DEFAULT_NORMAL_TOLERANCE};
 use crate::error::Result;
 
-use layers::Dense;
+use layers::{Dense, SceneNorm};
 
 /// The shape of an SCNonlocal network, as stored under `architecture` in the weights' JSON.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -75,6 +90,9 @@ pub struct Architecture {
     /// Cosine tolerance of the normal term of `beta` (used with [`Inputs::normals`] only;
     /// [`DEFAULT_NORMAL_TOLERANCE`] where the metadata gives none).
     pub normal_tolerance: f64,
+    /// What the BatchNorms normalise with ([`Normalization::Running`] where the metadata
+    /// says nothing).
+    pub normalization: Normalization,
 }
 
 impl Architecture {
@@ -86,12 +104,33 @@ impl Architecture {
             sigma_d,
             inputs: Inputs::default(),
             normal_tolerance: DEFAULT_NORMAL_TOLERANCE,
+            normalization: Normalization::Running,
         }
     }
 
     /// Channels of the network's input: 6 coordinates, then those of [`Inputs`].
     pub fn input_channels(&self) -> usize {
         6 + self.inputs.channels()
+    }
+}
+
+/// What every BatchNorm of the network normalises with at inference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Normalization {
+    /// The running statistics gathered in training (folded into the convolutions).
+    #[default]
+    Running,
+    /// The mean and biased variance of the BatchNorm's input over the scene's rows.
+    Scene,
+}
+
+impl Normalization {
+    /// The name the weights' metadata writes (`"running"`, `"scene"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Running => "running",
+            Self::Scene => "scene",
+        }
     }
 }
 
@@ -135,10 +174,14 @@ pub struct Network {
 
 /// One [pointcn, non-local] block. `q`, `k` and `v` share their input, so they are one
 /// `width -> 3 width` product.
+///
+/// With [`Normalization::Scene`] the convolutions before BatchNorms are unfolded and `scene`
+/// holds those BatchNorms' affine parameters: pointcn's, then the message MLP's two.
 pub(crate) struct Block {
     pointcn: Dense,
     qkv: Dense,
     message: [Dense; 3],
+    scene: Option<Box<[SceneNorm; 3]>>,
 }
 
 impl Network {
@@ -159,7 +202,7 @@ impl Network {
         weights::from_bytes(safetensors, metadata, name)
     }
 
-    /// Depth, width, `sigma_d` and inputs of the network.
+    /// Depth, width, `sigma_d`, inputs and normalization of the network.
     pub fn architecture(&self) -> Architecture {
         self.architecture
     }

@@ -7,8 +7,8 @@ use std::path::Path;
 use safetensors::{Dtype, SafeTensors};
 use serde_json::{Map, Value};
 
-use super::layers::{BatchNorm, Dense};
-use super::{Architecture, Block, Inputs, Network};
+use super::layers::{BatchNorm, Dense, SceneNorm};
+use super::{Architecture, Block, Inputs, Network, Normalization};
 use crate::config::{Assignment, Config, Pruning};
 use crate::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use crate::error::{Error, Result};
@@ -87,9 +87,10 @@ pub(crate) fn from_bytes(bytes: &[u8], meta: &str, name: &str) -> Result<Network
         st: &st,
         name,
         used: BTreeSet::new(),
+        scene: architecture.normalization == Normalization::Scene,
     };
     let w = architecture.width;
-    let lift = r.conv("lift", w, architecture.input_channels(), None)?;
+    let (lift, _) = r.conv("lift", w, architecture.input_channels(), None)?;
     let mut blocks = Vec::with_capacity(architecture.depth);
     for b in 0..architecture.depth {
         blocks.push(r.block(b, w)?);
@@ -169,6 +170,8 @@ struct Reader<'a, 'd> {
     st: &'a SafeTensors<'d>,
     name: &'a str,
     used: BTreeSet<String>,
+    /// Per-scene normalization: BatchNorms are kept apart rather than folded.
+    scene: bool,
 }
 
 impl Reader<'_, '_> {
@@ -215,12 +218,29 @@ impl Reader<'_, '_> {
         }
     }
 
-    /// A `Conv1d(inp, out, 1)` named `conv`, with the `BatchNorm1d(out)` named `bn` after it.
-    fn conv(&mut self, conv: &str, out: usize, inp: usize, bn: Option<&str>) -> Result<Dense> {
+    /// A `Conv1d(inp, out, 1)` named `conv`, with the `BatchNorm1d(out)` named `bn` after it:
+    /// folded into the convolution, or with per-scene normalization returned apart (its
+    /// running statistics are still read, so that the file is checked as torch loads it).
+    fn conv(
+        &mut self,
+        conv: &str,
+        out: usize,
+        inp: usize,
+        bn: Option<&str>,
+    ) -> Result<(Dense, Option<SceneNorm>)> {
         let weight = self.tensor(&format!("{conv}.weight"), &[out, inp, 1])?;
         let bias = self.tensor(&format!("{conv}.bias"), &[out])?;
         let bn = bn.map(|bn| self.batch_norm(bn, out)).transpose()?;
-        Ok(Dense::new(&weight, &bias, bn.as_ref()))
+        Ok(match bn {
+            Some(bn) if self.scene => (
+                Dense::new(&weight, &bias, None),
+                Some(SceneNorm {
+                    gamma: bn.weight,
+                    beta: bn.bias,
+                }),
+            ),
+            bn => (Dense::new(&weight, &bias, bn.as_ref()), None),
+        })
     }
 
     fn batch_norm(&mut self, bn: &str, c: usize) -> Result<BatchNorm> {
@@ -242,27 +262,22 @@ impl Reader<'_, '_> {
         let h = w / 2;
         let pc = format!("pointcn.{b}");
         let nl = format!("nonlocal_blocks.{b}");
-        let pointcn = self.conv(&format!("{pc}.0"), w, w, Some(&format!("{pc}.1")))?;
+        let (pointcn, n0) = self.conv(&format!("{pc}.0"), w, w, Some(&format!("{pc}.1")))?;
         let qkv = self.qkv(&nl, w)?;
-        let message = [
-            self.conv(
-                &format!("{nl}.message.0"),
-                h,
-                w,
-                Some(&format!("{nl}.message.1")),
-            )?,
-            self.conv(
-                &format!("{nl}.message.3"),
-                h,
-                h,
-                Some(&format!("{nl}.message.4")),
-            )?,
-            self.conv(&format!("{nl}.message.6"), w, h, None)?,
-        ];
+        let msg = |k: usize| format!("{nl}.message.{k}");
+        let (m0, n1) = self.conv(&msg(0), h, w, Some(&msg(1)))?;
+        let (m1, n2) = self.conv(&msg(3), h, h, Some(&msg(4)))?;
+        let (m2, _) = self.conv(&msg(6), w, h, None)?;
+        // all three or none, as `self.scene` says
+        let scene = match (n0, n1, n2) {
+            (Some(a), Some(b), Some(c)) => Some(Box::new([a, b, c])),
+            _ => None,
+        };
         Ok(Block {
             pointcn,
             qkv,
-            message,
+            message: [m0, m1, m2],
+            scene,
         })
     }
 
@@ -279,7 +294,14 @@ impl Reader<'_, '_> {
 }
 
 /// The keys of `architecture` in the metadata.
-const ARCHITECTURE_KEYS: [&str; 5] = ["depth", "width", "sigma_d", "inputs", "normal_tolerance"];
+const ARCHITECTURE_KEYS: [&str; 6] = [
+    "depth",
+    "width",
+    "sigma_d",
+    "inputs",
+    "normal_tolerance",
+    "normalization",
+];
 
 fn architecture(v: &Value) -> std::result::Result<Architecture, String> {
     let obj = v
@@ -316,7 +338,20 @@ fn architecture(v: &Value) -> std::result::Result<Architecture, String> {
         sigma_d,
         inputs: inputs(obj.get("inputs"))?,
         normal_tolerance: normal_tolerance(obj.get("normal_tolerance"))?,
+        normalization: normalization(obj.get("normalization"))?,
     })
+}
+
+/// `architecture.normalization`: "running" or "scene" (absent: running).
+fn normalization(v: Option<&Value>) -> std::result::Result<Normalization, String> {
+    match v.map(Value::as_str) {
+        None | Some(Some("running")) => Ok(Normalization::Running),
+        Some(Some("scene")) => Ok(Normalization::Scene),
+        _ => Err(format!(
+            "unknown architecture.normalization {} (known: running, scene)",
+            v.map_or_else(String::new, Value::to_string)
+        )),
+    }
 }
 
 /// `architecture.inputs`: a list of distinct input names (absent: the plain network).

@@ -17,6 +17,7 @@ use super::layers::{
 use super::*;
 use crate::error::Error;
 use crate::testing::{random_scene, with_normals};
+use crate::MIN_CORRESPONDENCES;
 
 fn shipped(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -800,4 +801,201 @@ fn the_sparse_forward_pass_with_normals_matches_the_dense_one() {
         }
     }
     assert!(worst < 1e-4, "max difference {worst}");
+}
+
+// ---- per-scene normalization ----
+
+/// The metadata of the tiny network with `"normalization": <value>`.
+fn meta_normalized(value: &str) -> String {
+    format!(
+        r#"{{"architecture": {{"depth": 1, "width": 4, "sigma_d": 0.05, "normalization": {value}}}}}"#
+    )
+}
+
+/// [`random_state`] with the BatchNorms' weights, biases and running statistics random too
+/// (`stats_seed` draws the running statistics alone).
+fn random_bn_state(seed: u64, stats_seed: u64) -> Vec<(String, Vec<usize>, Vec<f32>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut stats = ChaCha8Rng::seed_from_u64(stats_seed);
+    let mut state = random_state(6, seed);
+    for (name, _, values) in &mut state {
+        for v in values.iter_mut() {
+            if name.ends_with(".1.weight") || name.ends_with(".4.weight") {
+                *v = rng.random_range(0.5..1.5);
+            } else if name.ends_with(".1.bias") || name.ends_with(".4.bias") {
+                *v = rng.random_range(-0.5..0.5);
+            } else if name.ends_with("running_mean") {
+                *v = stats.random_range(-1.0..1.0);
+            } else if name.ends_with("running_var") {
+                *v = stats.random_range(0.2..2.0);
+            }
+        }
+    }
+    state
+}
+
+fn scene_net(state: &[(String, Vec<usize>, Vec<f32>)]) -> Network {
+    Network::from_bytes(&to_bytes(state), &meta_normalized(r#""scene""#), "x").unwrap()
+}
+
+fn max_feature_difference(a: &Features, b: &Features) -> f64 {
+    (0..a.len())
+        .flat_map(|i| a.row(i).iter().zip(b.row(i)).map(|(x, y)| (x - y).abs()))
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn normalization_is_read_from_the_metadata() {
+    let bytes = to_bytes(&tiny_state());
+    for (value, want) in [
+        (r#""scene""#, Normalization::Scene),
+        (r#""running""#, Normalization::Running),
+    ] {
+        let net = Network::from_bytes(&bytes, &meta_normalized(value), "x").unwrap();
+        assert_eq!(net.architecture().normalization, want);
+    }
+    let plain = Network::from_bytes(&bytes, META, "x").unwrap();
+    assert_eq!(plain.architecture().normalization, Normalization::Running);
+    assert_eq!(
+        Architecture::plain(1, 4, 0.05).normalization,
+        Normalization::Running
+    );
+    assert_eq!(
+        (Normalization::Running.name(), Normalization::Scene.name()),
+        ("running", "scene")
+    );
+    for (value, named) in [
+        (r#""batch""#, "batch"),
+        ("3", "normalization"),
+        ("null", "null"),
+    ] {
+        match Network::from_bytes(&bytes, &meta_normalized(value), "x") {
+            Err(Error::WeightsMalformed { reason, .. }) => {
+                assert!(reason.contains(named), "{value}: {reason}")
+            }
+            other => panic!("{value}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn scene_normalization_ignores_running_statistics_and_shifts_before_each_batch_norm() {
+    let scene = random_scene(300, 3, 0.3, 21);
+    let state = random_bn_state(3, 4);
+    let net = scene_net(&state);
+    let f = net.embed(&scene.corr).unwrap();
+    // other running statistics: unused, so bit-identical
+    assert_eq!(
+        scene_net(&random_bn_state(3, 5))
+            .embed(&scene.corr)
+            .unwrap(),
+        f
+    );
+    // Each BatchNorm subtracts its input's mean, so shifting the bias of the convolution
+    // before it changes nothing but rounding. (Scaling that convolution would change the
+    // output through eps, noticeably in channels of small variance.)
+    let mut moved = state.clone();
+    for (name, _, values) in &mut moved {
+        let before_bn = ["pointcn.0.0.", "message.0.", "message.3."];
+        if before_bn.iter().any(|p| name.contains(p)) && name.ends_with("bias") {
+            values.iter_mut().for_each(|v| *v += 0.7);
+        }
+    }
+    let shifted = scene_net(&moved).embed(&scene.corr).unwrap();
+    let worst = max_feature_difference(&f, &shifted);
+    assert!(worst < 1e-4, "max difference {worst}");
+    // with running statistics the same change moves the embedding
+    let running = |s: &[_]| {
+        let net = Network::from_bytes(&to_bytes(s), META, "x").unwrap();
+        net.embed(&scene.corr).unwrap()
+    };
+    let moved_running = max_feature_difference(&running(&state), &running(&moved));
+    assert!(moved_running > 1e-2, "{moved_running}");
+    assert!(max_feature_difference(&running(&state), &f) > 1e-2);
+}
+
+#[test]
+fn scene_normalization_is_independent_of_threads_and_of_the_attention_kind() {
+    let net = scene_net(&random_bn_state(6, 7));
+    // more rows than one block, and few consistent pairs: the sparse attention runs
+    let scene = random_scene(700, 4, 0.1, 6);
+    let par = net.embed(&scene.corr).unwrap();
+    assert_eq!(net.embed_sequential(&scene.corr).unwrap(), par);
+    for threads in [1, 3] {
+        let pool = crate::pipeline::thread_pool(threads).unwrap();
+        assert_eq!(pool.install(|| net.embed(&scene.corr).unwrap()), par);
+    }
+    let dense = forward::embed_with(&net, &scene.corr, true, 128, 0.0).unwrap();
+    let worst = max_feature_difference(&par, &dense);
+    assert!(worst < 1e-4, "max difference {worst}");
+    for i in 0..par.len() {
+        let norm: f64 = par.row(i).iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!((norm - 1.0).abs() < 1e-9, "row {i}: {norm}");
+    }
+    // the smallest scene embeds
+    let small = random_scene(MIN_CORRESPONDENCES, 1, 1.0, 8);
+    let f = net.embed(&small.corr).unwrap();
+    assert!((0..f.len()).all(|i| f.row(i).iter().all(|v| v.is_finite())));
+}
+
+#[test]
+fn channel_statistics_of_no_row_one_row_and_many() {
+    use super::scene_norm::channel_stats;
+    let (stride, cols) = (10, (3, 4, 10));
+    assert_eq!(
+        channel_stats(&[], cols, 128, true),
+        (vec![0.0; 4], vec![0.0; 4])
+    );
+    // one row: its values, variance 0, and the BatchNorm gives its bias
+    let row: Vec<f32> = (0..stride).map(|k| k as f32 * 0.37 - 1.0).collect();
+    let (mean, var) = channel_stats(&row, cols, 128, true);
+    assert_eq!(
+        mean,
+        row[3..7].iter().map(|&v| f64::from(v)).collect::<Vec<_>>()
+    );
+    assert_eq!(var, vec![0.0; 4]);
+    let norm = layers::SceneNorm {
+        gamma: vec![1.5, 0.5, 2.0, 1.0],
+        beta: vec![0.25, -0.5, 1.0, 0.0],
+    };
+    let mut y = [9.0f32; 4];
+    norm.with_stats(&mean, &var)
+        .relu(1, (&row[3..], stride), (&mut y, 4));
+    assert_eq!(y, [0.25, 0.0, 1.0, 0.0]);
+    // many rows: the direct two-pass statistics, whatever the threads
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let n = 1000;
+    let m: Vec<f32> = uniform(&mut rng, n * stride, 50.0, 51.0)
+        .iter()
+        .map(|&v| v as f32)
+        .collect();
+    let stats = channel_stats(&m, cols, 128, true);
+    assert_eq!(channel_stats(&m, cols, 128, false), stats);
+    let one = crate::pipeline::thread_pool(1).unwrap();
+    assert_eq!(one.install(|| channel_stats(&m, cols, 128, true)), stats);
+    for c in 0..4 {
+        let x: Vec<f64> = m
+            .chunks_exact(stride)
+            .map(|r| f64::from(r[3 + c]))
+            .collect();
+        let mu = x.iter().sum::<f64>() / n as f64;
+        let var = x.iter().map(|v| (v - mu) * (v - mu)).sum::<f64>() / n as f64;
+        assert!((stats.0[c] - mu).abs() < 1e-12 && (stats.1[c] - var).abs() < 1e-12);
+        assert!((var - 1.0 / 12.0).abs() < 0.01, "{var}");
+    }
+    // normalised to f32 precision although the mean is ~175 standard deviations
+    let norm = layers::SceneNorm {
+        gamma: vec![1.0; 4],
+        beta: vec![4.0; 4],
+    };
+    let mut y = vec![0.0f32; n * 4];
+    norm.with_stats(&stats.0, &stats.1)
+        .relu(n, (&m[3..], stride), (&mut y, 4));
+    for (r, got) in y.chunks_exact(4).enumerate() {
+        for (c, &g) in got.iter().enumerate() {
+            let x = f64::from(m[r * stride + 3 + c]);
+            let want = (x - stats.0[c]) / (stats.1[c] + BN_EPS).sqrt() + 4.0;
+            assert!((f64::from(g) - want).abs() < 2e-6, "{g} {want}");
+        }
+    }
 }
