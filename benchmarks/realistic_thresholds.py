@@ -129,6 +129,21 @@ def _features(scene: Any, model: str | None) -> tuple[np.ndarray | None, np.ndar
     return f, normals if "normals" in emb.inputs else None
 
 
+def _trained_on(model: str, fallback: tuple[str, ...]) -> set[str]:
+    """The models a network saw in training, from the config its weights carry: its
+    realistic models, and its synthetic shapes unless it trained on realistic scenes alone
+    (`fallback` for weights without one)."""
+    from pointclm.model import load_metadata
+
+    cfg = load_metadata(pointclm.model.weights_path(model)).get("train_config")
+    if not isinstance(cfg, dict):
+        return set(fallback)
+    trained = set(cfg.get("realistic_models", ()))
+    if float(cfg.get("realistic_fraction", 0.0)) < 1.0:
+        trained |= set(cfg.get("train_shapes", ()))
+    return trained
+
+
 def _concat(banks: list[SceneBank], every: int) -> SceneBank:
     pick = [(b, i) for b in banks for i in range(0, len(b), every)]
     models = sorted({m for b in banks for m in b.models})
@@ -222,11 +237,10 @@ def main() -> None:
         scenes = load_scenes(jobs, Path(args.cache), args.workers)
         scorer = Scorer(scenes)
         every = list(range(len(scenes)))
-        unseen = [
-            i for i, sc in enumerate(scenes) if sc.model not in (*TRAIN_SHAPES, *REALISTIC_MODELS)
-        ]
         runs = [("training-free", None, every)]
-        runs += [(m, m, unseen) for m in args.model]
+        for m in args.model:
+            trained = _trained_on(m, (*TRAIN_SHAPES, *REALISTIC_MODELS))
+            runs.append((m, m, [i for i, sc in enumerate(scenes) if sc.model not in trained]))
         for name, model, idx in runs:
             names = sorted({scenes[i].model for i in idx})
             for refine in (False, True) if args.refine else (False,):

@@ -175,18 +175,14 @@ def register(
     if model is not None:
         if feats is not None:
             raise InputError("pass either features or model, not both")
+        cues = [(normals, similarity)]
         network, embedded, config = _embedding(
-            model, backend, device, config, [corr], num_threads, [(normals, similarity)]
+            model, backend, device, config, [corr], num_threads, cues
         )
         feats = None if embedded is None else embedded[0]
-    return _core.register(
-        rows,
-        feats,
-        as_config(config),
-        as_seed(seed),
-        num_threads=as_threads(num_threads),
-        network=network,
-    )
+    threads = as_threads(num_threads)
+    cfg = as_config(config)
+    return _core.register(rows, feats, cfg, as_seed(seed), num_threads=threads, network=network)
 
 
 def _rows_and_features(

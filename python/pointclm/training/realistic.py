@@ -219,7 +219,7 @@ class SceneBank:
     def save(self, path: str | Path) -> None:
         # Cues in half precision: a normal to 1e-3 is finer than FPFH's estimate of it, and
         # the bank must fit on a GPU machine that cannot build it.
-        cues = (
+        cues: dict[str, Any] = (
             {}
             if self.normals is None or self.similarities is None
             else {
