@@ -95,6 +95,8 @@ QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus"
 SCALE_MODELS = ("stanford/bunny", "common3d/teapot")
 #: Where learned embeddings are computed ("rust", or "torch" with --backend torch).
 BACKEND = "rust"
+#: Extra training-free rows (--config / --refined-config): (key, thresholds, refine).
+TRAINING_FREE_CONFIGS: list[tuple[str, dict, bool]] = []
 #: Runs of each method per scene; the fastest is its time (see `run_methods`).
 TIMED_RUNS = 2
 
@@ -276,9 +278,14 @@ def _refine(scene: Any, poses: np.ndarray) -> np.ndarray:
     )
 
 
-def _pointclm(model: str | None, refine: bool) -> Callable[[Any], np.ndarray]:
+def _pointclm(
+    model: str | None, refine: bool, config: dict | None = None
+) -> Callable[[Any], np.ndarray]:
+    from pointclm import Config
     from pointclm.embedding import resolve
     from pointclm.evaluation import register_scaled, scene_cues
+
+    base = None if config is None else Config(**config)
 
     # The network loaded once, on the backend asked for (--backend).
     net = None if model is None else resolve(model, BACKEND)
@@ -287,7 +294,7 @@ def _pointclm(model: str | None, refine: bool) -> Callable[[Any], np.ndarray]:
         # The pipeline's own defaults for raw or refined poses (or the model's recommended
         # thresholds), scaled to the voxel, exactly as `register_point_clouds` picks them.
         r = register_scaled(
-            scene.correspondences, scene.voxel_size, None, 0, 1, net, refine, scene_cues(scene)
+            scene.correspondences, scene.voxel_size, base, 0, 1, net, refine, scene_cues(scene)
         )
         poses = _poses(r.transformations)
         return _refine(scene, poses) if refine else poses
@@ -350,6 +357,10 @@ def make_methods(models: Sequence[str], ransac: bool, kiss: bool = True) -> list
             _pointclm(None, True),
         ),
     ]
+    for key, cfg, refine in TRAINING_FREE_CONFIGS:
+        what = "refinement on the clouds" if refine else "correspondences alone"
+        label = f"pointclm, training-free, thresholds {json.dumps(cfg)}, {what}"
+        out.append(Method(key, label, _pointclm(None, refine, cfg)))
     for m in models:
         out.append(Method(f"{m}", f"pointclm, learned embedding ({m!r})", _pointclm(m, False)))
         out.append(
@@ -659,6 +670,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--n", type=int, default=1000, help="correspondences per scene (1000, 5000)")
     ap.add_argument("--model", action="append", default=[], help="learned embedding(s)")
     ap.add_argument("--backend", default="rust", choices=["rust", "torch"], help="of --model")
+    ap.add_argument("--config", help="JSON thresholds: one more training-free row, raw poses")
+    ap.add_argument("--refined-config", help="JSON thresholds: one more refined row")
     ap.add_argument("--scale", type=int, default=50_000, help="N of the timed run (0: skip)")
     ap.add_argument("--no-ransac", action="store_true", help="leave the slow RANSAC peer out")
     ap.add_argument("--quick", action="store_true", help="CI-sized: 2 scenes of 4 models")
@@ -701,6 +714,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     scenes = load_scenes(jobs, cache, args.workers)
     global BACKEND
     BACKEND = args.backend
+    for key, text, refine in (
+        ("pointclm-config", args.config, False),
+        ("pointclm-config+refine", args.refined_config, True),
+    ):
+        if text:
+            TRAINING_FREE_CONFIGS.append((key, json.loads(text), refine))
     methods = make_methods(args.model, ransac=not args.no_ransac)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
     rows = run_methods(scenes, methods)
