@@ -242,13 +242,14 @@ def test_scene_normalization_normalises_each_scene_by_its_own_rows(tmp_path: Pat
         running.load_state_dict(net.state_dict())
         running.eval()
         assert (running(x) - inferred).abs().max() > 1e-2  # the test can tell them apart
-        with pytest.raises(ValueError, match="one scene at a time"):
-            loaded(torch.randn(2, 60, 6))
+        # Scenes sharing a batch are normalised apart: each embeds as it would alone.
+        other = torch.randn(1, 60, 6) * 3.0
+        batched = loaded(torch.cat([x, other]))[:1]
+        torch.testing.assert_close(batched, inferred, atol=1e-4, rtol=0)  # f32 sums differ
     assert "normalization" not in EmbeddingConfig(2, 16).as_dict()  # plain files unchanged
     with pytest.raises(ValueError, match="normalization must be one of"):
         EmbeddingConfig(2, 16, normalization="layer")
-    with pytest.raises(ValueError, match="batches of one scene"):
-        TrainConfig(normalization="scene", realistic_fraction=0.5)
+    TrainConfig(normalization="scene", realistic_fraction=0.5)  # stacked scenes: each alone
 
 
 def test_banks_only_builds_both_banks_for_another_machine(tmp_path: Path) -> None:
@@ -279,3 +280,21 @@ def test_banks_only_builds_both_banks_for_another_machine(tmp_path: Path) -> Non
     assert bank.models[1].split("-")[0] in ("superquadric", "blend", "extrusion")
     assert len(SceneBank.load(out / "val_scene_bank.npz")) == 1
     assert main(["train", "--preset", "smoke", "--out", str(out), "--banks-only"]) == 2
+
+
+def test_realistic_samples_stack_by_size_into_fewer_batches(bank: SceneBank) -> None:
+    from pointclm.training.loop import stacked_by_size
+
+    rng = np.random.default_rng(0)
+    samples = [realistic_sample(bank, rng, 0.05, 1000, 0.0, INPUTS) for _ in range(5)]
+    alone = stacked_by_size(samples, 1, np.random.default_rng(1))
+    assert [x.shape[0] for x, _ in alone] == [1] * 5  # size 1: each whole and alone
+    assert sorted(len(y) for _, y in samples) == [y.shape[1] for _, y in alone]
+    groups = stacked_by_size(samples, 2, np.random.default_rng(1))
+    assert [x.shape[0] for x, _ in groups] == [2, 2, 1]
+    for x, y in groups:
+        assert x.shape[:2] == y.shape and x.shape[2] == 13
+    # a stacked scene is a subset of its own rows
+    x, y = groups[0]
+    rows = {tuple(r) for s in samples for r in s[0].tolist()}
+    assert all(tuple(r) in rows for r in x[0].tolist())

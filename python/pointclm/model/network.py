@@ -170,20 +170,19 @@ def normal_consistency(
 
 
 class SceneBatchNorm(nn.BatchNorm1d):
-    """BatchNorm1d that, with ``per_scene``, normalises by the statistics of its input also
-    in eval mode (each scene alone: a batch holds one). Its buffers stay those of
-    BatchNorm1d, so weight files of either kind load alike."""
+    """BatchNorm1d that, with ``per_scene``, normalises each scene of a batch by the
+    statistics of its own rows, in training as at inference: scenes can share a batch, and
+    none changes another's embedding. Its buffers stay those of BatchNorm1d (unused with
+    ``per_scene``), so weight files of either kind load alike."""
 
     per_scene = False
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if self.training or not self.per_scene:
+        if not self.per_scene:
             return super().forward(x)
-        if x.shape[0] != 1:
-            # Statistics pooled over several scenes would make each scene's embedding
-            # depend on the others.
-            raise ValueError("a network with per-scene normalization embeds one scene at a time")
-        return nn.functional.batch_norm(x, None, None, self.weight, self.bias, True, 0.0, self.eps)
+        return nn.functional.instance_norm(
+            x, weight=self.weight, bias=self.bias, use_input_stats=True, eps=self.eps
+        )
 
 
 class NonLocalBlock(nn.Module):

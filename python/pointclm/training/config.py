@@ -80,10 +80,14 @@ class TrainConfig:
     # a network with inputs trains on the realistic bank alone (realistic_fraction 1).
     inputs: tuple[str, ...] = ()
     normal_tolerance: float = 0.5
-    # What the BatchNorms normalise with at inference (EmbeddingConfig.normalization):
-    # "scene" where every batch holds one scene (realistic training), so that inference
-    # normalises as training did.
+    # What the BatchNorms normalise with (EmbeddingConfig.normalization): "scene" normalises
+    # every scene by its own rows in training and at inference alike (realistic training,
+    # whose scenes differ too much for shared statistics).
     normalization: str = "running"
+    # Realistic scenes stacked per batch, close in size and cut to the smallest (1 = each
+    # scene alone, whole). With "running" normalization the stack shares BatchNorm
+    # statistics; with "scene" each scene keeps its own.
+    realistic_group: int = 1
     # Random procedural shapes (pointclm.datasets.procedural_family_names) added to the
     # realistic training models, so the embedding learns consistency rather than shapes.
     procedural_shapes: int = 0
@@ -123,11 +127,8 @@ class TrainConfig:
                 f"a network with inputs {self.inputs} trains on realistic scenes only "
                 "(synthetic ones carry no cues): set realistic_fraction to 1"
             )
-        if self.normalization == "scene" and self.realistic_fraction < 1.0:
-            raise ValueError(
-                "normalization 'scene' needs batches of one scene: set realistic_fraction to 1 "
-                "(synthetic scenes are stacked several to a batch)"
-            )
+        if self.realistic_group < 1:
+            raise ValueError(f"realistic_group must be >= 1, got {self.realistic_group}")
         if self.procedural_shapes < 0 or self.procedural_scenes_per_shape < 1:
             raise ValueError("need procedural_shapes >= 0 and procedural_scenes_per_shape >= 1")
 

@@ -64,13 +64,39 @@ class _Batches:
                 )
             )
         rng = np.random.default_rng(_seed_for(c.seed, 6, i))
+        samples = []
         for _ in range(n_real):
             assert scenes is not None  # n_real > 0 only with a bank
-            x, y = realistic_sample(
-                scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels, c.inputs
+            samples.append(
+                realistic_sample(
+                    scenes, rng, c.sigma_d, c.n_correspondences, c.realistic_ignore_voxels, c.inputs
+                )
             )
-            groups.append((x[None], y[None]))
-        return groups
+        return groups + stacked_by_size(samples, c.realistic_group, rng)
+
+
+def stacked_by_size(samples: list[Group], size: int, rng: np.random.Generator) -> list[Group]:
+    """Realistic samples (row counts differ) as groups of up to `size` scenes stacked into one
+    batch: sorted by row count, so each group's scenes are close in size, and each cut to the
+    group's smallest count by a random subset of its rows. Fewer, larger batches keep a GPU
+    busy where one small scene per batch leaves it waiting on kernel launches. Size 1 keeps
+    every scene whole and alone."""
+    order = sorted(range(len(samples)), key=lambda k: len(samples[k][1]))
+    out: list[Group] = []
+    for start in range(0, len(order), size):
+        part = [samples[k] for k in order[start : start + size]]
+        n = min(len(y) for _, y in part)
+        keep = [
+            np.sort(rng.choice(len(y), n, replace=False)) if len(y) > n else np.arange(n)
+            for _, y in part
+        ]
+        out.append(
+            (
+                np.stack([x[k] for (x, _), k in zip(part, keep, strict=True)]),
+                np.stack([y[k] for (_, y), k in zip(part, keep, strict=True)]),
+            )
+        )
+    return out
 
 
 def _scene_bank(path: str | None, out: Path, name: str, build: Any) -> SceneBank:
