@@ -93,10 +93,6 @@ CACHE_VERSION = 3
 QUICK_MODELS = ("stanford/bunny", "common3d/spot", "stanford/armadillo", "torus")
 #: The N = 50,000 scenes: one held-out model with real scans, one mesh.
 SCALE_MODELS = ("stanford/bunny", "common3d/teapot")
-#: Where learned embeddings are computed ("rust", or "torch" with --backend torch).
-BACKEND = "rust"
-#: Extra training-free rows (--config / --refined-config): (key, thresholds, refine).
-TRAINING_FREE_CONFIGS: list[tuple[str, dict, bool]] = []
 #: Runs of each method per scene; the fastest is its time (see `run_methods`).
 TIMED_RUNS = 2
 
@@ -279,7 +275,7 @@ def _refine(scene: Any, poses: np.ndarray) -> np.ndarray:
 
 
 def _pointclm(
-    model: str | None, refine: bool, config: dict | None = None
+    model: str | None, refine: bool, config: dict | None = None, backend: str = "rust"
 ) -> Callable[[Any], np.ndarray]:
     from pointclm import Config
     from pointclm.embedding import resolve
@@ -288,7 +284,7 @@ def _pointclm(
     base = None if config is None else Config(**config)
 
     # The network loaded once, on the backend asked for (--backend).
-    net = None if model is None else resolve(model, BACKEND)
+    net = None if model is None else resolve(model, backend)
 
     def run(scene: Any) -> np.ndarray:
         # The pipeline's own defaults for raw or refined poses (or the model's recommended
@@ -346,7 +342,15 @@ def _available(module: str) -> str | None:
     return str(getattr(mod, "__version__", "?"))
 
 
-def make_methods(models: Sequence[str], ransac: bool, kiss: bool = True) -> list[Method]:
+def make_methods(
+    models: Sequence[str],
+    ransac: bool,
+    kiss: bool = True,
+    backend: str = "rust",
+    configs: Sequence[tuple[str, dict, bool]] = (),
+) -> list[Method]:
+    """The rows: training-free (and one per `configs` entry: key, thresholds, refine), each
+    network of `models` (run on `backend`), the oracle and the peers."""
     out = [
         Method(
             "pointclm", "pointclm, training-free, correspondences alone", _pointclm(None, False)
@@ -357,17 +361,21 @@ def make_methods(models: Sequence[str], ransac: bool, kiss: bool = True) -> list
             _pointclm(None, True),
         ),
     ]
-    for key, cfg, refine in TRAINING_FREE_CONFIGS:
+    for key, cfg, refine in configs:
         what = "refinement on the clouds" if refine else "correspondences alone"
         label = f"pointclm, training-free, thresholds {json.dumps(cfg)}, {what}"
         out.append(Method(key, label, _pointclm(None, refine, cfg)))
     for m in models:
-        out.append(Method(f"{m}", f"pointclm, learned embedding ({m!r})", _pointclm(m, False)))
+        out.append(
+            Method(
+                f"{m}", f"pointclm, learned embedding ({m!r})", _pointclm(m, False, None, backend)
+            )
+        )
         out.append(
             Method(
                 f"{m}+refine",
                 f"pointclm, learned embedding ({m!r}) + refinement on the clouds",
-                _pointclm(m, True),
+                _pointclm(m, True, None, backend),
             )
         )
     out.append(
@@ -712,15 +720,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     seeds = {m: pick(m, args.scenes_per_model) for m in models}
     jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds[m]]
     scenes = load_scenes(jobs, cache, args.workers)
-    global BACKEND
-    BACKEND = args.backend
-    for key, text, refine in (
-        ("pointclm-config", args.config, False),
-        ("pointclm-config+refine", args.refined_config, True),
-    ):
-        if text:
-            TRAINING_FREE_CONFIGS.append((key, json.loads(text), refine))
-    methods = make_methods(args.model, ransac=not args.no_ransac)
+    configs = [
+        (key, json.loads(text), refine)
+        for key, text, refine in (
+            ("pointclm-config", args.config, False),
+            ("pointclm-config+refine", args.refined_config, True),
+        )
+        if text
+    ]
+    methods = make_methods(args.model, not args.no_ransac, True, args.backend, configs)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
     rows = run_methods(scenes, methods)
     scale_lines = (

@@ -35,24 +35,21 @@ from typing import Any
 
 import numpy as np
 import pointclm
-from pointclm.embedding import resolve
+from pointclm.embedding import Embedding, resolve
 from pointclm.evaluation import scene_cues
 from pointclm.metrics import score_scene, summarize
 from pointclm.point_clouds import REFINED_THRESHOLDS, scaled_config
 from pointclm.training.realistic import SceneBank, bank_cues, score_bank
 from realistic_models import load_scenes, scene_params, threshold_seeds
 
-#: Where networks run ("rust", or "torch" with --backend torch).
-BACKEND = "rust"
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)
 MIN_CLUSTER = (3, 4, 5, 7, 10)
 
 
-def bank_sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tuple[dict, dict]]:
+def bank_sweep(bank: SceneBank, emb: Embedding | None, grid: list[dict]) -> list[tuple[dict, dict]]:
     feats: list[np.ndarray | None] = []
     normals: list[np.ndarray | None] = []
-    emb = None if model is None else resolve(model, BACKEND)
     for i, (c, v) in enumerate(zip(bank.correspondences, bank.voxels, strict=True)):
         if emb is None:
             feats.append(None)
@@ -61,7 +58,7 @@ def bank_sweep(bank: SceneBank, model: str | None, grid: list[dict]) -> list[tup
         n, sims = bank_cues(bank, i, emb.inputs)
         cfg = scaled_config(float(v))
         feats.append(emb.embed(c.astype(np.float64), cfg.sigma_d, normals=n, similarity=sims))
-        normals.append(n)  # the pipeline gets them too, as register_point_clouds gives them
+        normals.append(emb.pipeline_normals(n))
     return [
         (params, score_bank(bank, feats, pointclm.Config(**params), normals)) for params in grid
     ]
@@ -98,16 +95,17 @@ class Scorer:
         ).transformations
 
     def sweep(
-        self, model: str | None, grid: list[dict], scenes: list[int], refine: bool
+        self, feats: dict[int, Any] | None, grid: list[dict], scenes: list[int], refine: bool
     ) -> list[tuple[dict, dict]]:
-        feats = {i: _features(self.scenes[i], model) for i in scenes}
+        """Scores of each config of `grid` on `scenes`, with each scene's (embedding,
+        pipeline normals) in `feats` (:func:`features`); None: training-free."""
         out = []
         for params in grid:
             scores = []
             for i in scenes:
                 sc = self.scenes[i]
                 cfg = scaled_config(sc.voxel_size, pointclm.Config(**params))
-                f, normals = feats[i]
+                f, normals = (None, None) if feats is None else feats[i]
                 raw = pointclm.register(sc.correspondences, f, cfg, seed=0, normals=normals)
                 poses = np.asarray(raw.transformations).reshape(-1, 4, 4)
                 if refine:
@@ -117,16 +115,15 @@ class Scorer:
         return out
 
 
-def _features(scene: Any, model: str | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+def features(scene: Any, emb: Embedding | None) -> tuple[np.ndarray | None, np.ndarray | None]:
     """A scene's embedding with the cues its network takes, and the normals the pipeline
     gets with it (as `register_point_clouds` runs such a network); (None, None) without one."""
-    if model is None:
+    if emb is None:
         return None, None
-    emb = resolve(model, BACKEND)
     normals, sims = scene_cues(scene)
     cfg = scaled_config(scene.voxel_size)
     f = emb.embed(scene.correspondences, cfg.sigma_d, normals=normals, similarity=sims)
-    return f, normals if "normals" in emb.inputs else None
+    return f, emb.pipeline_normals(normals)
 
 
 def _trained_on(model: str, fallback: tuple[str, ...]) -> set[str]:
@@ -147,6 +144,7 @@ def _trained_on(model: str, fallback: tuple[str, ...]) -> set[str]:
 def _concat(banks: list[SceneBank], every: int) -> SceneBank:
     pick = [(b, i) for b in banks for i in range(0, len(b), every)]
     models = sorted({m for b in banks for m in b.models})
+    cues = all(b.normals is not None and b.similarities is not None for b in banks)
     return SceneBank(
         [b.correspondences[i] for b, i in pick],
         [b.labels[i] for b, i in pick],
@@ -155,6 +153,8 @@ def _concat(banks: list[SceneBank], every: int) -> SceneBank:
         [b.poses[i] for b, i in pick],
         models,
         np.array([models.index(b.models[b.model_of[i]]) for b, i in pick]),
+        [b.normals[i] for b, i in pick] if cues else None,  # type: ignore[index]
+        [b.similarities[i] for b, i in pick] if cues else None,  # type: ignore[index]
     )
 
 
@@ -203,8 +203,7 @@ def main() -> None:
     ap.add_argument("--bank", action="append", default=[], help="sweep saved SceneBank(s)")
     ap.add_argument("--every", type=int, default=1, help="--bank: every k-th scene")
     args = ap.parse_args()
-    global BACKEND
-    BACKEND = args.backend
+    nets = {m: resolve(m, args.backend) for m in args.model}  # each loaded once
     grid = [
         {"tau_s": s, "tau_n": n, "min_cluster_size": m}
         for s, n, m in itertools.product(TAU_S, TAU_N, MIN_CLUSTER)
@@ -219,7 +218,7 @@ def main() -> None:
         for model in [None, *args.model]:
             name = model or "training-free"
             print(f"\n{name}")
-            report[name] = _report(bank_sweep(bank, model, grid), False)
+            report[name] = _report(bank_sweep(bank, nets.get(model), grid), False)
     else:
         models = [m.strip() for m in args.models.split(",") if m.strip()]
         bad = [m for m in models if m not in VALIDATION_MODELS]
@@ -243,12 +242,14 @@ def main() -> None:
             runs.append((m, m, [i for i, sc in enumerate(scenes) if sc.model not in trained]))
         for name, model, idx in runs:
             names = sorted({scenes[i].model for i in idx})
+            # one embedding per scene for every config, raw and refined
+            feats = {i: features(scenes[i], None if model is None else nets[model]) for i in idx}
             for refine in (False, True) if args.refine else (False,):
                 label = (
                     f"{name}{', refined on the clouds' if refine else ', correspondences alone'}"
                 )
                 print(f"\n{label}: {len(idx)} scenes of {', '.join(names)}", flush=True)
-                report[label] = _report(scorer.sweep(model, grid, idx, refine), refine)
+                report[label] = _report(scorer.sweep(feats, grid, idx, refine), refine)
     if args.out:
         with open(args.out, "w") as f:
             json.dump(report, f, indent=1)

@@ -13,14 +13,6 @@ from pointclm.training.config import TrainConfig
 from pointclm.training.realistic import SceneBank, bank_cues, realistic_sample
 
 
-@pytest.fixture(scope="module")
-def bank(tmp_path_factory: pytest.TempPathFactory) -> SceneBank:
-    built = SceneBank.build(["bunny"], 2, seed=0, workers=1)
-    path = tmp_path_factory.mktemp("bank") / "bank.npz"
-    built.save(path)
-    return SceneBank.load(path)
-
-
 def test_similarity_is_one_for_equal_descriptors_and_half_at_the_median() -> None:
     d = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
     s = similarity(d)

@@ -230,14 +230,8 @@ def _packed(
     return np.hstack([corr, *extra, *([sim[:, None]] if "similarity" in inputs else [])])
 
 
-def _random_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tuple[Any, Path]:
-    """A depth-3, width-32 torch network with random BatchNorm statistics and its
-    convolutions scaled up (sharper attention, so that beta's normal term shows in the
-    embedding), saved under `tmp_path`: (torch module, path)."""
-    from pointclm.model import EmbeddingConfig, SCNonlocal, save_model
-
-    torch.manual_seed(len(inputs))
-    net = SCNonlocal(EmbeddingConfig(depth=3, width=32, inputs=inputs))
+def _randomise_batch_norms(torch: Any, net: Any) -> None:
+    """Random BatchNorm statistics and affine parameters, drawn from torch's generator."""
     with torch.no_grad():
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm1d):
@@ -246,7 +240,20 @@ def _random_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tupl
                 m.running_var.copy_(0.5 + torch.rand(c))
                 m.weight.copy_(0.5 + torch.rand(c))
                 m.bias.copy_(0.2 * torch.randn(c))
-            elif isinstance(m, torch.nn.Conv1d):
+
+
+def _random_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tuple[Any, Path]:
+    """A depth-3, width-32 torch network with random BatchNorm statistics and its
+    convolutions scaled up (sharper attention, so that beta's normal term shows in the
+    embedding), saved under `tmp_path`: (torch module, path)."""
+    from pointclm.model import EmbeddingConfig, SCNonlocal, save_model
+
+    torch.manual_seed(len(inputs))
+    net = SCNonlocal(EmbeddingConfig(depth=3, width=32, inputs=inputs))
+    _randomise_batch_norms(torch, net)
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.Conv1d):
                 m.weight.mul_(2.0)
     net.eval()
     return net, save_model(net, tmp_path / f"{'_'.join(inputs)}.safetensors")
@@ -343,13 +350,7 @@ def _scene_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tuple
         lift = net.lift.weight.clone()
         lift[:, :6] = state["lift.weight"]
         net.load_state_dict({**state, "lift.weight": lift})
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm1d):
-                c = m.num_features
-                m.running_mean.copy_(0.3 * torch.randn(c))
-                m.running_var.copy_(0.5 + torch.rand(c))
-                m.weight.copy_(0.5 + torch.rand(c))
-                m.bias.copy_(0.2 * torch.randn(c))
+    _randomise_batch_norms(torch, net)
     net.eval()
     return net, save_model(net, tmp_path / f"scene_{'_'.join(inputs)}.safetensors")
 

@@ -13,15 +13,6 @@ from pointclm.training.config import TrainConfig
 from pointclm.training.realistic import SceneBank, near_misses, realistic_sample, scene_seed
 
 
-@pytest.fixture(scope="module")
-def bank(tmp_path_factory: pytest.TempPathFactory) -> SceneBank:
-    # "bunny" is the packaged model: no data folder needed
-    built = SceneBank.build(["bunny"], 2, seed=0, workers=1)
-    path = tmp_path_factory.mktemp("bank") / "bank.npz"
-    built.save(path)
-    return SceneBank.load(path)
-
-
 def test_bank_round_trips_and_matches_the_scenes_it_came_from(bank: SceneBank) -> None:
     from pointclm.datasets.scenes import SceneParams, make_realistic_scene
 

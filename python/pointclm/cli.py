@@ -601,15 +601,16 @@ def cmd_train(args: argparse.Namespace) -> int:
 def _build_banks(cfg: Any, out: Path, progress: bool) -> int:
     """Build the realistic training and validation banks on every core into `out`, for a
     machine that trains but cannot build them (no data folder, or its time is precious)."""
-    from .training.loop import training_bank, validation_bank
+    from .training.loop import realistic_banks
 
     if cfg.realistic_fraction <= 0:
         raise ValueError("this config trains on no realistic scenes: there is no bank to build")
     out.mkdir(parents=True, exist_ok=True)
-    for name, build in (("scene_bank.npz", training_bank), ("val_scene_bank.npz", validation_bank)):
-        bank = build(cfg, progress=progress)
-        bank.save(out / name)
-        print(f"{out / name}: {len(bank)} scenes of {len(bank.models)} models")
+    banks = realistic_banks(cfg, out, progress)  # saved in `out` unless the config names them
+    print(f"banks in {out}")
+    for name, bank in zip(("scene_bank.npz", "val_scene_bank.npz"), banks, strict=True):
+        assert bank is not None  # realistic_fraction > 0
+        print(f"{name}: {len(bank)} scenes of {len(bank.models)} models")
     return 0
 
 

@@ -145,6 +145,11 @@ class Embedding:
         arch = getattr(self.network, "config", None)
         return tuple(getattr(arch, "inputs", ()))
 
+    def pipeline_normals(self, normals: Any) -> Any:
+        """The `normals` the pipeline's beta gets with this network: those of a network that
+        takes them (as `register_point_clouds` gives them), else None."""
+        return normals if "normals" in self.inputs else None
+
     def in_training_units(self, sigma_d: float) -> bool:
         """Whether coordinates whose pipeline tolerance is `sigma_d` are already in the
         network's units (then they go to it as they are)."""

@@ -202,5 +202,5 @@ def register_scaled(
         features = emb.embed(
             corr, cfg.sigma_d, num_threads=num_threads, normals=cues[0], similarity=cues[1]
         )
-        normals = cues[0] if "normals" in emb.inputs else None
+        normals = emb.pipeline_normals(cues[0])
     return register(corr, features, cfg, seed, num_threads=num_threads, normals=normals)

@@ -936,12 +936,6 @@ def _merge(
     return _take(both, order), [tags[i] for i in order]
 
 
-def embed_scaled(corr: np.ndarray, model: Any, cfg: Config, num_threads: int | None) -> np.ndarray:
-    """The learned embedding of correspondences in the units of `cfg` (kept for existing
-    callers): ``pointclm.embedding.resolve(model).embed(corr, cfg.sigma_d)``."""
-    return resolve(model).embed(corr, cfg.sigma_d, num_threads=num_threads)
-
-
 def _config(
     config: Config | dict[str, Any] | None, voxel: float, model: Any, refine: bool, peel: bool
 ) -> Config:

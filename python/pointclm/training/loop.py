@@ -22,7 +22,14 @@ from .config import TrainConfig
 from .data import ShapeBank, make_batch
 from .realistic import SceneBank, bank_cues, realistic_sample, score_bank
 
-__all__ = ["train", "training_bank", "validate", "validate_realistic", "validation_bank"]
+__all__ = [
+    "realistic_banks",
+    "train",
+    "training_bank",
+    "validate",
+    "validate_realistic",
+    "validation_bank",
+]
 
 
 def _seed_for(base: int, *parts: int) -> int:
@@ -242,7 +249,7 @@ def train(
     out = Path(out_dir)
     # The stages run in this order because each one draws from torch's RNG or restores it.
     bank, model = _setup(cfg, out, device)
-    scenes, val_real = _realistic_banks(cfg, out, progress)
+    scenes, val_real = realistic_banks(cfg, out, progress)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     start, best, elapsed = _resume(out, model, opt, device) if resume else (0, None, 0.0)
     sched = _cosine_schedule(cfg, opt, start)
@@ -315,10 +322,12 @@ def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank | None, 
     return bank, model
 
 
-def _realistic_banks(
+def realistic_banks(
     cfg: TrainConfig, out: Path, progress: bool
 ) -> tuple[SceneBank | None, SceneBank | None]:
-    """The realistic training and validation banks (None, None without realistic data)."""
+    """The realistic training and validation banks (None, None without realistic data):
+    the saved ones the config names, else those of an earlier run in `out`, else built on
+    every core and saved in `out` as ``scene_bank.npz`` and ``val_scene_bank.npz``."""
     if cfg.realistic_fraction <= 0:
         return None, None
     scenes = _scene_bank(
