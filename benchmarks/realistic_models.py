@@ -74,6 +74,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pointclm.datasets.procedural import PROCEDURAL_FAMILIES, is_procedural
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -113,12 +114,26 @@ def _seeds(base: int, model: str, n: int) -> list[int]:
     from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
 
     models = (*HELDOUT_MODELS, *VALIDATION_MODELS)
-    if model not in models:
-        raise ValueError(f"unknown model {model!r}: one of {', '.join(models)}")
+    if model not in models and not is_procedural(model):
+        raise ValueError(
+            f"unknown model {model!r}: one of {', '.join(models)} or a random procedural "
+            "shape ('superquadric-<seed>', ...)"
+        )
     if not 0 <= n <= SCENES_PER_SLOT:
         raise ValueError(f"scenes per model must lie in [0, {SCENES_PER_SLOT}], got {n}")
-    first = base + SCENES_PER_SLOT * models.index(model)
+    first = base + SCENES_PER_SLOT * _slot(model, models)
     return list(range(first, first + n))
+
+
+def _slot(model: str, models: tuple[str, ...]) -> int:
+    """A model's block of seeds: its place among the named models, or for a random procedural
+    shape a block after them fixed by its family and seed (two shapes may share one: they
+    then share layouts, not shapes)."""
+    if model in models:
+        return models.index(model)
+    family, seed = model.rsplit("-", 1)
+    free = SEED_RANGE // SCENES_PER_SLOT - len(models)
+    return len(models) + (3 * int(seed) + PROCEDURAL_FAMILIES.index(family)) % free
 
 
 def scene_params(model: str, n: int, data_dir: str | None) -> Any:

@@ -209,8 +209,13 @@ def test_the_public_api_raises_the_core_classes() -> None:
             InputError,
             r"transformations must have shape",
             lambda: _core.refine_poses(
-                PTS, PTS, np.zeros((1, 3, 3)), 0.1, False, None, 0, 1, 0, 0, 0, 1
+                PTS, PTS, np.zeros((1, 3, 3)), 0.1, False, None, 0, 1, 0, 0, 0, 1, 1
             ),
+        ),
+        (
+            InputError,
+            r"viewpoint must be 3 finite numbers",
+            lambda: _core.looks_like_one_view(PTS, None, 0.1),
         ),
         (InputError, r"path must be a str", lambda: _core.Network(3)),
         (

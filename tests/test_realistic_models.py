@@ -85,6 +85,15 @@ def test_benchmark_seeds_miss_threshold_and_training_seeds() -> None:
         rm.benchmark_seeds("torus", rm.SCENES_PER_SLOT + 1)
     with pytest.raises(ValueError, match="unknown model"):
         rm.threshold_seeds("bunny", 1)
+    # Random procedural shapes get blocks after the named models', inside the same range.
+    from pointclm.datasets.procedural import procedural_family_names
+
+    shapes = procedural_family_names(40, 7)
+    extra = [s for m in shapes for s in rm.threshold_seeds(m, 2)]
+    assert not set(extra) & set(thresholds) and max(extra) < hi
+    assert rm.threshold_seeds(shapes[0], 2) == rm.threshold_seeds(shapes[0], 3)[:2]
+    with pytest.raises(ValueError, match="unknown model"):
+        rm.threshold_seeds("superquadric-x", 1)
 
 
 def test_scene_params_by_n() -> None:

@@ -35,6 +35,7 @@ __all__ = [
     "nearest_descriptors",
     "nearest_neighbours",
     "refine_poses",
+    "looks_like_one_view",
 ]
 
 __version__: str
@@ -98,6 +99,7 @@ class RefineContext:
         min_fitness: float,
         min_relative_fitness: float,
         max_shared: float,
+        max_slid_fitness: float,
         num_threads: int | None = None,
     ) -> tuple[
         npt.NDArray[np.float64],
@@ -233,6 +235,11 @@ def nearest_neighbours(
     queries: npt.NDArray[np.float64],
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def looks_like_one_view(
+    points: npt.NDArray[np.float64],
+    viewpoint: tuple[float, float, float] | None,
+    voxel_size: float,
+) -> bool: ...
 def refine_poses(
     source: npt.NDArray[np.float64],
     target: npt.NDArray[np.float64],
@@ -246,6 +253,7 @@ def refine_poses(
     min_fitness: float,
     min_relative_fitness: float,
     max_shared: float,
+    max_slid_fitness: float,
     target_normals: npt.NDArray[np.float64] | None = None,
     num_threads: int | None = None,
 ) -> tuple[

@@ -250,7 +250,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     # Realistic scenes only, of 3 data models and 600 random procedural shapes, the network
     # taking normals and match similarity: sized for a GPU (the bank, 2,700 scenes,
-    # is built beforehand on every core: `pointclm train --build-banks`).
+    # is built beforehand on every core: `pointclm train --banks-only`).
     "realistic-gpu": {
         "depth": 6,
         "width": 64,

@@ -179,6 +179,7 @@ converters! {
     min_fitness -> f64 = |o| real(o, "min_fitness");
     min_relative_fitness -> f64 = |o| real(o, "min_relative_fitness");
     max_shared -> f64 = |o| real(o, "max_shared");
+    max_slid_fitness -> f64 = |o| real(o, "max_slid_fitness");
     icp -> bool = |o| flag(o, "icp");
     mutual -> bool = |o| flag(o, "mutual");
     assignment -> String = |o| text(o, "assignment");

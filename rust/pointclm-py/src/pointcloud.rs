@@ -303,7 +303,7 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
 /// per pose [confidence, fitness, visible fitness, contradiction, seen share, inlier RMSE]; the
 /// index of the input pose each came from; and whether the viewpoint judged them.
 #[pyfunction]
-#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, target_normals=None, num_threads=None))]
+#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness, target_normals=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
@@ -319,6 +319,7 @@ pub fn refine_poses<'py>(
     #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
     #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
     #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
+    #[pyo3(from_py_with = args::max_slid_fitness)] max_slid_fitness: f64,
     #[pyo3(from_py_with = args::optional_target_normals)] target_normals: Option<
         PyReadonlyArray2<'py, f64>,
     >,
@@ -337,6 +338,7 @@ pub fn refine_poses<'py>(
         min_fitness,
         min_relative_fitness,
         max_shared,
+        max_slid_fitness,
     ];
     let params = refine_params(voxel_size, icp, rules);
     let threads = num_threads.map(pool).transpose()?;
@@ -344,6 +346,28 @@ pub fn refine_poses<'py>(
         pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
     })?;
     Ok(refined_arrays(py, &out))
+}
+
+/// Whether `points` (a scan downsampled at `voxel_size`) look like one view from
+/// `viewpoint`: the test by which `refine_poses` trusts a viewpoint.
+#[pyfunction]
+#[pyo3(signature = (points, viewpoint, voxel_size))]
+pub fn looks_like_one_view(
+    py: Python<'_>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+    #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+) -> PyResult<bool> {
+    let p = rows3(&points, "points")?;
+    let Some(eye) = viewpoint else {
+        return Err(InputError::new_err(
+            "viewpoint must be 3 finite numbers, got None",
+        ));
+    };
+    let params = RefineParams::for_voxel(voxel_size);
+    guarded(py, None, move || {
+        pointcloud::looks_like_one_view(&p, eye, &params)
+    })
 }
 
 /// What `refine_poses` derives from the clouds alone (the scan's index and normals, the depth
@@ -356,9 +380,9 @@ pub struct PyRefineContext {
 }
 
 /// `RefineParams::for_voxel` with the caller's ICP choice and rules.
-fn refine_params(voxel_size: f64, icp: bool, rules: [f64; 6]) -> RefineParams {
+fn refine_params(voxel_size: f64, icp: bool, rules: [f64; 7]) -> RefineParams {
     let defaults = RefineParams::for_voxel(voxel_size);
-    let [min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared] =
+    let [min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness] =
         rules;
     RefineParams {
         radii: if icp { defaults.radii.clone() } else { vec![] },
@@ -368,6 +392,7 @@ fn refine_params(voxel_size: f64, icp: bool, rules: [f64; 6]) -> RefineParams {
         min_fitness,
         min_relative_fitness,
         max_shared,
+        max_slid_fitness,
         ..defaults
     }
 }
@@ -404,7 +429,7 @@ impl PyRefineContext {
     }
 
     /// `refine_poses` of `transformations` against the context's clouds (same returns).
-    #[pyo3(signature = (transformations, icp, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, num_threads=None))]
+    #[pyo3(signature = (transformations, icp, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness, num_threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn refine<'py>(
         &self,
@@ -417,6 +442,7 @@ impl PyRefineContext {
         #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
         #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
         #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
+        #[pyo3(from_py_with = args::max_slid_fitness)] max_slid_fitness: f64,
         #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
     ) -> PyResult<RefinedArrays<'py>> {
         let poses = rigid_poses(&transformations)?;
@@ -427,6 +453,7 @@ impl PyRefineContext {
             min_fitness,
             min_relative_fitness,
             max_shared,
+            max_slid_fitness,
         ];
         let params = refine_params(self.voxel_size, icp, rules);
         let threads = num_threads.map(pool).transpose()?;

@@ -20,8 +20,8 @@ pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{estimate_normals, Orientation};
 pub use refine::{
-    nearest_rotation, refine_poses, RefineContext, RefineParams, Refined, RefinedPose,
-    MAX_ROTATION_DEVIATION,
+    looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,
+    RefinedPose, MAX_ROTATION_DEVIATION,
 };
 pub use search::{Neighbourhoods, PointIndex};
 pub use voxel::voxel_downsample;

@@ -336,6 +336,7 @@ fn a_pose_where_the_sensor_saw_free_space_is_rejected() {
         min_visible_fitness: 0.0,
         max_contradiction: 1.0,
         min_seen: 0.0,
+        max_slid_fitness: 1.0,
         ..loose
     };
     let scored = refine_poses(&model, &scene, None, &[wrong, a], Some(EYE), &all).unwrap();
@@ -473,4 +474,60 @@ fn a_context_refines_as_each_call_would() {
             Err(Error::InvalidParameter { .. })
         ));
     }
+}
+
+/// A part made of two square plates at a right angle (one in the plane z = 0, one in x = 0
+/// reaching behind it), lying with its first plate on a large table seen from [`EYE`]: the
+/// second plate is hidden behind the table, the first is explained wherever it lies on it.
+fn plate_on_a_table() -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let mut part = wall((0.0, 1.0), (0.0, 1.0), 0.0, 0.05);
+    part.extend(
+        wall((0.0, 1.0), (0.0, 1.0), 0.0, 0.05)
+            .iter()
+            .map(|p| [0.0, p[1], p[0] + 0.05]),
+    );
+    let table = sensed(&wall((-3.0, 3.0), (-3.0, 3.0), 0.0, 0.05), 0.06);
+    (part, table)
+}
+
+#[test]
+fn a_face_lying_on_a_larger_surface_fits_anywhere_and_is_rejected() {
+    let (part, table) = plate_on_a_table();
+    let pose = RigidTransform::identity();
+    let base = RefineParams {
+        radii: vec![],
+        ..RefineParams::for_voxel(0.1)
+    };
+    let off = RefineParams {
+        max_slid_fitness: 1.0,
+        ..base.clone()
+    };
+    for eye in [Some(EYE), None] {
+        // Every other rule keeps it: what the sensor could see of it is all on the table.
+        let kept = refine_poses(&part, &table, None, &[pose], eye, &off).unwrap();
+        assert_eq!(kept.poses.len(), 1, "{eye:?}");
+        assert_eq!(kept.by_visibility, eye.is_some());
+        let judged = refine_poses(&part, &table, None, &[pose], eye, &base).unwrap();
+        assert!(judged.poses.is_empty(), "{eye:?}: {judged:?}");
+    }
+    // The same part on a table just its size, bounded by free space, is where the scan says.
+    let small = sensed(&wall((0.0, 1.0), (0.0, 1.0), 0.0, 0.05), 0.06);
+    let fits = refine_poses(&part, &small, None, &[pose], Some(EYE), &base).unwrap();
+    assert_eq!(fits.poses.len(), 1, "{fits:?}");
+}
+
+#[test]
+fn a_scan_looks_like_one_view_only_from_its_sensor() {
+    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(wall((-1.5, 1.5), (-2.0, 2.0), 2.0, 0.05));
+    let scene = sensed(&surfaces, 0.06);
+    let p = RefineParams::for_voxel(0.1);
+    assert!(looks_like_one_view(&scene, EYE, &p).unwrap());
+    // From the side, the wall is seen edge-on: its points hide each other. (From behind, a
+    // view is its own mirror image: one view too.)
+    assert!(!looks_like_one_view(&scene, [200.0, 0.0, 0.0], &p).unwrap());
+    assert!(looks_like_one_view(&scene, [0.0, f64::NAN, 0.0], &p).is_err());
+    assert!(looks_like_one_view(&[[f64::INFINITY, 0.0, 0.0]], EYE, &p).is_err());
+    assert!(looks_like_one_view(&scene, EYE, &RefineParams::for_voxel(-0.1)).is_err());
 }
