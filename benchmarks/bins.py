@@ -109,6 +109,7 @@ METHODS = (
     "pointclm (windowed mutual)",
     "pointclm (heap switch)",
     "pointclm (no flips)",
+    "pointclm (scan in its sensor's frame)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )
@@ -395,17 +396,20 @@ def main() -> None:
                 if method.startswith("pointclm") or (
                     method.startswith("sequential KISS") and reg is None
                 ):
+                    own_frame = method == "pointclm (scan in its sensor's frame)"
                     reg = pointclm.register_point_clouds(
                         sc.model_points,
-                        sc.scan,
+                        sc.scan - sc.sensor if own_frame else sc.scan,
                         voxel_size=sc.voxel_size,
-                        viewpoint=sc.sensor,
+                        viewpoint=None if own_frame else sc.sensor,
                         peel=method != "pointclm (one pass)",
                         **MATCHING.get(method, {}),
                     )
                     n_down.append(len(reg.target_points))
                 if method.startswith("pointclm"):
-                    poses = reg.transformations
+                    poses = np.array(reg.transformations).reshape(-1, 4, 4)
+                    if own_frame:  # back from the sensor's frame to the scene's
+                        poses[:, :3, 3] += sc.sensor
                 elif method.startswith("sequential KISS"):
                     assert reg is not None
                     tk = time.perf_counter()
