@@ -58,5 +58,19 @@ def test_the_carton_is_found_once_and_nothing_else(
     angle, shift = _errors(np.asarray(result.transformations[0]), truth)
     assert angle < 3.0 and shift < 0.01, (angle, shift)
     if viewpoint is None:
-        # The frame is one view from the origin with everything in front: a sensor's frame.
+        # The frame is one view from the origin with everything in front: a sensor's frame,
+        # and the first pass confirms the origin as the viewpoint to judge poses from.
         assert "towards the origin" in result.orientation
+        assert result.viewpoint is not None and not np.any(result.viewpoint)
+
+
+@needs_data
+def test_a_scan_that_only_looks_like_a_sensor_frame_is_not_judged_from_the_origin() -> None:
+    # A Stanford range scan 0.06-0.19 m from the origin: one view from there, but every pose
+    # would put 9 % of the bunny in free space seen from it.
+    stanford = DATA.parent / "stanford" / "bunny"
+    result = pointclm.register_point_clouds(
+        stanford / "reconstruction" / "bun_zipper_res2.ply", stanford / "data" / "bun045.ply"
+    )
+    assert len(result.transformations) == 1
+    assert result.viewpoint is None and "towards the origin" in result.orientation

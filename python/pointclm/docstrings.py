@@ -112,12 +112,15 @@ PARAMETERS: dict[str, str] = _entries(
         viewpoint : array_like, optional
             The scan's sensor position: scan normals point towards it, and verification judges
             each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
-            `target` file records (:func:`file_viewpoint`); else none: the scan's normals are
-            oriented without it (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point
-            that orients them consistently, and of the two signs the one whose descriptors are
-            nearer the model's is kept) and poses are judged by the share of the model they
-            explain. Pass it for scenes where copies hide one another. The model's normals point
-            away from its centroid.
+            `target` file records (:func:`file_viewpoint`); else, for a scan in its sensor's
+            frame (one view from the origin, every point in front of it, as depth cameras
+            write frames), the origin, kept when verification from there keeps the pose the
+            model share ranks first; else none: the scan's normals are oriented without it
+            (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point that orients them
+            consistently, and of the two signs the one whose descriptors are nearer the model's
+            is kept) and poses are judged by the share of the model they explain. Pass it for
+            scenes where copies hide one another. The model's normals point away from its
+            centroid.
         """,
     matching="""
         top_k, mutual, n_samples, k

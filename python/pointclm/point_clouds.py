@@ -351,12 +351,11 @@ def register_point_clouds(
     t_load = time.perf_counter() - t0
     voxel = _voxel_size(src, voxel_size)
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
-    tgt_d, orientation = _describe_scan(tgt, voxel, view, src_d, num_threads)
-    if view is not None and viewpoint is None:
-        orientation += " (the file's VIEWPOINT)"
+    scan = _describe_target(tgt, voxel, view, viewpoint is None, src_d, num_threads)
+    tgt_d, orientation, view, guessed = scan
     matching, heap = _matchings(top_k, mutual, n_samples, k, window, src)
     args = (src_d, tgt_d, voxel, view, matching, _matcher(src_d, tgt_d, k, num_threads))
-    run = _Run(*args, normals, seed, embedding, num_threads, heap)
+    run = _Run(*args, normals, seed, embedding, num_threads, heap, guessed)
     reg = _register(run, config, refine, peel, flips)
     reg.timings["load"] = t_load
     reg.timings["total"] = time.perf_counter() - t0
@@ -484,6 +483,9 @@ class _Run:
     #: The matching of the passes once the accepted copies show a heap
     #: (``mutual_window="auto"``); None: every pass uses `matching`.
     heap_matching: dict[str, Any] | None = None
+    #: The viewpoint is the origin of a scan in its sensor's frame, not given: the first
+    #: pass confirms it (:func:`_confirm_viewpoint`).
+    guessed_viewpoint: bool = False
 
     @cached_property
     def refiner(self) -> RefinementContext:
@@ -513,14 +515,33 @@ class _Run:
         )
 
 
+def _describe_target(
+    tgt: np.ndarray,
+    voxel: float,
+    view: tuple[float, float, float] | None,
+    not_given: bool,
+    src_d: pp.DescribedCloud,
+    num_threads: int | None,
+) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None, bool]:
+    """:func:`_describe_scan`, and the viewpoint of the run: `view` (given, or recorded in the
+    file when `not_given`), else the origin of a scan in its sensor's frame, a guess the first
+    pass confirms (the last value True)."""
+    tgt_d, orientation, sensor_frame = _describe_scan(tgt, voxel, view, src_d, num_threads)
+    if view is not None and not_given:
+        orientation += " (the file's VIEWPOINT)"
+    guessed = view is None and sensor_frame
+    return tgt_d, orientation, (0.0, 0.0, 0.0) if guessed else view, guessed
+
+
 def _describe_scan(
     tgt: np.ndarray,
     voxel: float,
     view: tuple[float, float, float] | None,
     src_d: pp.DescribedCloud,
     num_threads: int | None,
-) -> tuple[pp.DescribedCloud, str]:
-    """The scan downsampled, with normals and FPFH, and how its normals were oriented.
+) -> tuple[pp.DescribedCloud, str, bool]:
+    """The scan downsampled, with normals and FPFH, how its normals were oriented, and whether
+    it is in its sensor's frame (the origin is then its likely viewpoint).
 
     With a viewpoint the normals face it. A scan in its sensor's frame (:func:`_sensor_frame`)
     has its sensor at the origin, and the normals face that. Otherwise a point that orients them
@@ -533,7 +554,7 @@ def _describe_scan(
     """
     if view is not None:
         described = pp.describe(tgt, voxel, towards=view, num_threads=num_threads)
-        return described, f"towards the viewpoint {_xyz(view)}"
+        return described, f"towards the viewpoint {_xyz(view)}", False
     t0 = time.perf_counter()
     pts = pp.voxel_downsample(tgt, voxel)
     t1 = time.perf_counter()
@@ -560,7 +581,7 @@ def _describe_scan(
             f"{max(towards, away):.3g})"
         )
     timings = {"downsample": t1 - t0, "normals": t2 - t1, "fpfh": time.perf_counter() - t2}
-    return pp.DescribedCloud(pts, nrm, desc, timings), text
+    return pp.DescribedCloud(pts, nrm, desc, timings), text, sensor_frame
 
 
 def _sensor_frame(points: np.ndarray, voxel: float) -> bool:
@@ -622,6 +643,8 @@ def _register(
     )
     t4 = time.perf_counter()
     refined, tags = _verify(run, result, refine)
+    if run.guessed_viewpoint and refine:
+        run, refined, tags = _confirm_viewpoint(run, result, refined, tags)
     passes = [Pass(corr, result, everything, len(tags))]
     t5 = time.perf_counter()
     if refine and peel and len(tags):
@@ -658,6 +681,27 @@ def _register(
         viewpoint=None if run.viewpoint is None else np.array(run.viewpoint),
         diagnosis=_diagnose(run, refined, passes, refine),
     )
+
+
+def _confirm_viewpoint(
+    run: _Run, result: RegistrationResult, refined: RefinedPoses, tags: list[tuple[int, int]]
+) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
+    """The run with the guessed viewpoint (the origin of a scan in its sensor's frame) when
+    verification from there keeps the pose that the model share ranks first, else the run
+    without a viewpoint, with pass 0 verified that way.
+
+    Why: a scan looks like one view from many points near its sensor (at most 12 % of it
+    hidden from there), which is enough to orient normals but not to judge poses, where 1 %
+    of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the origin
+    looks like one view from it, and every pose fails there; a depth camera's frame keeps
+    its surest copy."""
+    blind_run = replace(run, viewpoint=None, guessed_viewpoint=False)
+    blind, blind_tags = _verify(blind_run, result, True)
+    kept = set(refined.origin.tolist())
+    if kept and (len(blind.origin) == 0 or int(blind.origin[0]) in kept):
+        return run, refined, tags
+    # Nothing either way confirms nothing: the run goes on (and explains) without a viewpoint.
+    return blind_run, blind, blind_tags
 
 
 def _verify(
