@@ -353,3 +353,26 @@ def test_result_prints_a_summary_and_explains_an_empty_result() -> None:
     assert len(none.instances) == 0 and len(none.result) == 0
     assert "no candidate pose" in none.diagnosis and "viewpoint=" in none.diagnosis
     assert "0 instance(s)" in repr(none) and none.diagnosis in repr(none)
+
+
+def test_point_spacing_and_the_voxel_it_sets() -> None:
+    from pointclm.point_clouds import MIN_VOXEL_SPACINGS, default_voxel_size
+
+    def sheet(step: float, side: float) -> np.ndarray:
+        g = np.arange(0.0, side, step)
+        x, y = np.meshgrid(g, g)
+        return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+
+    assert pp.point_spacing(sheet(0.01, 1.0)) == pytest.approx(0.01)
+    assert pp.point_spacing(sheet(0.002, 1.0)) == pytest.approx(0.002)  # 250,000 points
+    assert pp.point_spacing(np.zeros((1, 3))) == 0.0
+    model = sheet(0.01, 1.0)
+    own = default_voxel_size(model)
+    assert own == pytest.approx(np.linalg.norm(np.ptp(model, axis=0)) / 40)
+    # A dense scan keeps the model's voxel; a sparse one sets a coarser voxel (the model's own
+    # sampling does not).
+    assert default_voxel_size(model, sheet(0.02, 3.0)) == own
+    coarse = sheet(0.05, 1.0)
+    assert default_voxel_size(coarse, sheet(0.02, 3.0)) == default_voxel_size(coarse)
+    sparse = sheet(0.05, 3.0)
+    assert default_voxel_size(model, sparse) == pytest.approx(MIN_VOXEL_SPACINGS * 0.05)

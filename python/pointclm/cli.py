@@ -446,9 +446,10 @@ def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -
     """`register_point_clouds`' options from the method flags `register` and `batch` share
     (the viewpoint as given: a position, "none", or None for a PCD scan's own). `model`
     gives the model's points, asked only when a method flag needs the default voxel."""
+    config, voxel = _cloud_config(args, model)
     return {
-        "voxel_size": args.voxel_size,
-        "config": _cloud_config(args, model),
+        "voxel_size": voxel,
+        "config": config,
         "seed": args.seed,
         "model": args.model,
         "viewpoint": args.viewpoint,
@@ -501,18 +502,21 @@ def _register_json(
     }
 
 
-def _cloud_config(args: argparse.Namespace, model: Callable[[], np.ndarray]) -> Config | None:
+def _cloud_config(
+    args: argparse.Namespace, model: Callable[[], np.ndarray]
+) -> tuple[Config | None, float | None]:
     """With method flags: `register_point_clouds`' own default config with the flags applied,
-    scaled to the voxel as `pointclm eval` scales them (so --sigma-d means the same in both);
-    None without flags (its default)."""
+    scaled to the voxel as `pointclm eval` scales them (so --sigma-d means the same in both),
+    and that voxel (the model's default unless --voxel-size: the call must use the voxel the
+    config was scaled to); without flags, None and --voxel-size (the call's defaults)."""
     from .point_clouds import cloud_config, default_voxel_size
 
     overrides = _config_overrides(args)
     if not overrides:
-        return None
+        return None, args.voxel_size
     voxel = default_voxel_size(model()) if args.voxel_size is None else args.voxel_size
     refine = not args.no_refine
-    return cloud_config(voxel, args.model, refine, refine and not args.no_peel, overrides)
+    return cloud_config(voxel, args.model, refine, refine and not args.no_peel, overrides), voxel
 
 
 def _demo_scene(args: argparse.Namespace, overrides: dict[str, Any]) -> None:
@@ -708,7 +712,11 @@ def _add_register_parser(sub: Any) -> None:
 
 def _add_method_flags(p: argparse.ArgumentParser) -> None:
     """The options of `register_point_clouds`, shared by `register` and `batch`."""
-    p.add_argument("--voxel-size", type=_finite_float, help="default: model diagonal / 40")
+    p.add_argument(
+        "--voxel-size",
+        type=_finite_float,
+        help="default: model diagonal / 40, or 1.4 x the scan's point spacing",
+    )
     p.add_argument(
         "--viewpoint",
         type=_viewpoint,

@@ -35,6 +35,7 @@ __all__ = [
     "describe",
     "estimate_normals",
     "estimate_viewpoint",
+    "point_spacing",
     "flip_fpfh",
     "orient_towards",
     "match_features",
@@ -242,6 +243,21 @@ def estimate_viewpoint(
         cos = np.abs(np.einsum("kij,ij->ki", sight, n)) / length
         scores[start : start + 64] = np.partition(cos, tenth, axis=1)[:, tenth]
     return np.asarray(eyes[int(np.argmax(scores))], dtype=np.float64)
+
+
+def point_spacing(points: ArrayLike) -> float:
+    """The median distance from a point to its nearest other point (0 for fewer than 2), over
+    at most 5000 evenly strided points. About 50 ms for a 240,000-point frame: the tree must
+    hold every point, since a sample's spacing depends on how the cloud was sampled (a
+    random fifth of a grid is spaced 0.47 / sqrt(1/5) grid steps, not sqrt(5))."""
+    from scipy.spatial import cKDTree
+
+    p = as_points(points, "points")
+    if len(p) < 2:
+        return 0.0
+    tree = cKDTree(p, balanced_tree=False, compact_nodes=False)
+    d, _ = tree.query(p[:: max(1, len(p) // 5000)], k=2)
+    return float(np.median(d[:, 1]))
 
 
 def orient_towards(points: ArrayLike, normals: ArrayLike, viewpoint: ArrayLike) -> np.ndarray:

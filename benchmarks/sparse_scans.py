@@ -1,0 +1,94 @@
+"""`register_point_clouds` on sparser sensors: the realistic scenes with their scans thinned.
+
+Each scene of ``realistic_models.py`` (as ``point_cloud_scenes.py`` builds them: benchmark
+seeds for the held-out models, threshold seeds for the validation ones) keeps a random share
+of its scan points (``--fractions``; seed 0), as a sensor of lower resolution would see it,
+and is registered with the default voxel (``voxel_size`` not given) and the sensor's position.
+Reports per share: correct / predicted / copies, precision, recall and F1 pooled over the
+models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in model voxels
+(the model's diagonal / 40). A call that finds too few matches to register counts as no pose.
+
+    python benchmarks/sparse_scans.py [--models heldout|validation] [--scenes-per-model 2]
+                                      [--fractions 1,0.3,0.1,0.03] [--cache DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pointclm
+from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
+from pointclm.metrics import score_scene
+from pointclm.point_clouds import VOXELS_PER_DIAGONAL
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import realistic_models as rm  # noqa: E402
+
+
+def _spacing(points: np.ndarray) -> float:
+    """Median distance to the nearest other point (as `preprocessing.point_spacing`, which
+    older builds compared here lack)."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(points).query(points[:: max(1, len(points) // 5000)], k=2)
+    return float(np.median(d[:, 1]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--models", default="heldout", choices=("heldout", "validation"))
+    ap.add_argument("--scenes-per-model", type=int, default=2)
+    ap.add_argument("--fractions", default="1,0.3,0.1,0.03")
+    ap.add_argument("--cache", default="out/realistic_scenes")
+    ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
+    args = ap.parse_args()
+    data_dir = (
+        args.data_dir
+        or os.environ.get("POINTCLM_DATA_DIR")
+        or str(Path(__file__).resolve().parents[1].parent / "shared" / "data")
+    )
+    held = args.models == "heldout"
+    models = [m for m in (HELDOUT_MODELS if held else VALIDATION_MODELS) if "/" in m]
+    seeds = rm.benchmark_seeds if held else rm.threshold_seeds
+    jobs = [
+        (m, s, rm.scene_params(m, 1000, data_dir))
+        for m in models
+        for s in seeds(m, args.scenes_per_model)
+    ]
+    scenes = rm.load_scenes(jobs, Path(args.cache), 1)
+    print(f"{len(scenes)} scenes of {', '.join(models)}\n")
+    print("| scan points kept | correct / predicted / copies | precision | recall | F1 | spacing |")
+    print("|---|---|---|---|---|---|")
+    for frac in (float(f) for f in args.fractions.split(",")):
+        total, spacing = np.zeros(3, dtype=int), []
+        for sc in scenes:
+            scan = sc.target_points
+            if frac < 1.0:
+                scan = scan[np.random.default_rng(0).random(len(scan)) < frac]
+            model = sc.source_points
+            voxel = float(np.linalg.norm(model.max(0) - model.min(0))) / VOXELS_PER_DIAGONAL
+            spacing.append(_spacing(scan) / voxel)
+            try:
+                poses = pointclm.register_point_clouds(
+                    model, scan, viewpoint=sc.viewpoint
+                ).transformations
+            except ValueError:  # too few matches to register
+                poses = np.zeros((0, 4, 4))
+            s = score_scene(poses, sc.poses, 15.0, sc.max_translation)
+            total += [s.n_matched, s.n_pred, s.n_gt]
+        c, p, g = (int(v) for v in total)
+        prec, rec = c / max(p, 1), c / max(g, 1)
+        f1 = 2 * prec * rec / max(prec + rec, 1e-12)
+        print(
+            f"| {frac:g} | {c} / {p} / {g} | {prec:.3f} | {rec:.3f} | {f1:.3f} | "
+            f"{np.median(spacing):.2f} voxel |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
