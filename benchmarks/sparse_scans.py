@@ -1,4 +1,5 @@
-"""`register_point_clouds` on sparser sensors: the realistic scenes with their scans thinned.
+"""`register_point_clouds` on sparser or noisier sensors: the realistic scenes with their scans
+thinned (``--fractions``) or with Gaussian noise added (``--noise``, in model voxels).
 
 Each scene of ``realistic_models.py`` (as ``point_cloud_scenes.py`` builds them: benchmark
 seeds for the held-out models, threshold seeds for the validation ones) keeps a random share
@@ -9,7 +10,10 @@ models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in mod
 (the model's diagonal / 40). A call that finds too few matches to register counts as no pose.
 
     python benchmarks/sparse_scans.py [--models heldout|validation] [--scenes-per-model 2]
-                                      [--fractions 1,0.3,0.1,0.03] [--cache DIR]
+                                      [--fractions 1,0.3,0.1,0.03] [--noise 0.25,0.5] [--cache DIR]
+
+``--noise s1,s2,...`` adds, after the fractions' rows, one row per standard deviation (in
+model voxels, the model's diagonal / 40; seed 0) of noise added to every full scan's points.
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ def main() -> None:
     ap.add_argument("--models", default="heldout", choices=("heldout", "validation"))
     ap.add_argument("--scenes-per-model", type=int, default=2)
     ap.add_argument("--fractions", default="1,0.3,0.1,0.03")
+    ap.add_argument("--noise", default="", help="noise rows: standard deviations in voxels")
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     args = ap.parse_args()
@@ -61,16 +66,20 @@ def main() -> None:
     ]
     scenes = rm.load_scenes(jobs, Path(args.cache), 1)
     print(f"{len(scenes)} scenes of {', '.join(models)}\n")
-    print("| scan points kept | correct / predicted / copies | precision | recall | F1 | spacing |")
+    print("| scan | correct / predicted / copies | precision | recall | F1 | spacing |")
     print("|---|---|---|---|---|---|")
-    for frac in (float(f) for f in args.fractions.split(",")):
+    rows = [(float(f), 0.0) for f in args.fractions.split(",")]
+    rows += [(1.0, float(n)) for n in args.noise.split(",") if n]
+    for frac, noise in rows:
         total, spacing = np.zeros(3, dtype=int), []
         for sc in scenes:
+            model = sc.source_points
+            voxel = float(np.linalg.norm(model.max(0) - model.min(0))) / VOXELS_PER_DIAGONAL
             scan = sc.target_points
             if frac < 1.0:
                 scan = scan[np.random.default_rng(0).random(len(scan)) < frac]
-            model = sc.source_points
-            voxel = float(np.linalg.norm(model.max(0) - model.min(0))) / VOXELS_PER_DIAGONAL
+            if noise > 0.0:
+                scan = scan + np.random.default_rng(0).normal(scale=noise * voxel, size=scan.shape)
             spacing.append(_spacing(scan) / voxel)
             try:
                 poses = pointclm.register_point_clouds(
@@ -83,8 +92,9 @@ def main() -> None:
         c, p, g = (int(v) for v in total)
         prec, rec = c / max(p, 1), c / max(g, 1)
         f1 = 2 * prec * rec / max(prec + rec, 1e-12)
+        label = f"{frac:.0%} of the points" if noise == 0.0 else f"noise {noise:g} voxel"
         print(
-            f"| {frac:g} | {c} / {p} / {g} | {prec:.3f} | {rec:.3f} | {f1:.3f} | "
+            f"| {label} | {c} / {p} / {g} | {prec:.3f} | {rec:.3f} | {f1:.3f} | "
             f"{np.median(spacing):.2f} voxel |",
             flush=True,
         )
