@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import os
 import sys
 import time
 from pathlib import Path
@@ -42,7 +41,6 @@ def parse_variant(text: str) -> dict[str, Any]:
 def main() -> None:
     import pointclm
     import realistic_models as rm
-    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
     from pointclm.metrics import score_scene
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -57,20 +55,9 @@ def main() -> None:
         help="scans in their sensor's frame, no viewpoint given (a depth camera's output)",
     )
     args = ap.parse_args()
-    data_dir = (
-        args.data_dir
-        or os.environ.get("POINTCLM_DATA_DIR")
-        or str(Path(__file__).resolve().parents[1].parent / "shared" / "data")
-    )
-    held = args.models == "heldout"
-    models = [m for m in (HELDOUT_MODELS if held else VALIDATION_MODELS) if "/" in m]
-    seeds = rm.benchmark_seeds if held else rm.threshold_seeds
-    jobs = [
-        (m, s, rm.scene_params(m, 1000, data_dir))
-        for m in models
-        for s in seeds(m, args.scenes_per_model)
-    ]
-    scenes = rm.load_scenes(jobs, Path(args.cache), 1)
+    data_dir = rm.data_folder(args.data_dir)
+    scenes = rm.cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
+    models = list(dict.fromkeys(sc.model for sc in scenes))
     print(f"{len(scenes)} scenes of {', '.join(models)}", flush=True)
     for text in args.variant or ["", "peel=False"]:
         kw = parse_variant(text)

@@ -14,7 +14,7 @@ wrong poses in all, and the median time.
 from __future__ import annotations
 
 import argparse
-import os
+import sys
 import time
 from pathlib import Path
 
@@ -22,6 +22,9 @@ import numpy as np
 import pointclm
 from pointclm.io.reader import load_points
 from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import realistic_models as rm  # noqa: E402
 
 
 def _right(found: np.ndarray, truth: np.ndarray) -> bool:
@@ -35,11 +38,7 @@ def main() -> None:
     ap.add_argument("--motions", type=int, default=12)
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     args = ap.parse_args()
-    data = Path(
-        args.data_dir
-        or os.environ.get("POINTCLM_DATA_DIR")
-        or Path(__file__).resolve().parents[1].parent / "shared" / "data"
-    )
+    data = Path(rm.data_folder(args.data_dir))
     model = load_points(data / "pcl/milk.pcd")
     scan = load_points(data / "pcl/milk_cartoon_all_small_clorox.pcd")
     print(f"model {len(model)} points, frame {len(scan)} points, {args.motions} motions")

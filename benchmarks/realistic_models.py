@@ -136,6 +136,29 @@ def _slot(model: str, models: tuple[str, ...]) -> int:
     return len(models) + (3 * int(seed) + PROCEDURAL_FAMILIES.index(family)) % free
 
 
+def data_folder(given: str | None) -> str:
+    """The data folder of the point-cloud benchmarks: `given` (``--data-dir``), else
+    ``$POINTCLM_DATA_DIR``, else ``../shared/data`` beside the repository."""
+    return (
+        given or os.environ.get("POINTCLM_DATA_DIR") or str(HERE.parent.parent / "shared" / "data")
+    )
+
+
+def cloud_scenes(split: str, scenes_per_model: int, cache: Path, data_dir: str) -> list[Any]:
+    """The scenes the point-cloud benchmarks register from their clouds (N = 1000 parameters):
+    `split` "heldout" gives the held-out models' benchmark seeds, "validation" the validation
+    models' with data files (not the procedural shapes) and their threshold seeds."""
+    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
+
+    held = split == "heldout"
+    models = [m for m in (HELDOUT_MODELS if held else VALIDATION_MODELS) if "/" in m]
+    seeds = benchmark_seeds if held else threshold_seeds
+    jobs = [
+        (m, s, scene_params(m, 1000, data_dir)) for m in models for s in seeds(m, scenes_per_model)
+    ]
+    return load_scenes(jobs, cache, 1)
+
+
 def scene_params(model: str, n: int, data_dir: str | None) -> Any:
     """The benchmark's scene parameters for `model` at `n` correspondences."""
     from pointclm.datasets.scenes import SceneParams

@@ -19,13 +19,11 @@ model voxels, the model's diagonal / 40; seed 0) of noise added to every full sc
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pointclm
-from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
 from pointclm.metrics import score_scene
 from pointclm.point_clouds import VOXELS_PER_DIAGONAL
 
@@ -51,20 +49,9 @@ def main() -> None:
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     args = ap.parse_args()
-    data_dir = (
-        args.data_dir
-        or os.environ.get("POINTCLM_DATA_DIR")
-        or str(Path(__file__).resolve().parents[1].parent / "shared" / "data")
-    )
-    held = args.models == "heldout"
-    models = [m for m in (HELDOUT_MODELS if held else VALIDATION_MODELS) if "/" in m]
-    seeds = rm.benchmark_seeds if held else rm.threshold_seeds
-    jobs = [
-        (m, s, rm.scene_params(m, 1000, data_dir))
-        for m in models
-        for s in seeds(m, args.scenes_per_model)
-    ]
-    scenes = rm.load_scenes(jobs, Path(args.cache), 1)
+    data_dir = rm.data_folder(args.data_dir)
+    scenes = rm.cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
+    models = list(dict.fromkeys(sc.model for sc in scenes))
     print(f"{len(scenes)} scenes of {', '.join(models)}\n")
     print("| scan | correct / predicted / copies | precision | recall | F1 | spacing |")
     print("|---|---|---|---|---|---|")

@@ -259,6 +259,23 @@ def _random_network(torch: Any, inputs: tuple[str, ...], tmp_path: Path) -> tupl
     return net, save_model(net, tmp_path / f"{'_'.join(inputs)}.safetensors")
 
 
+def _differences(
+    torch: Any, inputs: tuple[str, ...], net: Any, rust: Network, other: Any
+) -> tuple[float, float]:
+    """Over 6 scenes with cues: the largest |Rust - torch| of `net`'s embedding, and the
+    largest |other(x) - net(x)| (`other`: a torch variant that must differ)."""
+    worst, moved = 0.0, 0.0
+    for seed in range(6):
+        corr, nrm, sim = scene_with_inputs(seed)
+        x = torch.tensor(_packed(inputs, corr, nrm, sim), dtype=torch.float32)[None]
+        with torch.no_grad():
+            want = net(x)[0].double().numpy()
+            changed = other(x)[0].double().numpy()
+        worst = max(worst, float(np.abs(rust.embed(corr, nrm, sim) - want).max()))
+        moved = max(moved, float(np.abs(changed - want).max()))
+    return worst, moved
+
+
 @pytest.mark.parametrize("inputs", INPUT_SETS, ids="+".join)
 def test_networks_with_inputs_equal_torch(inputs: tuple[str, ...], tmp_path: Path) -> None:
     torch = pytest.importorskip("torch")
@@ -266,15 +283,9 @@ def test_networks_with_inputs_equal_torch(inputs: tuple[str, ...], tmp_path: Pat
     rust = Network(path)
     assert rust.inputs == inputs and rust.normal_tolerance == 0.5
     assert f"inputs={inputs!r}" in repr(rust)
-    worst, moved = 0.0, 0.0
-    for seed in range(6):
-        corr, nrm, sim = scene_with_inputs(seed)
-        x = torch.tensor(_packed(inputs, corr, nrm, sim), dtype=torch.float32)[None]
-        with torch.no_grad():
-            want = net(x)[0].double().numpy()
-            plain_beta = net(x, beta=net._beta(x[..., :6], None))[0].double().numpy()
-        worst = max(worst, float(np.abs(rust.embed(corr, nrm, sim) - want).max()))
-        moved = max(moved, float(np.abs(plain_beta - want).max()))
+    worst, moved = _differences(
+        torch, inputs, net, rust, lambda x: net(x, beta=net._beta(x[..., :6], None))
+    )
     # measured <= 1.3e-6: float32 rounding, as for the plain networks
     assert worst <= PARITY, f"max abs difference {worst:.2e}"
     # the normal term of beta changes the embedding far beyond the parity tolerance
@@ -368,15 +379,7 @@ def test_scene_normalization_equals_torch(inputs: tuple[str, ...], tmp_path: Pat
     running = SCNonlocal(dataclasses.replace(net.config, normalization="running"))
     running.load_state_dict(net.state_dict())
     running.eval()
-    worst, moved = 0.0, 0.0
-    for seed in range(6):
-        corr, nrm, sim = scene_with_inputs(seed)
-        x = torch.tensor(_packed(inputs, corr, nrm, sim), dtype=torch.float32)[None]
-        with torch.no_grad():
-            want = net(x)[0].double().numpy()
-            other = running(x)[0].double().numpy()
-        worst = max(worst, float(np.abs(rust.embed(corr, nrm, sim) - want).max()))
-        moved = max(moved, float(np.abs(other - want).max()))
+    worst, moved = _differences(torch, inputs, net, rust, running)
     # measured <= 2.7e-5 (float32 rounding, amplified where a channel varies little)
     assert worst <= PARITY, f"max abs difference {worst:.2e}"
     # per-scene statistics change the embedding far beyond the parity tolerance

@@ -561,12 +561,14 @@ def _describe_scan(
     """The scan downsampled, with normals and FPFH, how its normals were oriented, and whether
     it is in its sensor's frame (the origin is then its likely viewpoint).
 
-    With a viewpoint the normals face it. A scan in its sensor's frame (:func:`_sensor_frame`)
-    has its sensor at the origin, and the normals face that. Otherwise a point that orients them
-    consistently is estimated (:func:`pointclm.preprocessing.estimate_viewpoint`), which
-    fixes them up to one global sign; the model's normals face outwards, and so do those of
-    surfaces a sensor saw, so the sign kept is the one whose descriptors lie nearer the
-    model's (median distance from each scan descriptor to its nearest model descriptor).
+    With a viewpoint the normals face it. A scan in its sensor's frame (one view from the
+    origin, :func:`pointclm._core.looks_like_one_view`, and :func:`_in_front` of it) has its
+    sensor at the origin, and the normals face that. Otherwise they are oriented from the
+    origin when the scan is one view from it, else from a point that orients them consistently
+    (:func:`pointclm.preprocessing.estimate_viewpoint`); either fixes them up to one global
+    sign; the model's normals face outwards, and so do those of surfaces a sensor saw, so the
+    sign kept is the one whose descriptors lie nearer the model's (median distance from each
+    scan descriptor to its nearest model descriptor).
     Flipping every normal only reindexes FPFH (:func:`pointclm.preprocessing.flip_fpfh`),
     so both signs cost one FPFH pass.
     """
@@ -577,8 +579,11 @@ def _describe_scan(
     pts = pp.voxel_downsample(tgt, voxel)
     t1 = time.perf_counter()
     raw = pp.estimate_normals(pts, 2.0 * voxel, num_threads=num_threads)
-    sensor_frame = _sensor_frame(pts, voxel)
-    eye = np.zeros(3) if sensor_frame else pp.estimate_viewpoint(pts, raw, voxel_size=voxel)
+    # One view from the origin orients the normals consistently (up to one sign); with every
+    # point in front of it, the sign too (see `_in_front`).
+    one_view = bool(_core.looks_like_one_view(pts, (0.0, 0.0, 0.0), voxel))
+    sensor_frame = one_view and _in_front(pts)
+    eye = np.zeros(3) if one_view else pp.estimate_viewpoint(pts, raw)
     nrm = pp.orient_towards(pts, raw, eye)
     t2 = time.perf_counter()
     desc = pp.compute_fpfh(pts, nrm, 5.0 * voxel, num_threads=num_threads)
@@ -602,21 +607,19 @@ def _describe_scan(
     return pp.DescribedCloud(pts, nrm, desc, timings), text, sensor_frame
 
 
-def _sensor_frame(points: np.ndarray, voxel: float) -> bool:
-    """Whether `points` (downsampled at `voxel`) look like a scan in its sensor's frame: one
-    view from the origin (:func:`pointclm._core.looks_like_one_view`), every point in front of
-    it (within an open half-space). Then the sensor saw the outer side of every surface and
-    normals facing it need no sign test. Points all around the origin may be a scan from
-    inside a room or a closed object about its centre, which want opposite signs: the
-    descriptors decide there (the median-distance test, which a scan made mostly of planes
-    leaves close to a coin toss: 32.4 against 32.6 on PCL's Kinect frame)."""
+def _in_front(points: np.ndarray) -> bool:
+    """Whether every point lies in front of the origin (within an open half-space). A scan that
+    is one view from the origin and in front of it is in its sensor's frame: the sensor saw
+    the outer side of every surface, so normals facing it need no sign test. Points all around
+    the origin may be a scan from inside a room or a closed object about its centre, which
+    want opposite signs: the descriptors decide there (the median-distance test, which a scan
+    made mostly of planes leaves close to a coin toss: 32.4 against 32.6 on PCL's Kinect
+    frame)."""
     r = np.linalg.norm(points, axis=1)
     if len(points) < 3 or not np.all(r > 0.0):
         return False
     unit = points / r[:, None]
-    if not np.all(unit @ unit.mean(0) > 0.0):
-        return False
-    return bool(_core.looks_like_one_view(points, (0.0, 0.0, 0.0), voxel))
+    return bool(np.all(unit @ unit.mean(0) > 0.0))
 
 
 def _median_distance(reference: np.ndarray, queries: np.ndarray, num_threads: int | None) -> float:

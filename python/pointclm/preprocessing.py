@@ -195,10 +195,7 @@ def _sphere(n: int) -> np.ndarray:
 
 
 def estimate_viewpoint(
-    points: ArrayLike,
-    normals: ArrayLike,
-    n_directions: int = 256,
-    voxel_size: float | None = None,
+    points: ArrayLike, normals: ArrayLike, n_directions: int = 256
 ) -> np.ndarray:
     """A point from which one sign rule orients every normal consistently (3,).
 
@@ -213,20 +210,11 @@ def estimate_viewpoint(
     behind the surface, or the inside of a convex object): which side is outside is left
     to the caller (:func:`pointclm.register_point_clouds` asks which sign makes the scan's
     descriptors look like the model's).
-
-    With `voxel_size` (the points' sampling step), the origin is returned at once when the
-    points look like one view from it (:func:`pointclm._core.looks_like_one_view`, the test
-    by which refinement trusts a viewpoint): a scan in its sensor's frame, as depth cameras
-    and PCL write them. Why first: the score above is a proxy, and on a real depth frame
-    (a table top seen at a slant) it prefers a far point that sees the largest planes
-    head-on, from which the normals of the other surfaces get their sign by chance.
     """
     p = as_points(points, "points")
     n = as_matrix(normals, "normals", 3)
     if len(n) != len(p):
         raise InputError(f"need one normal per point: {len(p)} points, {len(n)} normals")
-    if voxel_size is not None and _core.looks_like_one_view(p, (0.0, 0.0, 0.0), voxel_size):
-        return np.zeros(3)
     step = max(1, math.ceil(len(p) / VIEWPOINT_SAMPLE))
     p, n = p[::step], n[::step]
     centre = p.mean(0)
@@ -249,7 +237,7 @@ def point_spacing(points: ArrayLike) -> float:
     """The median distance from a point to its nearest other point (0 for fewer than 2), over
     at most 5000 evenly strided points. About 50 ms for a 240,000-point frame: the tree must
     hold every point, since a sample's spacing depends on how the cloud was sampled (a
-    random fifth of a grid is spaced 0.47 / sqrt(1/5) grid steps, not sqrt(5))."""
+    random fifth of a grid is spaced 0.47 x sqrt(5) grid steps, not sqrt(5))."""
     from scipy.spatial import cKDTree
 
     p = as_points(points, "points")
