@@ -6,7 +6,7 @@
 //! at those sizes a tree query that descends and collects into a heap or vector costs several
 //! times the arithmetic of the distances themselves.
 
-use std::ops::Range;
+use std::ops::{ControlFlow, Range};
 
 /// A uniform grid over a point set; see the module documentation.
 pub(crate) struct UniformGrid {
@@ -104,6 +104,20 @@ impl UniformGrid {
     /// `radius` of `q` lies in one of them.
     #[inline]
     pub(crate) fn runs(&self, q: [f64; 3], radius: f64, mut visit: impl FnMut(Range<usize>)) {
+        let _ = self.try_runs(q, radius, |run| {
+            visit(run);
+            ControlFlow::Continue(())
+        });
+    }
+
+    /// [`Self::runs`] until `visit` breaks; whether it did.
+    #[inline]
+    pub(crate) fn try_runs(
+        &self,
+        q: [f64; 3],
+        radius: f64,
+        mut visit: impl FnMut(Range<usize>) -> ControlFlow<()>,
+    ) -> ControlFlow<()> {
         let mut span = [(0usize, 0usize); 3];
         for a in 0..3 {
             // Cell indices by truncation, which is the floor on the non-negative side kept
@@ -111,7 +125,7 @@ impl UniformGrid {
             let first = (q[a] - radius - self.origin[a]) * self.inv_cell;
             let last = (q[a] + radius - self.origin[a]) * self.inv_cell;
             if last < 0.0 || first >= self.dims[a] as f64 {
-                return;
+                return ControlFlow::Continue(());
             }
             span[a] = (
                 first.max(0.0) as usize,
@@ -121,9 +135,10 @@ impl UniformGrid {
         for k in span[2].0..=span[2].1 {
             for j in span[1].0..=span[1].1 {
                 let row = self.dims[0] * (j + self.dims[1] * k);
-                visit(self.start[row + span[0].0]..self.start[row + span[0].1 + 1]);
+                visit(self.start[row + span[0].0]..self.start[row + span[0].1 + 1])?;
             }
         }
+        ControlFlow::Continue(())
     }
 }
 

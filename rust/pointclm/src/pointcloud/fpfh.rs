@@ -75,7 +75,9 @@ pub fn fpfh(
     let hoods = index.neighbourhoods(points, radius, max_nn)?;
     let spfh: Vec<[f64; FPFH_DIM]> = (0..points.len())
         .into_par_iter()
-        .map(|i| spfh_of(i, points, normals, &hoods))
+        .map_init(Vec::new, |terms, i| {
+            spfh_of(i, points, normals, &hoods, terms)
+        })
         .collect();
     Ok((0..points.len())
         .into_par_iter()
@@ -88,6 +90,7 @@ fn spfh_of(
     points: &[[f64; 3]],
     normals: &[[f64; 3]],
     hoods: &Neighbourhoods,
+    terms: &mut Vec<[f64; 4]>,
 ) -> [f64; FPFH_DIM] {
     let mut h = [0.0; FPFH_DIM];
     let (nbrs, _) = hoods.of(i);
@@ -96,9 +99,19 @@ fn spfh_of(
     }
     // The first neighbour is the point itself.
     let incr = 100.0 / (nbrs.len() - 1) as f64;
-    for &j in &nbrs[1..] {
-        let j = j as usize;
-        let [y, x, alpha, phi] = pair_terms(&points[i], &normals[i], &points[j], &normals[j]);
+    // Every pair's terms first, then their bins: each pair is a long chain of square roots,
+    // divisions and the arctangent's polynomial, and loops this short let the core work on
+    // several pairs at once (one loop over both ran at the chains' latency).
+    terms.clear();
+    terms.extend(nbrs[1..].iter().map(|&j| {
+        pair_terms(
+            &points[i],
+            &normals[i],
+            &points[j as usize],
+            &normals[j as usize],
+        )
+    }));
+    for &[y, x, alpha, phi] in terms.iter() {
         h[theta_bin(y, x)] += incr;
         h[BINS + bin((alpha + 1.0) * 0.5)] += incr;
         h[2 * BINS + bin((phi + 1.0) * 0.5)] += incr;

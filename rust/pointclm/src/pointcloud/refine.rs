@@ -619,7 +619,7 @@ fn slid_fitness(
                 .iter()
                 .filter(|p| {
                     let q = Vector3::from(**p) + shift;
-                    index.nearest_within(&[q.x, q.y, q.z], radius).is_some()
+                    index.any_within(&[q.x, q.y, q.z], radius)
                 })
                 .count();
             most = most.max(kept);

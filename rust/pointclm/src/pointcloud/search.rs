@@ -2,6 +2,7 @@
 //! normals and FPFH are computed over.
 
 use std::num::NonZero;
+use std::ops::ControlFlow;
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
@@ -76,6 +77,24 @@ impl PointIndex {
             .into_iter()
             .map(|n| (n.item as usize, n.distance))
             .find(|&(_, d)| d < r_sq)
+    }
+
+    /// Whether an indexed point lies strictly within `radius` of `query`: the same answer as
+    /// [`Self::nearest_within`]`.is_some()`, stopping at the first point found.
+    pub fn any_within(&self, query: &[f64; 3], radius: f64) -> bool {
+        let r_sq = radius * radius;
+        let Some(grid) = &self.grid else {
+            return self.nearest_within(query, radius).is_some();
+        };
+        let (points, _) = grid.points();
+        grid.try_runs(*query, radius, |run| {
+            if points[run].iter().any(|p| dist_sq(p, query) < r_sq) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        })
+        .is_break()
     }
 
     /// The nearest indexed point to `query`: `(index, squared distance)`.

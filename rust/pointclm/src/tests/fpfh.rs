@@ -38,7 +38,7 @@ fn pcl_variant_drops_only_the_own_histogram() {
     let pcl = fpfh(&pts, &normals, &index, 0.3, 100, FpfhVariant::Pcl).unwrap();
     let hoods = index.neighbourhoods(&pts, 0.3, 100).unwrap();
     for i in [0, 17, 599] {
-        let own = spfh_of(i, &pts, &normals, &hoods);
+        let own = spfh_of(i, &pts, &normals, &hoods, &mut Vec::new());
         for f in 0..FPFH_DIM {
             assert!((o3d[i][f] - pcl[i][f] - own[f]).abs() < 1e-9);
         }

@@ -109,17 +109,26 @@ fn grid_nearest_within_equals_the_trees() {
     let tree = PointIndex::new(&pts).unwrap();
     for cell in [0.01, 0.03, 0.1] {
         let grid = PointIndex::with_cells(&pts, cell).unwrap();
-        for _ in 0..500 {
-            let q = [
-                rng.random::<f64>() * 1.2 - 0.1,
-                rng.random::<f64>() * 1.2 - 0.1,
-                rng.random::<f64>() * 0.4 - 0.1,
-            ];
+        for k in 0..1000 {
+            // Half the queries near a point (the small first box of the grid's search holds
+            // the answer), half anywhere.
+            let q = if k % 2 == 0 {
+                let p = pts[rng.random_range(0..pts.len())];
+                [0, 1, 2].map(|a| p[a] + (rng.random::<f64>() - 0.5) * 0.02)
+            } else {
+                [
+                    rng.random::<f64>() * 1.2 - 0.1,
+                    rng.random::<f64>() * 1.2 - 0.1,
+                    rng.random::<f64>() * 0.4 - 0.1,
+                ]
+            };
             for radius in [0.005, 0.02, 0.045, 0.3] {
                 let (a, b) = (
                     tree.nearest_within(&q, radius),
                     grid.nearest_within(&q, radius),
                 );
+                assert_eq!(grid.any_within(&q, radius), a.is_some());
+                assert_eq!(tree.any_within(&q, radius), a.is_some());
                 match (a, b) {
                     (Some((i, d)), Some((j, e))) => {
                         assert_eq!(d, e, "cell {cell} radius {radius}");
