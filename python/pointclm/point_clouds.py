@@ -663,9 +663,10 @@ def _register(
         corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
     )
     t4 = time.perf_counter()
-    refined, tags = _verify(run, result, refine)
     if run.guessed_viewpoint and refine:
-        run, refined, tags = _confirm_viewpoint(run, result, refined, tags)
+        run, refined, tags = _confirm_viewpoint(run, result)
+    else:
+        refined, tags = _verify(run, result, refine)
     passes = [Pass(corr, result, everything, len(tags))]
     t5 = time.perf_counter()
     if refine and peel and len(tags):
@@ -705,24 +706,45 @@ def _register(
 
 
 def _confirm_viewpoint(
-    run: _Run, result: RegistrationResult, refined: RefinedPoses, tags: list[tuple[int, int]]
+    run: _Run, result: RegistrationResult
 ) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
-    """The run with the guessed viewpoint (the origin of a scan in its sensor's frame) when
-    verification from there keeps the pose that the model share ranks first, else the run
-    without a viewpoint, with pass 0 verified that way.
+    """Pass 0 of a run whose viewpoint is a guess (the origin of a scan in its sensor's
+    frame): the run with it, when verification from there keeps the pose that the model share
+    ranks first, else the run without a viewpoint; pass 0's poses verified accordingly.
 
     Why: a scan looks like one view from many points near its sensor (at most 12 % of it
     hidden from there), which is enough to orient normals but not to judge poses, where 1 %
     of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the origin
     looks like one view from it, and every pose fails there; a depth camera's frame keeps
-    its surest copy."""
+    its surest copy. ICP does not depend on the viewpoint, so the poses are refined once and
+    judged both ways."""
     blind_run = replace(run, viewpoint=None, guessed_viewpoint=False)
-    blind, blind_tags = _verify(blind_run, result, True)
-    kept = set(refined.origin.tolist())
+    fitted = blind_run.refiner.refine(
+        np.asarray(result.transformations).reshape(-1, 4, 4),
+        **_KEEP_ALL,
+        max_shared=1.0,
+        num_threads=run.num_threads,
+    )
+    # Back in the input order, so that both verdicts break ties as one refinement would.
+    order = np.argsort(fitted.origin, kind="stable")
+    poses, source = fitted.transformations[order], fitted.origin[order]
+    seen, seen_tags = _judge(run, poses, source)
+    blind, blind_tags = _judge(blind_run, poses, source)
+    kept = set(seen.origin.tolist())
     if kept and (len(blind.origin) == 0 or int(blind.origin[0]) in kept):
-        return run, refined, tags
+        return run, seen, seen_tags
     # Nothing either way confirms nothing: the run goes on (and explains) without a viewpoint.
     return blind_run, blind, blind_tags
+
+
+def _judge(
+    run: _Run, poses: np.ndarray, source: np.ndarray
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """Pass 0's poses, refined already (`source`: the correspondence stage's instance of each),
+    verified by the run's rules without ICP."""
+    judged = run.refiner.refine(poses, icp=False, num_threads=run.num_threads)
+    judged = judged._replace(origin=source[judged.origin])
+    return judged, [(0, int(o)) for o in judged.origin]
 
 
 def _verify(
