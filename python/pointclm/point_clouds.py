@@ -663,10 +663,7 @@ def _register(
         corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
     )
     t4 = time.perf_counter()
-    if run.guessed_viewpoint and refine:
-        run, refined, tags = _confirm_viewpoint(run, result)
-    else:
-        refined, tags = _verify(run, result, refine)
+    run, refined, tags = _verify(run, result, refine)
     passes = [Pass(corr, result, everything, len(tags))]
     t5 = time.perf_counter()
     if refine and peel and len(tags):
@@ -749,9 +746,12 @@ def _judge(
 
 def _verify(
     run: _Run, result: RegistrationResult, refine: bool
-) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
     """Pass 0's poses refined and verified (or, without `refine`, only scored, in the
-    correspondence stage's order), each with its (pass, instance of that pass's result)."""
+    correspondence stage's order), each with its (pass, instance of that pass's result), and
+    the run that goes on (:func:`_confirm_viewpoint` settles a guessed viewpoint)."""
+    if run.guessed_viewpoint and refine:
+        return _confirm_viewpoint(run, result)
     refined = run.refiner.refine(
         np.asarray(result.transformations).reshape(-1, 4, 4),
         icp=refine,
@@ -763,7 +763,7 @@ def _verify(
         # Unverified poses keep the correspondence stage's order (most inliers first).
         keep = np.argsort(refined.origin)
         refined, tags = _take(refined, keep), [tags[i] for i in keep]
-    return refined, tags
+    return run, refined, tags
 
 
 def _instances(
