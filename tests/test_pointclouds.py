@@ -376,3 +376,28 @@ def test_point_spacing_and_the_voxel_it_sets() -> None:
     assert default_voxel_size(coarse, sheet(0.02, 3.0)) == default_voxel_size(coarse)
     sparse = sheet(0.05, 3.0)
     assert default_voxel_size(model, sparse) == pytest.approx(MIN_VOXEL_SPACINGS * 0.05)
+
+
+def test_noise_level_separates_noise_from_curvature() -> None:
+    from pointclm.point_clouds import MIN_VOXEL_NOISES, default_voxel_size
+
+    rng = np.random.default_rng(0)
+    # A sphere of radius 1 sampled 40,000 times: curved, so one plane's residual is not noise.
+    sphere = rng.normal(size=(40_000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    spacing = pp.point_spacing(sphere)
+    assert pp.noise_level(sphere, scale=4 * spacing) < 0.1 * spacing
+    for sigma in (0.002, 0.006):  # a quarter and three quarters of the point spacing
+        noisy = sphere + rng.normal(scale=sigma, size=sphere.shape)
+        assert pp.noise_level(noisy) == pytest.approx(sigma, rel=0.1)
+        assert pp.noise_level(noisy, scale=5 * sigma) == pytest.approx(sigma, rel=0.1)
+    assert pp.noise_level(sphere[:7]) == 0.0
+    assert pp.scan_scales(noisy, 0.05) == (pp.point_spacing(noisy), pp.noise_level(noisy, 0.05))
+    with pytest.raises(ValueError, match="scale"):
+        pp.noise_level(sphere, scale=0.0)
+    # A noisy scan sets a coarser voxel; the same scan without noise keeps the model's.
+    model = sphere[::10] * 0.2
+    own = default_voxel_size(model)
+    assert default_voxel_size(model, sphere) == own
+    noisy = sphere + rng.normal(scale=0.5 * own, size=sphere.shape)
+    assert default_voxel_size(model, noisy) == pytest.approx(0.5 * MIN_VOXEL_NOISES * own, rel=0.1)

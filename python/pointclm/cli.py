@@ -715,7 +715,7 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--voxel-size",
         type=_finite_float,
-        help="default: model diagonal / 40, or 1.4 x the scan's point spacing",
+        help="default: model diagonal / 40, or 1.4 x the scan's point spacing or 2.5 x its noise",
     )
     p.add_argument(
         "--viewpoint",

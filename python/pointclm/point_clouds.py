@@ -91,17 +91,25 @@ PEEL_CLUSTER_LEVEL = 0.7
 #: Only the scan's: growing the voxel for models sampled nearly as coarsely (0.83 voxel)
 #: cost copies there (F1 0.67).
 MIN_VOXEL_SPACINGS = 1.4
+#: The voxel is at least this many times the scan's noise (standard deviation about its
+#: surface, :func:`pointclm.preprocessing.noise_level`): normals are fitted over 2 voxels, and
+#: noise above a fifth of that radius turns them (and FPFH with them) at random.
+MIN_VOXEL_NOISES = 2.5
+#: The noise is estimated at the scale of the normals, 2 model voxels.
+NOISE_SCALE_VOXELS = 2.0
 
 
 def default_voxel_size(model_points: ArrayLike, scan_points: ArrayLike | None = None) -> float:
     """The model's bounding-box diagonal / 40; with `scan_points`, at least
     :data:`MIN_VOXEL_SPACINGS` times the scan's point spacing
-    (:func:`pointclm.preprocessing.point_spacing`)."""
+    (:func:`pointclm.preprocessing.point_spacing`) and :data:`MIN_VOXEL_NOISES` times its
+    noise (:func:`pointclm.preprocessing.noise_level`)."""
     p = np.asarray(model_points, dtype=np.float64)
     voxel = float(np.linalg.norm(p.max(0) - p.min(0))) / VOXELS_PER_DIAGONAL
     if scan_points is None:
         return voxel
-    return max(voxel, MIN_VOXEL_SPACINGS * pp.point_spacing(scan_points))
+    spacing, noise = pp.scan_scales(scan_points, NOISE_SCALE_VOXELS * voxel)
+    return max(voxel, MIN_VOXEL_SPACINGS * spacing, MIN_VOXEL_NOISES * noise)
 
 
 #: Peeling: a scan point within this many voxels of an accepted copy's posed model is
