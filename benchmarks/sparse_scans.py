@@ -10,10 +10,14 @@ models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in mod
 (the model's diagonal / 40). A call that finds too few matches to register counts as no pose.
 
     python benchmarks/sparse_scans.py [--models heldout|validation] [--scenes-per-model 2]
-                                      [--fractions 1,0.3,0.1,0.03] [--noise 0.25,0.5] [--cache DIR]
+                                      [--fractions 1,0.3,0.1,0.03] [--noise 0.25,0.5]
+                                      [--outliers 0.01,0.05] [--cache DIR]
 
 ``--noise s1,s2,...`` adds, after the fractions' rows, one row per standard deviation (in
 model voxels, the model's diagonal / 40; seed 0) of noise added to every full scan's points.
+``--outliers o1,o2,...`` adds one row per share of stray points (flying pixels, multipath)
+added to every full scan: that many times its point count, uniform in its bounding box
+(seed 0).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ def main() -> None:
     ap.add_argument("--scenes-per-model", type=int, default=2)
     ap.add_argument("--fractions", default="1,0.3,0.1,0.03")
     ap.add_argument("--noise", default="", help="noise rows: standard deviations in voxels")
+    ap.add_argument("--outliers", default="", help="stray-point rows: shares of the scan")
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     args = ap.parse_args()
@@ -55,9 +60,10 @@ def main() -> None:
     print(f"{len(scenes)} scenes of {', '.join(models)}\n")
     print("| scan | correct / predicted / copies | precision | recall | F1 | spacing |")
     print("|---|---|---|---|---|---|")
-    rows = [(float(f), 0.0) for f in args.fractions.split(",")]
-    rows += [(1.0, float(n)) for n in args.noise.split(",") if n]
-    for frac, noise in rows:
+    rows = [(float(f), 0.0, 0.0) for f in args.fractions.split(",")]
+    rows += [(1.0, float(n), 0.0) for n in args.noise.split(",") if n]
+    rows += [(1.0, 0.0, float(o)) for o in args.outliers.split(",") if o]
+    for frac, noise, outliers in rows:
         total, spacing = np.zeros(3, dtype=int), []
         for sc in scenes:
             model = sc.source_points
@@ -67,6 +73,11 @@ def main() -> None:
                 scan = scan[np.random.default_rng(0).random(len(scan)) < frac]
             if noise > 0.0:
                 scan = scan + np.random.default_rng(0).normal(scale=noise * voxel, size=scan.shape)
+            if outliers > 0.0:
+                stray = np.random.default_rng(0).uniform(
+                    scan.min(0), scan.max(0), size=(round(outliers * len(scan)), 3)
+                )
+                scan = np.concatenate([scan, stray])
             spacing.append(_spacing(scan) / voxel)
             try:
                 poses = pointclm.register_point_clouds(
@@ -79,7 +90,13 @@ def main() -> None:
         c, p, g = (int(v) for v in total)
         prec, rec = c / max(p, 1), c / max(g, 1)
         f1 = 2 * prec * rec / max(prec + rec, 1e-12)
-        label = f"{frac:.0%} of the points" if noise == 0.0 else f"noise {noise:g} voxel"
+        label = (
+            f"noise {noise:g} voxel"
+            if noise
+            else f"{outliers:.0%} stray points"
+            if outliers
+            else f"{frac:.0%} of the points"
+        )
         print(
             f"| {label} | {c} / {p} / {g} | {prec:.3f} | {rec:.3f} | {f1:.3f} | "
             f"{np.median(spacing):.2f} voxel |",

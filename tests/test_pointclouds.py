@@ -401,3 +401,26 @@ def test_noise_level_separates_noise_from_curvature() -> None:
     assert default_voxel_size(model, sphere) == own
     noisy = sphere + rng.normal(scale=0.5 * own, size=sphere.shape)
     assert default_voxel_size(model, noisy) == pytest.approx(0.5 * MIN_VOXEL_NOISES * own, rel=0.1)
+
+
+def test_stray_points_are_dropped_only_when_there_are_many() -> None:
+    from pointclm import _core
+    from pointclm.point_clouds import MAX_STRAY_SHARE, _without_strays
+
+    rng = np.random.default_rng(1)
+    g = np.arange(0.0, 1.0, 0.01)
+    x, y = np.meshgrid(g, g)
+    sheet = np.column_stack([x.ravel(), y.ravel(), 0.002 * rng.normal(size=x.size)])
+    stray = rng.uniform([0, 0, 0.1], [1, 1, 1], size=(500, 3))  # 5 % of the sheet
+    scan = np.concatenate([sheet, stray])
+    isolated = _core.isolated_points(scan, 0.02, 3)
+    assert not isolated[: len(sheet)].any() and isolated[len(sheet) :].mean() > 0.95
+    kept = _without_strays(scan, 0.01, None)
+    assert len(kept) == len(scan) - isolated.sum()
+    # A few isolated points (a clean scan's) stay: the scan is returned as it was.
+    few = np.concatenate([sheet, stray[: int(0.5 * MAX_STRAY_SHARE * len(sheet))]])
+    assert _without_strays(few, 0.01, None) is few
+    with pytest.raises(ValueError, match="radius"):
+        _core.isolated_points(scan, 0.0)
+    with pytest.raises(ValueError):
+        _core.isolated_points(np.full((3, 3), np.nan), 0.1)

@@ -28,6 +28,7 @@ __all__ = [
     "spectral_clustering",
     "validate_config",
     "voxel_downsample",
+    "isolated_points",
     "estimate_normals",
     "compute_fpfh",
     "describe",
@@ -182,6 +183,12 @@ def validate_config(config: dict[str, Any]) -> None: ...
 def voxel_downsample(
     points: npt.NDArray[np.float64], voxel_size: float
 ) -> npt.NDArray[np.float64]: ...
+def isolated_points(
+    points: npt.NDArray[np.float64],
+    radius: float,
+    min_neighbours: int = 3,
+    num_threads: int | None = None,
+) -> npt.NDArray[np.bool_]: ...
 def estimate_normals(
     points: npt.NDArray[np.float64],
     radius: float,

@@ -162,6 +162,7 @@ converters! {
     num_threads -> Option<usize> = |o| optional(o, |o| usize_in(o, "num_threads", 1, MAX_THREADS));
     seed -> u64 = |o| count(o, "seed", 0, u128::from(u64::MAX)).map(|v| v as u64);
     max_nn -> usize = |o| usize_in(o, "max_nn", 0, usize::MAX);
+    min_neighbours -> usize = |o| usize_in(o, "min_neighbours", 0, usize::MAX);
     top_k -> usize = |o| usize_in(o, "top_k", 0, usize::MAX);
     k -> usize = |o| usize_in(o, "k", 1, usize::MAX);
     min_visible_fitness -> f64 = |o| real(o, "min_visible_fitness");

@@ -282,6 +282,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::isolated_points, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::estimate_normals, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::compute_fpfh, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::describe, m)?)?;

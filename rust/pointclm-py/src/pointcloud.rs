@@ -55,6 +55,25 @@ pub fn voxel_downsample<'py>(
     rows_to_py(py, &out)
 }
 
+/// Which points have fewer than `min_neighbours` other points within `radius`: stray points
+/// among the points of a surface.
+#[pyfunction]
+#[pyo3(signature = (points, radius, min_neighbours=3, num_threads=None))]
+pub fn isolated_points<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::radius)] radius: f64,
+    #[pyo3(from_py_with = args::min_neighbours)] min_neighbours: usize,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray1<bool>>> {
+    let p = rows3(&points, "points")?;
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, threads, move || {
+        pointcloud::isolated_points(&p, radius, min_neighbours)
+    })?;
+    Ok(out.into_pyarray(py))
+}
+
 /// PCA normals over hybrid neighbourhoods, signed towards `towards` or away from
 /// `away_from` (exactly one of the two).
 #[pyfunction]

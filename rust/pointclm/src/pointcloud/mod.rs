@@ -23,7 +23,7 @@ pub use refine::{
     looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,
     RefinedPose, MAX_ROTATION_DEVIATION,
 };
-pub use search::{Neighbourhoods, PointIndex};
+pub use search::{isolated_points, Neighbourhoods, PointIndex};
 pub use voxel::voxel_downsample;
 
 use crate::error::{Error, Result};

@@ -125,6 +125,39 @@ impl PointIndex {
     }
 }
 
+/// Which points have fewer than `min_neighbours` other points within `radius` (inclusive):
+/// stray points (a depth sensor's flying pixels, multipath) among the points of a surface.
+/// Why a count within the normals' radius: a point needs a few neighbours to fit the plane it
+/// is described by, and a surface sampled at that scale gives every point a dozen, while a
+/// stray point in open space has none. Each count stops once it is decided.
+pub fn isolated_points(
+    points: &[[f64; 3]],
+    radius: f64,
+    min_neighbours: usize,
+) -> Result<Vec<bool>> {
+    check_points(points, "points", 1)?;
+    check_positive("radius", radius)?;
+    let grid = UniformGrid::new(points, radius);
+    let (sorted, _) = grid.points();
+    let r_sq = radius * radius;
+    Ok(points
+        .par_iter()
+        .map(|p| {
+            // The point itself is among those found.
+            let mut found = 0usize;
+            let enough = grid.try_runs(*p, radius, |run| {
+                found += sorted[run].iter().filter(|q| dist_sq(p, q) <= r_sq).count();
+                if found > min_neighbours {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            });
+            enough.is_continue()
+        })
+        .collect())
+}
+
 /// The nearest point of `grid` strictly within `radius` (squared: `r_sq`) of `query`, the
 /// lowest input index among equally near ones: `(index, squared distance)`.
 fn nearest_in_grid(

@@ -257,3 +257,29 @@ fn grid_nearest_within_equals_the_trees_far_from_the_origin() {
         }
     }
 }
+
+#[test]
+fn isolated_points_are_those_with_too_few_neighbours() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let mut pts = grid();
+    let n_surface = pts.len();
+    pts.extend((0..40).map(|_| [rng.random::<f64>() * 5.0 + 2.0, rng.random::<f64>(), 3.0]));
+    let radius = 0.25;
+    for min in [0, 1, 3, 8] {
+        let got = isolated_points(&pts, radius, min).unwrap();
+        for (i, p) in pts.iter().enumerate() {
+            let others = pts
+                .iter()
+                .enumerate()
+                .filter(|&(j, q)| j != i && dist_sq(p, q) <= radius * radius)
+                .count();
+            assert_eq!(got[i], others < min, "point {i}, min {min}");
+        }
+        if min == 3 {
+            assert!(got[..n_surface].iter().all(|&g| !g));
+        }
+    }
+    assert!(isolated_points(&[], 0.1, 3).is_err());
+    assert!(isolated_points(&pts, 0.0, 3).is_err());
+}
