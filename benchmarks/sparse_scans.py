@@ -11,7 +11,7 @@ models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in mod
 
     python benchmarks/sparse_scans.py [--models heldout|validation] [--scenes-per-model 2]
                                       [--fractions 1,0.3,0.1,0.03] [--noise 0.25,0.5]
-                                      [--outliers 0.01,0.05] [--cache DIR]
+                                      [--outliers 0.05,0.2] [--cache DIR]
 
 ``--noise s1,s2,...`` adds, after the fractions' rows, one row per standard deviation (in
 model voxels, the model's diagonal / 40; seed 0) of noise added to every full scan's points.

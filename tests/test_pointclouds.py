@@ -411,7 +411,7 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     g = np.arange(0.0, 1.0, 0.01)
     x, y = np.meshgrid(g, g)
     sheet = np.column_stack([x.ravel(), y.ravel(), 0.002 * rng.normal(size=x.size)])
-    stray = rng.uniform([0, 0, 0.1], [1, 1, 1], size=(500, 3))  # 5 % of the sheet
+    stray = rng.uniform([0, 0, 0.1], [1, 1, 1], size=(1000, 3))  # 10 % of the sheet
     scan = np.concatenate([sheet, stray])
     isolated = _core.isolated_points(scan, 0.02, 3)
     assert not isolated[: len(sheet)].any() and isolated[len(sheet) :].mean() > 0.95
