@@ -248,12 +248,11 @@ def scan_scales(points: ArrayLike, scale: float) -> tuple[float, float]:
     """:func:`point_spacing` and :func:`noise_level` (at `scale`) of one cloud, over one
     k-d tree (which dominates both for a large frame)."""
     p = as_points(points, "points")
-    tree = _tree(p) if len(p) >= 2 else None
-    spacing = _spacing(tree, p) if tree is not None else 0.0
-    noise = (
-        _noise(tree, p, as_positive(scale, "scale")) if len(p) >= 8 and tree is not None else 0.0
-    )
-    return spacing, noise
+    scale = as_positive(scale, "scale")
+    if len(p) < 2:
+        return 0.0, 0.0
+    tree = _tree(p)
+    return _spacing(tree, p), _noise(tree, p, scale) if len(p) >= 8 else 0.0
 
 
 def _tree(p: np.ndarray) -> Any:
