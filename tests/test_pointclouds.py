@@ -355,13 +355,15 @@ def test_result_prints_a_summary_and_explains_an_empty_result() -> None:
     assert "0 instance(s)" in repr(none) and none.diagnosis in repr(none)
 
 
+def sheet(step: float, side: float) -> np.ndarray:
+    """A square grid of points in the plane z = 0."""
+    g = np.arange(0.0, side, step)
+    x, y = np.meshgrid(g, g)
+    return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+
+
 def test_point_spacing_and_the_voxel_it_sets() -> None:
     from pointclm.point_clouds import MIN_VOXEL_SPACINGS, default_voxel_size
-
-    def sheet(step: float, side: float) -> np.ndarray:
-        g = np.arange(0.0, side, step)
-        x, y = np.meshgrid(g, g)
-        return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
 
     assert pp.point_spacing(sheet(0.01, 1.0)) == pytest.approx(0.01)
     assert pp.point_spacing(sheet(0.002, 1.0)) == pytest.approx(0.002)  # 250,000 points
@@ -408,17 +410,16 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     from pointclm.point_clouds import MAX_STRAY_SHARE, _without_strays
 
     rng = np.random.default_rng(1)
-    g = np.arange(0.0, 1.0, 0.01)
-    x, y = np.meshgrid(g, g)
-    sheet = np.column_stack([x.ravel(), y.ravel(), 0.002 * rng.normal(size=x.size)])
+    surface = sheet(0.01, 1.0)
+    surface[:, 2] = 0.002 * rng.normal(size=len(surface))
     stray = rng.uniform([0, 0, 0.1], [1, 1, 1], size=(1000, 3))  # 10 % of the sheet
-    scan = np.concatenate([sheet, stray])
+    scan = np.concatenate([surface, stray])
     isolated = _core.isolated_points(scan, 0.02, 3)
-    assert not isolated[: len(sheet)].any() and isolated[len(sheet) :].mean() > 0.95
+    assert not isolated[: len(surface)].any() and isolated[len(surface) :].mean() > 0.95
     kept = _without_strays(scan, 0.01, None)
     assert len(kept) == len(scan) - isolated.sum()
     # A few isolated points (a clean scan's) stay: the scan is returned as it was.
-    few = np.concatenate([sheet, stray[: int(0.5 * MAX_STRAY_SHARE * len(sheet))]])
+    few = np.concatenate([surface, stray[: int(0.5 * MAX_STRAY_SHARE * len(surface))]])
     assert _without_strays(few, 0.01, None) is few
     with pytest.raises(ValueError, match="radius"):
         _core.isolated_points(scan, 0.0)

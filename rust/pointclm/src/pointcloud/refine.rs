@@ -573,10 +573,10 @@ fn judge(
 /// What the model slid along the surface it explains still explains, as a share of what it
 /// explains in place (at most 1; 0 when it explains too little to slide): the posed model
 /// shifted by the explained points' spread along each of their two main directions, both
-/// ways, and the largest count kept. Why those shifts: a patch of extent `L` slid by its spread (`L / sqrt(12)`
-/// when even) leaves its own support with about 30 % of its points, so a pose that is where
-/// the scan puts the object loses them, while one on a larger surface of its shape keeps
-/// them all.
+/// ways, and the largest count kept. Why those shifts: a patch of extent `L` slid by its
+/// spread (`L / sqrt(12)` when even) leaves its own support with about 30 % of its points, so
+/// a pose that is where the scan puts the object loses them, while one on a larger surface of
+/// its shape keeps them all.
 fn slid_fitness(
     source: &[[f64; 3]],
     pose: &RigidTransform,
