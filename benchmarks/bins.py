@@ -18,7 +18,10 @@ the same voxel and the sensor position, in the same run:
 
 - **pointclm**: ``register_point_clouds(model, scan, voxel_size, viewpoint=sensor)`` with its
   defaults (training-free thresholds for refined poses, ICP refinement and verification,
-  peeling rounds over the scan points no accepted copy explains, the scene-wide mutual check).
+  peeling rounds over the scan points no accepted copy explains, the scene-wide mutual check,
+  relaxed by rank once ``HEAP_MIN_COPIES`` copies are accepted: ``heap_rank``).
+- **pointclm (scene-wide mutual)**: the same with ``heap_rank=None``: the mutual nearest check
+  in every round (stop 31's default).
 - **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
   windowed mutual check in the rounds after ``HEAP_MIN_COPIES`` copies are accepted.
 - **pointclm (one pass)**: the same with ``peel=False`` (one correspondence stage, the paper's).
@@ -97,6 +100,7 @@ MATCHING = {
     "pointclm (windowed mutual)": WINDOWED_MATCHES,
     "pointclm (heap switch)": HEAP_SWITCH,
     "pointclm (no flips)": {"flips": False},
+    "pointclm (scene-wide mutual)": {"heap_rank": None},
 }
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
@@ -104,6 +108,7 @@ RANSAC_MIN_FITNESS = 0.2
 KISS_MIN_INLIERS = 6
 METHODS = (
     "pointclm",
+    "pointclm (scene-wide mutual)",
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",

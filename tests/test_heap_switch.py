@@ -1,5 +1,6 @@
-"""`register_point_clouds(mutual_window="auto")`: the windowed mutual check only once the
-accepted copies show a heap (issue 18)."""
+"""`register_point_clouds` in heaps: once the accepted copies show one (issue 18), the later
+passes relax the mutual check, by rank (``heap_rank``, the default) or within windows
+(``mutual_window="auto"``)."""
 
 from __future__ import annotations
 
@@ -98,3 +99,34 @@ def test_auto_leaves_matching_it_cannot_make_local_alone(scene, monkeypatch) -> 
 def test_other_strings_are_rejected(scene, bad: str) -> None:
     with pytest.raises(InputError, match="mutual_window must be a number"):
         _register(scene, mutual_window=bad)
+
+
+def test_by_default_a_heap_relaxes_the_check_by_rank(scene, monkeypatch) -> None:
+    default = inspect.signature(pointclm.register_point_clouds).parameters["heap_rank"]
+    assert default.default == pc.HEAP_RANK == 64
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    calls = _spy_on_matching(monkeypatch)
+    reg = _register(scene, mutual_window=None)
+    accepted = np.cumsum([p.added for p in reg.passes])
+    assert "mutual_rank" not in calls[0]  # pass 0 is the mutual nearest check
+    for r in range(1, len(calls)):
+        ranked = accepted[r - 1] >= 1
+        assert calls[r].get("mutual_rank") == (pc.HEAP_RANK if ranked else None)
+        assert calls[r]["n_samples"] == 1000 and "window" not in calls[r]
+    assert any("mutual_rank" in c for c in calls)
+
+
+def test_below_the_count_or_without_a_rank_every_pass_is_the_mutual_check(scene, monkeypatch):
+    calls = _spy_on_matching(monkeypatch)
+    plain = _register(scene, mutual_window=None, heap_rank=None)
+    assert all("mutual_rank" not in c for c in calls)
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 10_000)
+    ranked = _register(scene, mutual_window=None)
+    np.testing.assert_array_equal(ranked.transformations, plain.transformations)
+    assert all("mutual_rank" not in c for c in calls)
+
+
+@pytest.mark.parametrize("bad", [0, -3, 2.5, True, "64"])
+def test_a_bad_heap_rank_is_rejected(scene, bad) -> None:
+    with pytest.raises(InputError, match="heap_rank must be an int"):
+        _register(scene, heap_rank=bad)

@@ -104,3 +104,61 @@ def test_a_window_needs_the_mutual_check_one_neighbour_and_the_points() -> None:
         pp.DescriptorMatcher(SRC, desc, target_points=scan[:-1])
     with pytest.raises(ValueError, match="mutual_window needs"):
         pointclm.register_point_clouds(model, scan, mutual=False, mutual_window=2.0)
+
+
+def _ranked_by_brute_force(src: np.ndarray, tgt: np.ndarray, rows: np.ndarray, rank: int):
+    """(source, target) pairs of `mutual_rank`: the target row's nearest source row (over all
+    sources) counts it among its `rank` nearest of `rows` (ties to the lower row)."""
+    d2 = ((tgt[:, None, :] - src[None, :, :]) ** 2).sum(-1)  # target x source
+    kept = set()
+    for t in rows:
+        s = int(np.argmin(d2[t]))
+        order = sorted(rows, key=lambda q: (d2[q, s], q))
+        if t in order[:rank]:
+            kept.add((s, int(t)))
+    return kept
+
+
+@pytest.mark.parametrize("rank", [1, 2, 5])
+def test_a_ranked_mutual_check_equals_brute_force(rank: int) -> None:
+    # A target of at most WINDOW_CANDIDATES rows: every row is a candidate, so the check is
+    # exact and brute force can say what it keeps.
+    src, tgt = _descriptors(20, 3), _descriptors(pp.WINDOW_CANDIDATES, 4)
+    matcher = pp.DescriptorMatcher(src, tgt)
+    for rows in (np.arange(len(tgt)), np.flatnonzero(np.arange(len(tgt)) % 3 != 1)):
+        got = matcher.match(rows, mutual=True, n_samples=None, mutual_rank=rank)
+        pairs = set(zip(got.source.tolist(), got.target.tolist(), strict=True))
+        assert pairs == _ranked_by_brute_force(src, tgt, rows, rank)
+    if rank == 1:  # the mutual nearest check itself
+        plain = matcher.match(mutual=True, n_samples=None)
+        ranked = matcher.match(mutual=True, n_samples=None, mutual_rank=1)
+        np.testing.assert_array_equal(plain.target, ranked.target)
+
+
+def test_a_ranked_mutual_check_keeps_a_match_on_each_copy() -> None:
+    model, scan, desc = _two_copies()
+    matcher = pp.DescriptorMatcher(SRC, desc)
+    scene_wide = matcher.match(mutual=True, n_samples=None)
+    assert len(scene_wide) <= len(SRC)
+    ranked = matcher.match(mutual=True, n_samples=None, mutual_rank=2)
+    assert np.array_equal(ranked.target % len(SRC), ranked.source)  # every pair a true match
+    per_copy = np.bincount(ranked.target // len(SRC), minlength=2)
+    assert per_copy.min() >= 0.9 * len(SRC), per_copy
+    # Ranks beyond the candidates looked at search further, once.
+    wide = matcher.match(mutual=True, n_samples=None, mutual_rank=pp.WINDOW_CANDIDATES + 6)
+    assert len(wide) >= len(ranked)
+
+
+def test_a_rank_needs_the_mutual_check_and_one_neighbour() -> None:
+    model, scan, desc = _two_copies()
+    with pytest.raises(ValueError, match="mutual=True and k=1"):
+        pp.DescriptorMatcher(SRC, desc).match(mutual=False, mutual_rank=2)
+    with pytest.raises(ValueError, match="mutual=True and k=1"):
+        pp.DescriptorMatcher(SRC, desc, k=2).match(mutual=True, mutual_rank=2)
+    with pytest.raises(ValueError, match="not both"):
+        pp.DescriptorMatcher(SRC, desc, target_points=scan).match(
+            mutual=True, window=1.0, mutual_rank=2
+        )
+    for bad in (0, True, 2.5, -1):
+        with pytest.raises(ValueError, match="mutual_rank must be an int"):
+            pp.DescriptorMatcher(SRC, desc).match(mutual=True, mutual_rank=bad)

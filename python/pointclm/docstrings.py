@@ -139,16 +139,23 @@ PARAMETERS: dict[str, str] = _entries(
             of them, so most copies keep too few matches to be found; ``mutual=False`` keeps them
             but floods the copies with false matches. "auto": the scene-wide check until peeling
             has accepted `pointclm.point_clouds.HEAP_MIN_COPIES` (10) copies, then windows of
-            `HEAP_WINDOW` (2) with every match kept (``n_samples=None``) in the later passes
-            (with other matching, or without peeling, "auto" changes nothing). On the validation
-            bins it finds 0.32 of the half-visible copies against 0.28 (by ADD-S 0.42 against
-            0.36, precision by ADD-S 0.988 against 0.989) in 1.6 times the time, and leaves the
-            realistic validation scenes (at most 7 copies found) as they were. 2 (with
-            ``n_samples=None``) from the first pass: 0.34 (ADD-S 0.48 at 0.982), 2.2 times the
-            time, but realistic validation F1 0.84 against 0.87. None: the scene-wide check in
-            every pass (the default: "auto" takes 1.75 times as long on the held-out bins for
-            0.72 of the copies against 0.70, which would break the bins' time target of a fifth
-            of sequential RANSAC's).
+            `HEAP_WINDOW` (2) with every match kept (``n_samples=None``) in the later passes,
+            instead of `heap_rank`'s ranked check (with other matching, or without peeling,
+            "auto" changes nothing). On the validation bins it finds 0.32 of the half-visible
+            copies (by ADD-S 0.42 at precision 0.988), the ranked check 0.34 (0.45 at 0.995).
+            2 (with ``n_samples=None``) from the first pass: 0.34 (ADD-S 0.48 at 0.982), 2.2
+            times the time of the scene-wide check, but realistic validation F1 0.84 against
+            0.87. None (the default): the scene-wide check, relaxed by `heap_rank` in a heap.
+        """,
+    heap_rank="""
+        heap_rank : int or None, default 64
+            For heaps: once peeling has accepted `pointclm.point_clouds.HEAP_MIN_COPIES` (10)
+            copies, the later passes keep a pair when the scan point's best model match is that
+            model point and the scan point is among the model point's `heap_rank` most similar
+            scan points still unexplained (the mutual check, relaxed by rank; needs `mutual`
+            and ``k=1``, and gives way to `mutual_window`). A model point has one true match per
+            visible copy, and the scene-wide check keeps one. A scan with fewer copies (a room)
+            is matched as before. None (or 1): the mutual nearest check in every pass.
         """,
     cloud_normals="""
         normals : bool

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from .errors import InputError
-from .registration import as_matrix, as_threads
+from .registration import as_matrix, as_seed, as_threads
 
 __all__ = [
     "DescribedCloud",
@@ -65,7 +65,7 @@ def as_positive(value: float, name: str) -> float:
 MAX_COUNT = 2**63 - 1
 
 
-def _count(value: int, name: str, minimum: int) -> int:
+def as_count(value: int, name: str, minimum: int) -> int:
     if (
         isinstance(value, bool)
         or not isinstance(value, int | np.integer)
@@ -128,7 +128,7 @@ def estimate_normals(
     return _core.estimate_normals(
         as_points(points, "points"),
         as_positive(radius, "radius"),
-        _count(max_nn, "max_nn", 3),
+        as_count(max_nn, "max_nn", 3),
         towards=t,
         away_from=a,
         num_threads=as_threads(num_threads),
@@ -159,7 +159,7 @@ def compute_fpfh(
         p,
         n,
         as_positive(radius, "radius"),
-        _count(max_nn, "max_nn", 2),
+        as_count(max_nn, "max_nn", 2),
         variant=variant,
         num_threads=as_threads(num_threads),
     )
@@ -221,7 +221,7 @@ def estimate_viewpoint(
     p, n = p[::step], n[::step]
     centre = p.mean(0)
     radius = max(float(np.linalg.norm(p - centre, axis=1).max()), np.finfo(float).tiny)
-    dirs = _sphere(_count(n_directions, "n_directions", 1))
+    dirs = _sphere(as_count(n_directions, "n_directions", 1))
     eyes = np.vstack(
         [np.zeros((1, 3)), centre[None]] + [centre + r * radius * dirs for r in (2.0, 8.0, 1e3)]
     )
@@ -387,7 +387,7 @@ def describe(
         v,
         nrm,
         feature_radius=as_positive(feature_radius, "feature_radius"),
-        feature_max_nn=_count(feature_max_nn, "feature_max_nn", 2),
+        feature_max_nn=as_count(feature_max_nn, "feature_max_nn", 2),
         variant=variant,
         num_threads=threads,
         **estimate,
@@ -405,7 +405,7 @@ def _normal_args(
         "towards": None if towards is None else as_point(towards, "towards"),
         "away_from": None if away_from is None else as_point(away_from, "away_from"),
         "normal_radius": as_positive(radius, "normal_radius"),
-        "normal_max_nn": _count(max_nn, "normal_max_nn", 3),
+        "normal_max_nn": as_count(max_nn, "normal_max_nn", 3),
     }
 
 
@@ -496,7 +496,7 @@ class DescriptorMatcher:
         target_points: ArrayLike | None = None,
     ) -> None:
         self.source, self.target = _descriptor_pair(source, target)
-        self.k = _count(k, "k", 1)
+        self.k = as_count(k, "k", 1)
         self.num_threads = as_threads(num_threads)
         self.target_points = None
         if target_points is not None:
@@ -518,6 +518,7 @@ class DescriptorMatcher:
         n_samples: int | None = 1000,
         seed: int = 0,
         window: float | None = None,
+        mutual_rank: int = 1,
     ) -> Matches:
         """Matches of the target rows `rows` (None: all; indices into the target); the
         returned target indices index the whole target.
@@ -530,28 +531,30 @@ class DescriptorMatcher:
         heap of identical parts a source point has one true match per visible copy, and the
         scene-wide mutual check keeps at most one of them; within a window about a part wide
         each copy keeps its own, while the check still drops most of the pairs a source point
-        would not choose."""
-        n = None if n_samples is None else _count(n_samples, "n_samples", 1)
-        if (
-            isinstance(seed, bool)
-            or not isinstance(seed, int | np.integer)
-            or not 0 <= seed < 2**64
-        ):
-            raise InputError(f"seed must be a non-negative int below 2**64, got {seed!r}")
-        kept, mutual_only = _count(top_k, "top_k", 1), as_flag(mutual, "mutual")
+        would not choose.
+
+        `mutual_rank` (with `mutual` and ``k=1``, no `window`) relaxes the check by rank
+        instead of place: a pair counts when the source point is the target point's nearest
+        and the target point is among the source point's `mutual_rank` nearest target rows
+        taking part (looked for among its :data:`WINDOW_CANDIDATES` nearest of the whole
+        target, or `mutual_rank` if more). 1 is the mutual nearest neighbour check. Why: in a
+        heap each copy holds one true match of a source point, and the copies compete for it;
+        ranked, a source point keeps a match on as many copies as the rank allows, wherever
+        they lie."""
+        n = None if n_samples is None else as_count(n_samples, "n_samples", 1)
+        rank = as_count(mutual_rank, "mutual_rank", 1)
+        seed = as_seed(seed)
+        kept, mutual_only = as_count(top_k, "top_k", 1), as_flag(mutual, "mutual")
         nearest = None
-        if window is not None:
-            side = self._window(window, mutual_only)
-            picked = self._windowed_mutual(
-                np.arange(len(self.target)) if rows is None else self._rows(rows), side
-            )
+        if window is not None or rank > 1:
+            picked = self._relaxed(rows, window, rank, mutual_only)
             if len(picked) == 0:
                 empty = np.zeros(0, dtype=np.int64)
                 return Matches(empty, empty.copy(), np.zeros(0))
             rows, mutual_only = picked, False  # the pairs left are the mutual ones
+        elif rows is not None:
+            picked = self._rows(rows)
         if rows is not None:
-            if window is None:
-                picked = self._rows(rows)
             near, d2 = self._nearest_sources()
             nearest = (near[picked], d2[picked])
         src, tgt, dist = _core.match_features(
@@ -560,7 +563,7 @@ class DescriptorMatcher:
             top_k=kept,
             mutual=mutual_only,
             n_samples=n,
-            seed=int(seed),
+            seed=seed,
             num_threads=self.num_threads,
             k=self.k,
             nearest=nearest,
@@ -592,20 +595,58 @@ class DescriptorMatcher:
             raise InputError("window needs the matcher's target_points (the target's positions)")
         return side
 
+    def _relaxed(
+        self, rows: ArrayLike | None, window: float | None, rank: int, mutual: bool
+    ) -> np.ndarray:
+        """The target rows (of `rows`) in a pair the windowed or ranked mutual check keeps."""
+        picked = np.arange(len(self.target)) if rows is None else self._rows(rows)
+        if window is None:
+            if not mutual or self.k != 1:
+                raise InputError(
+                    "mutual_rank needs mutual=True and k=1: it relaxes the mutual check"
+                )
+            return self._rank_mutual(picked, rank)
+        if rank > 1:
+            raise InputError("give window or mutual_rank, not both: each relaxes the check")
+        return self._windowed_mutual(picked, self._window(window, mutual))
+
+    def _nearest_targets_of_sources(self, k: int) -> np.ndarray:
+        """Every source row's `k` (at least :data:`WINDOW_CANDIDATES`) nearest target rows of
+        the whole target, nearest first; found once, again only for a larger `k`."""
+        k = max(k, WINDOW_CANDIDATES)
+        if self._nearest_targets is None or self._nearest_targets.shape[1] < min(
+            k, len(self.target)
+        ):
+            self._nearest_targets, _ = _core.nearest_descriptors(
+                self.target, self.source, k=k, num_threads=self.num_threads
+            )
+        return self._nearest_targets
+
+    def _rank_mutual(self, picked: np.ndarray, rank: int) -> np.ndarray:
+        """The rows of `picked` whose nearest source row counts them among its `rank`
+        nearest rows of `picked` (:meth:`match`'s `mutual_rank`), in increasing order."""
+        nearest = self._nearest_targets_of_sources(rank)
+        at = np.zeros(len(self.target), dtype=bool)
+        at[picked] = True
+        src, col = np.nonzero(at[nearest])  # by source row, then rank in the whole target
+        # The rank among the rows taking part: the position within the source row's run.
+        place = np.arange(len(src)) - np.searchsorted(src, src)
+        src, col = src[place < rank], col[place < rank]
+        tgt = nearest[src, col]
+        near, _ = self._nearest_sources()
+        return np.unique(tgt[near[tgt, 0] == src])
+
     def _windowed_mutual(self, picked: np.ndarray, side: float) -> np.ndarray:
         """The rows of `picked` whose pair with their nearest source row is mutual within
         some cube of side `side` (:meth:`match`), in increasing order."""
         assert self.target_points is not None
-        if self._nearest_targets is None:
-            # Found once over the whole target, as the nearest sources are; a call on fewer
-            # rows looks at those of the list among them.
-            self._nearest_targets, _ = _core.nearest_descriptors(
-                self.target, self.source, k=WINDOW_CANDIDATES, num_threads=self.num_threads
-            )
+        # Found once over the whole target, as the nearest sources are; a call on fewer rows
+        # looks at those of the list among them.
+        nearest = self._nearest_targets_of_sources(WINDOW_CANDIDATES)
         at = np.full(len(self.target), -1, dtype=np.int64)
         at[picked] = np.arange(len(picked))
-        src, rank = np.nonzero(at[self._nearest_targets] >= 0)  # by source, then rank
-        tgt = self._nearest_targets[src, rank]
+        src, rank = np.nonzero(at[nearest] >= 0)  # by source, then rank
+        tgt = nearest[src, rank]
         # A point in cell c (of side / 2) lies in the cubes whose corner cells are c - {0, 1}^3.
         cells = np.floor((self.target_points - self.target_points.min(0)) / (side / 2))
         cells = cells.astype(np.int64) + 1

@@ -119,6 +119,9 @@ fn bench_point_clouds(c: &mut Criterion) {
         b.iter(|| pool.install(|| estimate_normals(&scan, &index, 2.0, 30, towards).expect("n")))
     });
     let normals = estimate_normals(&scan, &index, 2.0, 30, towards).expect("normals");
+    c.bench_function("fpfh_neighbourhoods_20k_points_1_thread", |b| {
+        b.iter(|| pool.install(|| index.neighbourhoods(&scan, 5.0, 100).expect("hoods")))
+    });
     c.bench_function("fpfh_20k_points_1_thread", |b| {
         b.iter(|| {
             pool.install(|| fpfh(&scan, &normals, &index, 5.0, 100, FpfhVariant::Open3d))
