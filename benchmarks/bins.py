@@ -22,6 +22,8 @@ the same voxel and the sensor position, in the same run:
   relaxed by rank once ``HEAP_MIN_COPIES`` copies are accepted: ``heap_rank``).
 - **pointclm (scene-wide mutual)**: the same with ``heap_rank=None``: the mutual nearest check
   in every round (stop 31's default).
+- **pointclm (heap)**: the same with ``heap=True`` (what a picking cell knows of its scans): the
+  ranked check from the round after the first accepted copy.
 - **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
   windowed mutual check in the rounds after ``HEAP_MIN_COPIES`` copies are accepted.
 - **pointclm (one pass)**: the same with ``peel=False`` (one correspondence stage, the paper's).
@@ -101,6 +103,7 @@ MATCHING = {
     "pointclm (heap switch)": HEAP_SWITCH,
     "pointclm (no flips)": {"flips": False},
     "pointclm (scene-wide mutual)": {"heap_rank": None},
+    "pointclm (heap)": {"heap": True},
 }
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
@@ -109,6 +112,7 @@ KISS_MIN_INLIERS = 6
 METHODS = (
     "pointclm",
     "pointclm (scene-wide mutual)",
+    "pointclm (heap)",
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",

@@ -201,3 +201,23 @@ def test_method_flags_are_in_synthetic_units_over_the_path_defaults(
     )
     assert only_sigma.cluster_level == default.cluster_level is not None
     assert only_sigma.tau_n == default.tau_n != pointclm.Config().tau_n
+
+
+@pytest.mark.parametrize("flag, heap", [((), None), (("--heap",), True)])
+def test_heap_flag_reaches_the_registration(
+    flag: tuple[str, ...],
+    heap: bool | None,
+    bunnies: dict[str, Any],
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    seen: dict[str, Any] = {}
+    register = pointclm.point_clouds.register_point_clouds
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        seen.update(kwargs)
+        return register(*args, **kwargs)
+
+    monkeypatch.setattr(pointclm.point_clouds, "register_point_clouds", spy)
+    _register(capsys, bunnies["model"], bunnies["scene"], *flag)
+    assert seen["heap"] is heap

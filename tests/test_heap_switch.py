@@ -130,3 +130,24 @@ def test_below_the_count_or_without_a_rank_every_pass_is_the_mutual_check(scene,
 def test_a_bad_heap_rank_is_rejected(scene, bad) -> None:
     with pytest.raises(InputError, match="heap_rank must be an int"):
         _register(scene, heap_rank=bad)
+
+
+def test_a_scan_said_to_be_a_heap_relaxes_the_check_after_the_first_copy(scene, monkeypatch):
+    calls = _spy_on_matching(monkeypatch)
+    reg = _register(scene, mutual_window=None, heap=True)
+    accepted = np.cumsum([p.added for p in reg.passes])
+    assert "mutual_rank" not in calls[0]
+    for r in range(1, len(calls)):
+        assert ("mutual_rank" in calls[r]) == (accepted[r - 1] >= 1)
+    calls.clear()
+    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)  # heap=False wins over any count
+    never = _register(scene, mutual_window=None, heap=False)
+    assert all("mutual_rank" not in c for c in calls)
+    plain = _register(scene, mutual_window=None, heap_rank=None)
+    np.testing.assert_array_equal(never.transformations, plain.transformations)
+
+
+@pytest.mark.parametrize("bad", [1, "yes", 0.5])
+def test_heap_is_true_false_or_none(scene, bad) -> None:
+    with pytest.raises(InputError, match="heap must be True or False"):
+        _register(scene, heap=bad)

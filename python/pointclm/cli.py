@@ -457,6 +457,7 @@ def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -
         "n_samples": None if args.all_correspondences else args.correspondences,
         "refine": not args.no_refine,
         "peel": not args.no_peel,
+        "heap": True if args.heap else None,
         "num_threads": args.num_threads,
     }
 
@@ -737,6 +738,12 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
         "--no-peel",
         action="store_true",
         help="one pass of the correspondence stage (no new passes over the unexplained scan)",
+    )
+    p.add_argument(
+        "--heap",
+        action="store_true",
+        help="the scan is a heap of identical parts (bin picking): match as in a heap from the "
+        "first copy found (default: once 10 copies are found)",
     )
     _add_config_flags(p)
 

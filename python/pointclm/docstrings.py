@@ -157,6 +157,14 @@ PARAMETERS: dict[str, str] = _entries(
             visible copy, and the scene-wide check keeps one. A scan with fewer copies (a room)
             is matched as before. None (or 1): the mutual nearest check in every pass.
         """,
+    heap="""
+        heap : bool or None, default None
+            Whether `target` is a heap of identical parts. None: judged by the count, once
+            peeling has accepted `HEAP_MIN_COPIES` (10) copies. True (a bin-picking cell knows
+            its scans are heaps): the passes after the first copy match as in a heap
+            (`heap_rank`, or the windows of ``mutual_window="auto"``), so a part whose
+            scene-wide passes stall below 10 copies gets the heap's matching too. False: never.
+        """,
     cloud_normals="""
         normals : bool
             Give the pipeline the clouds' normals at both ends of each correspondence, so spatial

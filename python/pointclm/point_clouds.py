@@ -361,6 +361,7 @@ def register_point_clouds(
     k: int = 1,
     mutual_window: float | str | None = None,
     heap_rank: int | None = HEAP_RANK,
+    heap: bool | None = None,
     normals: bool = False,
     refine: bool = True,
     peel: bool = True,
@@ -381,6 +382,7 @@ def register_point_clouds(
     %(matching)s
     %(mutual_window)s
     %(heap_rank)s
+    %(heap)s
     %(cloud_normals)s
     %(refine)s
     %(peel)s
@@ -391,21 +393,24 @@ def register_point_clouds(
     """
     t0 = time.perf_counter()
     embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
-    window, rank = _heap_arguments(mutual_window, heap_rank, mutual, k)
-    src = _load(source, "source")
-    tgt = _load(target, "target")
+    window, rank = _heap_arguments(mutual_window, heap_rank, heap, mutual, k)
+    src, tgt = _load(source, "source"), _load(target, "target")
     view = _recorded_viewpoint(target) if view is None else view
     t_load = time.perf_counter() - t0
     voxel = _voxel_size(src, tgt, voxel_size)
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
     scan = _describe_target(tgt, voxel, view, viewpoint is None, src_d, num_threads)
     tgt_d, orientation, view, guessed = scan
-    matching, heap = _matchings(top_k, mutual, n_samples, k, window, src, rank)
+    matching, heaped = _matchings(top_k, mutual, n_samples, k, window, src, rank, heap)
     args = (src_d, tgt_d, voxel, view, matching, _matcher(src_d, tgt_d, k, num_threads))
-    run = _Run(*args, normals, seed, embedding, num_threads, heap, guessed)
+    run = _Run(*args, normals, seed, embedding, num_threads, heaped, guessed, heap)
     reg = _register(run, config, refine, peel, flips)
-    reg.timings.update(load=t_load, total=time.perf_counter() - t0)
-    return replace(reg, orientation=orientation)
+    return replace(reg, orientation=orientation, timings=reg.timings | _total(t_load, t0))
+
+
+def _total(t_load: float, t0: float) -> dict[str, float]:
+    """The timings of reading the files and of the whole call (started at `t0`)."""
+    return {"load": t_load, "total": time.perf_counter() - t0}
 
 
 def _matching(
@@ -427,12 +432,13 @@ def _matchings(
     window: float | str | None,
     src: np.ndarray,
     rank: int | None = None,
+    heap: bool | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """The matcher's arguments of the first passes, and those once a heap is recognised
     (None: no switch)."""
     fixed = None if isinstance(window, str) else window  # "auto" starts scene-wide
     matching = _matching(top_k, mutual, n_samples, fixed, src)
-    if not mutual or k != 1:
+    if not mutual or k != 1 or heap is False:
         return matching, None  # only the mutual check can be relaxed
     if window == "auto":
         return matching, _matching(top_k, True, None, HEAP_WINDOW, src)
@@ -474,9 +480,11 @@ def _checked_arguments(
 
 
 def _heap_arguments(
-    window: float | str | None, rank: int | None, mutual: bool, k: int
+    window: float | str | None, rank: int | None, heap: bool | None, mutual: bool, k: int
 ) -> tuple[float | str | None, int | None]:
-    """`mutual_window` and `heap_rank` checked before the files are read."""
+    """`mutual_window`, `heap_rank` and `heap` checked before the files are read."""
+    if heap is not None:
+        pp.as_flag(heap, "heap")
     return _window_diagonals(window, mutual, k), (
         None if rank is None else pp.as_count(rank, "heap_rank", 1)
     )
@@ -532,12 +540,15 @@ class _Run:
     #: The learned embedding, resolved once for every pass; None: training-free.
     model: Embedding | None
     num_threads: int | None
-    #: The matching of the passes once the accepted copies show a heap
-    #: (``mutual_window="auto"``); None: every pass uses `matching`.
+    #: The matching of the passes once the accepted copies show a heap (``heap_rank`` or
+    #: ``mutual_window="auto"``); None: every pass uses `matching`.
     heap_matching: dict[str, Any] | None = None
     #: The viewpoint is the origin of a scan in its sensor's frame, not given: the first
     #: pass confirms it (:func:`_confirm_viewpoint`).
     guessed_viewpoint: bool = False
+    #: Whether the scan is a heap (``heap``): None once `HEAP_MIN_COPIES` copies are
+    #: accepted, True from the first copy.
+    heap: bool | None = None
 
     @cached_property
     def refiner(self) -> RefinementContext:
@@ -960,8 +971,11 @@ def _peel(
 
 
 def _is_heap(run: _Run, tags: list[tuple[int, int]]) -> bool:
-    """Whether the accepted copies show a heap (``mutual_window="auto"``, `HEAP_MIN_COPIES`)."""
-    return run.heap_matching is not None and len(tags) >= HEAP_MIN_COPIES
+    """Whether the later passes match as in a heap: the user said so (``heap=True``) and a
+    copy is accepted, or the accepted copies show one (`HEAP_MIN_COPIES`)."""
+    if run.heap_matching is None:
+        return False
+    return len(tags) >= (1 if run.heap else HEAP_MIN_COPIES)
 
 
 def _peel_round(

@@ -42,6 +42,7 @@ OPTION_NAMES = (
     "normals",
     "refine",
     "peel",
+    "heap",
     "num_threads",
 )
 
@@ -86,6 +87,8 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
     for flag in ("mutual", "normals", "refine", "peel"):
         if flag in out:
             pp.as_flag(out[flag], flag)
+    if out.get("heap") is not None:
+        pp.as_flag(out["heap"], "heap")
     if out.get("voxel_size") is not None:
         out["voxel_size"] = pp.as_positive(out["voxel_size"], "voxel_size")
     if isinstance(out.get("config"), dict):
