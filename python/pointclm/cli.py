@@ -742,8 +742,8 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--heap",
         action="store_true",
-        help="the scan is a heap of identical parts (bin picking): match as in a heap from the "
-        "first copy found (default: once 10 copies are found)",
+        help="the scan is a heap of identical parts (bin picking): every pass ranks its mutual "
+        "matches as in a heap (default: once 10 copies are found)",
     )
     _add_config_flags(p)
 

@@ -161,9 +161,9 @@ PARAMETERS: dict[str, str] = _entries(
         heap : bool or None, default None
             Whether `target` is a heap of identical parts. None: judged by the count, once
             peeling has accepted `HEAP_MIN_COPIES` (10) copies. True (a bin-picking cell knows
-            its scans are heaps): the passes after the first copy match as in a heap
-            (`heap_rank`, or the windows of ``mutual_window="auto"``), so a part whose
-            scene-wide passes stall below 10 copies gets the heap's matching too. False: never.
+            its scans are heaps): every pass matches as in a heap (`heap_rank`, or the windows
+            of ``mutual_window="auto"``), so a part whose scene-wide passes stall below 10
+            copies, or find none, gets the heap's matching too. False: never.
         """,
     cloud_normals="""
         normals : bool

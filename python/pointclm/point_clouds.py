@@ -547,7 +547,7 @@ class _Run:
     #: pass confirms it (:func:`_confirm_viewpoint`).
     guessed_viewpoint: bool = False
     #: Whether the scan is a heap (``heap``): None once `HEAP_MIN_COPIES` copies are
-    #: accepted, True from the first copy.
+    #: accepted, True in every pass.
     heap: bool | None = None
 
     @cached_property
@@ -704,7 +704,8 @@ def _register(
     after the clouds are described."""
     t1 = time.perf_counter()
     everything = np.arange(len(run.tgt_d.points))
-    corr, pair_normals, sims = _match(run, everything, run.seed)
+    first = run.heap_matching if _is_heap(run, []) else None
+    corr, pair_normals, sims = _match(run, everything, run.seed, first)
     t2 = time.perf_counter()
     if len(corr) < 3:
         raise ValueError(
@@ -971,11 +972,11 @@ def _peel(
 
 
 def _is_heap(run: _Run, tags: list[tuple[int, int]]) -> bool:
-    """Whether the later passes match as in a heap: the user said so (``heap=True``) and a
-    copy is accepted, or the accepted copies show one (`HEAP_MIN_COPIES`)."""
+    """Whether a pass matches as in a heap: the user said the scan is one (``heap=True``:
+    every pass), or the copies accepted before it show one (`HEAP_MIN_COPIES`)."""
     if run.heap_matching is None:
         return False
-    return len(tags) >= (1 if run.heap else HEAP_MIN_COPIES)
+    return bool(run.heap) or len(tags) >= HEAP_MIN_COPIES
 
 
 def _peel_round(

@@ -472,7 +472,7 @@ fn screened_block<T: Screen>(
         let query = queries.row(lo + i);
         let qn: f64 = query.iter().map(|v| v * v).sum();
         let col = g.col_as_slice(i);
-        if let (1, Some(col32)) = (k, T::f32_column(col)) {
+        if let Some(col32) = T::f32_column(col) {
             let screened = ScreenedQuery {
                 query,
                 qn,
@@ -481,7 +481,11 @@ fn screened_block<T: Screen>(
                 max_norm,
                 bound: (err32, tiny),
             };
-            nearest_one_dispatched(&screened, base, &mut best);
+            if k == 1 {
+                nearest_one_dispatched(&screened, base, &mut best);
+            } else {
+                nearest_k_dispatched(&screened, base, k, &mut scratch, &mut best);
+            }
             continue;
         }
         let bounds = |j: usize| {
@@ -640,6 +644,116 @@ fn nearest_one_dispatched(
         return unsafe { nearest_one_avx2(s, base, out) };
     }
     nearest_one(s, base, out)
+}
+
+/// The `k` nearest base rows of the query, nearest first: what [`rank_query`] gives, from the
+/// f32 screen as [`nearest_one`] reads it. One sweep keeps the `k` least screened values `c`
+/// and every row whose `c` is within twice the error bound of the running `k`-th least (the
+/// running value only falls, so every row of the true `k` nearest passes when it comes); the
+/// final `k`-th least cuts the candidates again, and direct f64 distances rank the rest, ties
+/// to the lower row. Why: peeling in a heap looks up every model point's 64 nearest scan
+/// points, and the general sweep's per-row bookkeeping was most of its time.
+#[inline(always)]
+fn nearest_k(
+    s: &ScreenedQuery<'_>,
+    base: &Features,
+    k: usize,
+    scratch: &mut (Ranked, Ranked),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    let (query, qn, col, norm, max_norm) = (s.query, s.qn, s.col, s.norm, s.max_norm);
+    let (err, tiny) = s.bound;
+    let slack = 2.0 * (err * (qn + max_norm) + tiny);
+    // In f64, then widened past the rounding of its conversion to f32.
+    let limit_of = |kth: f64| {
+        let limit = kth + slack;
+        (limit + limit.abs() * 1e-6 + tiny) as f32
+    };
+    const LANES: usize = 8;
+    let c = |g: f32, bn: f32| bn - 2.0 * g;
+    let (top, cands) = scratch;
+    top.clear();
+    cands.clear();
+    let mut limit = f32::INFINITY;
+    let mut take = |j: usize, x: f32, limit: &mut f32| {
+        cands.push((f64::from(x), j));
+        keep_smallest(top, k, f64::from(x), j);
+        if top.len() == k {
+            *limit = limit_of(top[k - 1].0);
+        }
+    };
+    let (cg, cb) = (col.chunks_exact(LANES), norm.chunks_exact(LANES));
+    let tail = cg.len() * LANES;
+    let (rg, rb) = (cg.remainder(), cb.remainder());
+    for (block, (g, bn)) in cg.zip(cb).enumerate() {
+        let mut any = false;
+        for l in 0..LANES {
+            any |= c(g[l], bn[l]) <= limit;
+        }
+        if any {
+            for l in 0..LANES {
+                let x = c(g[l], bn[l]);
+                if x <= limit {
+                    take(block * LANES + l, x, &mut limit);
+                }
+            }
+        }
+    }
+    for (l, (&g, &bn)) in rg.iter().zip(rb).enumerate() {
+        let x = c(g, bn);
+        if x <= limit {
+            take(tail + l, x, &mut limit);
+        }
+    }
+    // `base` holds at least `k` rows, so `top` is full.
+    let limit = limit_of(top[top.len() - 1].0);
+    top.clear();
+    for &(x, j) in cands.iter() {
+        if x as f32 <= limit {
+            let d2: f64 = query
+                .iter()
+                .zip(base.row(j))
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum();
+            keep_smallest(top, k, d2, j);
+        }
+    }
+    for &(d2, j) in top.iter() {
+        out.0.push(j);
+        out.1.push(d2);
+    }
+}
+
+/// [`nearest_k`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn nearest_k_avx2(
+    s: &ScreenedQuery<'_>,
+    base: &Features,
+    k: usize,
+    scratch: &mut (Ranked, Ranked),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    nearest_k(s, base, k, scratch, out)
+}
+
+/// [`nearest_k`], in 8 lanes where the CPU has AVX2.
+fn nearest_k_dispatched(
+    s: &ScreenedQuery<'_>,
+    base: &Features,
+    k: usize,
+    scratch: &mut (Ranked, Ranked),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::cpu::has_avx2() {
+        // SAFETY: the CPU has AVX2, checked on the line above.
+        return unsafe { nearest_k_avx2(s, base, k, scratch, out) };
+    }
+    nearest_k(s, base, k, scratch, out)
 }
 
 /// One query of [`nearest_one`]: its row and squared norm, its f32 screen column and the base

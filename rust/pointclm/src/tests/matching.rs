@@ -322,8 +322,8 @@ fn given_nearest_sources_are_checked() {
 
 #[test]
 fn the_nearest_row_fast_path_equals_the_general_ranking() {
-    // k = 1 takes `nearest_one`; the first of k = 2 comes from the general sweep. Duplicated
-    // and nearly duplicated rows test the ties (lowest row first).
+    // k = 1 takes `nearest_one`; the first of k = 2 comes from `nearest_k`. Duplicated and
+    // nearly duplicated rows test the ties (lowest row first).
     let mut base = pseudo_random(700, 33, 9);
     let copies: Vec<Vec<f64>> = base[..50].to_vec();
     base.extend(copies);
@@ -340,6 +340,46 @@ fn the_nearest_row_fast_path_equals_the_general_ranking() {
     for i in 0..queries.len() {
         assert_eq!(one[i], two[2 * i], "query {i}");
         assert_eq!(d_one[i], d_two[2 * i], "query {i}");
+    }
+}
+
+/// Every query's `k` nearest base rows by the general sweep ([`rank_query`] over the f64
+/// screen), whatever the descriptors' size.
+fn general_nearest_rows(queries: &Features, base: &Features, k: usize) -> (Vec<usize>, Vec<f64>) {
+    let dim = base.dim();
+    let norm: Vec<f64> = (0..base.len())
+        .map(|i| base.row(i).iter().map(|v| v * v).sum())
+        .collect();
+    let mat = Mat::<f64>::from_fn(base.len(), dim, |i, j| base.row(i)[j]);
+    let (mut idx, mut d2) = (Vec::new(), Vec::new());
+    for b in 0..queries.len().div_ceil(BLOCK) {
+        let (i, d) = screened_block(queries, base, &mat, &norm, b, k);
+        idx.extend(i);
+        d2.extend(d);
+    }
+    (idx, d2)
+}
+
+#[test]
+fn the_k_nearest_fast_path_equals_the_general_ranking() {
+    // Duplicated and nearly duplicated rows (ties, lowest row first), queries that are base
+    // rows, and k from 2 to all rows.
+    let mut base = pseudo_random(500, 33, 21);
+    let copies: Vec<Vec<f64>> = base[..40].to_vec();
+    base.extend(copies);
+    let nudged: Vec<Vec<f64>> = base[..25]
+        .iter()
+        .map(|r| r.iter().map(|v| v * (1.0 + 1e-12)).collect())
+        .collect();
+    base.extend(nudged);
+    let mut queries = pseudo_random(300, 33, 22);
+    queries.extend(base[..30].iter().cloned());
+    let (b, q) = (features(&base), features(&queries));
+    for k in [2, 5, 64, base.len()] {
+        let (fast, d_fast) = nearest_rows(&q, &b, k);
+        let (general, d_general) = general_nearest_rows(&q, &b, k);
+        assert_eq!(fast, general, "k {k}");
+        assert_eq!(d_fast, d_general, "k {k}");
     }
 }
 
