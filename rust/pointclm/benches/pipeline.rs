@@ -7,7 +7,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use pointclm::clustering::{partial_basis, settled_count, spectral_clustering_by, Count};
 use pointclm::lowest_eigen::lowest_eigenpairs;
-use pointclm::matching::{match_features, MatchingConfig};
+use pointclm::matching::{match_features, nearest_sources, MatchingConfig};
 use pointclm::pointcloud::{
     estimate_normals, fpfh, FpfhVariant, Orientation, PointIndex, FPFH_DIM,
 };
@@ -146,6 +146,13 @@ fn bench_point_clouds(c: &mut Criterion) {
         b.iter(|| {
             pool.install(|| match_features(&model, &scan_desc, &mutual, 0))
                 .expect("m")
+        })
+    });
+    // A heap's ranked mutual check: every model point's 64 nearest scan descriptors.
+    c.bench_function("nearest_64_descriptors_2k_of_20k_1_thread", |b| {
+        b.iter(|| {
+            pool.install(|| nearest_sources(&scan_desc, &model, 64))
+                .expect("k")
         })
     });
     let grid = PointIndex::with_cells(&scan, 1.5).expect("grid");
