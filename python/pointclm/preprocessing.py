@@ -622,17 +622,24 @@ class DescriptorMatcher:
             )
         return self._nearest_targets
 
+    def _candidates(self, picked: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """`(source row, target row)` for each of the rows of `picked` among every source row's
+        nearest target rows (:meth:`_nearest_targets_of_sources`, found once over the whole
+        target; a call on fewer rows looks at those of the list among them), by source row,
+        then nearest first."""
+        nearest = self._nearest_targets_of_sources(k)
+        taking_part = np.zeros(len(self.target), dtype=bool)
+        taking_part[picked] = True
+        src, col = np.nonzero(taking_part[nearest])
+        return src, nearest[src, col]
+
     def _rank_mutual(self, picked: np.ndarray, rank: int) -> np.ndarray:
         """The rows of `picked` whose nearest source row counts them among its `rank`
         nearest rows of `picked` (:meth:`match`'s `mutual_rank`), in increasing order."""
-        nearest = self._nearest_targets_of_sources(rank)
-        at = np.zeros(len(self.target), dtype=bool)
-        at[picked] = True
-        src, col = np.nonzero(at[nearest])  # by source row, then rank in the whole target
+        src, tgt = self._candidates(picked, rank)
         # The rank among the rows taking part: the position within the source row's run.
         place = np.arange(len(src)) - np.searchsorted(src, src)
-        src, col = src[place < rank], col[place < rank]
-        tgt = nearest[src, col]
+        src, tgt = src[place < rank], tgt[place < rank]
         near, _ = self._nearest_sources()
         return np.unique(tgt[near[tgt, 0] == src])
 
@@ -640,13 +647,7 @@ class DescriptorMatcher:
         """The rows of `picked` whose pair with their nearest source row is mutual within
         some cube of side `side` (:meth:`match`), in increasing order."""
         assert self.target_points is not None
-        # Found once over the whole target, as the nearest sources are; a call on fewer rows
-        # looks at those of the list among them.
-        nearest = self._nearest_targets_of_sources(WINDOW_CANDIDATES)
-        at = np.full(len(self.target), -1, dtype=np.int64)
-        at[picked] = np.arange(len(picked))
-        src, rank = np.nonzero(at[nearest] >= 0)  # by source, then rank
-        tgt = nearest[src, rank]
+        src, tgt = self._candidates(picked, WINDOW_CANDIDATES)
         # A point in cell c (of side / 2) lies in the cubes whose corner cells are c - {0, 1}^3.
         cells = np.floor((self.target_points - self.target_points.min(0)) / (side / 2))
         cells = cells.astype(np.int64) + 1

@@ -266,7 +266,7 @@ fn mutual_nearest(
                     } else if quick > t + slack {
                         false
                     } else {
-                        let d: f64 = query.iter().zip(row).map(|(a, b)| (a - b) * (a - b)).sum();
+                        let d = direct_d2(query, row);
                         d < t || (d == t && q < best)
                     }
                 }
@@ -365,24 +365,28 @@ const F32_MAX_ENTRY: f64 = 1e15;
 fn nearest_rows(queries: &Features, base: &Features, k: usize) -> (Vec<usize>, Vec<f64>) {
     let small =
         |f: &Features| (0..f.len()).all(|i| f.row(i).iter().all(|v| v.abs() <= F32_MAX_ENTRY));
-    let dim = base.dim();
+    if small(queries) && small(base) {
+        screened_rows::<f32>(queries, base, k)
+    } else {
+        screened_rows::<f64>(queries, base, k)
+    }
+}
+
+/// [`nearest_rows`] with the screen's products in `T`.
+fn screened_rows<T: Screen>(
+    queries: &Features,
+    base: &Features,
+    k: usize,
+) -> (Vec<usize>, Vec<f64>) {
     let base_norm: Vec<f64> = (0..base.len())
         .map(|i| base.row(i).iter().map(|v| v * v).sum())
         .collect();
     let n = queries.len();
-    let blocks: Vec<(Vec<usize>, Vec<f64>)> = if small(queries) && small(base) {
-        let base_mat = Mat::<f32>::from_fn(base.len(), dim, |i, j| base.row(i)[j] as f32);
-        (0..n.div_ceil(BLOCK))
-            .into_par_iter()
-            .map(|b| screened_block(queries, base, &base_mat, &base_norm, b, k))
-            .collect()
-    } else {
-        let base_mat = Mat::<f64>::from_fn(base.len(), dim, |i, j| base.row(i)[j]);
-        (0..n.div_ceil(BLOCK))
-            .into_par_iter()
-            .map(|b| screened_block(queries, base, &base_mat, &base_norm, b, k))
-            .collect()
-    };
+    let base_mat = Mat::<T>::from_fn(base.len(), base.dim(), |i, j| T::from_f64(base.row(i)[j]));
+    let blocks: Vec<(Vec<usize>, Vec<f64>)> = (0..n.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|b| screened_block(queries, base, &base_mat, &base_norm, b, k))
+        .collect();
     let mut idx = Vec::with_capacity(n * k);
     let mut d2 = Vec::with_capacity(n * k);
     for (a, b) in blocks {
@@ -532,11 +536,7 @@ fn rank_query(
     top.clear();
     for &(lower, j) in cands.iter() {
         if lower <= cut {
-            let d2: f64 = query
-                .iter()
-                .zip(base.row(j))
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum();
+            let d2 = direct_d2(query, base.row(j));
             keep_smallest(top, k, d2, j);
         }
     }
@@ -575,47 +575,72 @@ fn nearest_one(s: &ScreenedQuery<'_>, base: &Features, out: &mut (Vec<usize>, Ve
     for m in lanes {
         least = least.min(m);
     }
-    // In f64, then widened past the rounding of its conversion to f32.
-    let limit = f64::from(least) + 2.0 * (err * (qn + max_norm) + tiny);
-    let limit = (limit + limit.abs() * 1e-6 + tiny) as f32;
+    let mut limit = widened(
+        f64::from(least) + 2.0 * (err * (qn + max_norm) + tiny),
+        tiny,
+    );
     let mut best: Option<(f64, usize)> = None;
     let mut rank = |j: usize| {
-        let d2: f64 = query
-            .iter()
-            .zip(base.row(j))
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum();
+        let d2 = direct_d2(query, base.row(j));
         if best.is_none_or(|(b, _)| d2 < b) {
             best = Some((d2, j));
         }
     };
-    // A few rows pass the limit: each block of lanes is tested branch-free first, and only a
-    // block holding one is scanned row by row (in row order, as one scan would).
+    under_limit(col, norm, &mut limit, |j, _, _| rank(j));
+    // `base` is never empty (k <= base.len()), and the row of the least `c` is under the limit.
+    let (d2, j) = best.unwrap_or((f64::INFINITY, 0));
+    out.0.push(j);
+    out.1.push(d2);
+}
+
+/// `|a - b|^2` summed in row order: the exact distance every ranking compares.
+#[inline(always)]
+fn direct_d2(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// `limit` (in f64) as an f32 no smaller: widened past the rounding of the conversion.
+#[inline(always)]
+fn widened(limit: f64, tiny: f64) -> f32 {
+    (limit + limit.abs() * 1e-6 + tiny) as f32
+}
+
+/// Calls `visit(row, c, limit)`, in row order, for every row whose screened value
+/// `c = |b|^2 - 2 q . b` (f32, from the screen's column `col` and the rows' norms `norm`) is at
+/// most `limit`, which `visit` may lower. Few rows pass: each block of 8 lanes is tested
+/// branch-free first, and only a block holding one is scanned row by row.
+#[inline(always)]
+fn under_limit(
+    col: &[f32],
+    norm: &[f32],
+    limit: &mut f32,
+    mut visit: impl FnMut(usize, f32, &mut f32),
+) {
+    const LANES: usize = 8;
+    let c = |g: f32, bn: f32| bn - 2.0 * g;
     let (cg, cb) = (col.chunks_exact(LANES), norm.chunks_exact(LANES));
     let tail = cg.len() * LANES;
     let (rg, rb) = (cg.remainder(), cb.remainder());
     for (block, (g, bn)) in cg.zip(cb).enumerate() {
         let mut any = false;
         for l in 0..LANES {
-            any |= c(g[l], bn[l]) <= limit;
+            any |= c(g[l], bn[l]) <= *limit;
         }
         if any {
             for l in 0..LANES {
-                if c(g[l], bn[l]) <= limit {
-                    rank(block * LANES + l);
+                let x = c(g[l], bn[l]);
+                if x <= *limit {
+                    visit(block * LANES + l, x, limit);
                 }
             }
         }
     }
     for (l, (&g, &bn)) in rg.iter().zip(rb).enumerate() {
-        if c(g, bn) <= limit {
-            rank(tail + l);
+        let x = c(g, bn);
+        if x <= *limit {
+            visit(tail + l, x, limit);
         }
     }
-    // `base` is never empty (k <= base.len()), and the row of the least `c` is under the limit.
-    let (d2, j) = best.unwrap_or((f64::INFINITY, 0));
-    out.0.push(j);
-    out.1.push(d2);
 }
 
 /// [`nearest_one`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
@@ -664,57 +689,24 @@ fn nearest_k(
     let (query, qn, col, norm, max_norm) = (s.query, s.qn, s.col, s.norm, s.max_norm);
     let (err, tiny) = s.bound;
     let slack = 2.0 * (err * (qn + max_norm) + tiny);
-    // In f64, then widened past the rounding of its conversion to f32.
-    let limit_of = |kth: f64| {
-        let limit = kth + slack;
-        (limit + limit.abs() * 1e-6 + tiny) as f32
-    };
-    const LANES: usize = 8;
-    let c = |g: f32, bn: f32| bn - 2.0 * g;
+    let limit_of = |kth: f64| widened(kth + slack, tiny);
     let (top, cands) = scratch;
     top.clear();
     cands.clear();
     let mut limit = f32::INFINITY;
-    let mut take = |j: usize, x: f32, limit: &mut f32| {
+    under_limit(col, norm, &mut limit, |j, x, limit| {
         cands.push((f64::from(x), j));
         keep_smallest(top, k, f64::from(x), j);
         if top.len() == k {
             *limit = limit_of(top[k - 1].0);
         }
-    };
-    let (cg, cb) = (col.chunks_exact(LANES), norm.chunks_exact(LANES));
-    let tail = cg.len() * LANES;
-    let (rg, rb) = (cg.remainder(), cb.remainder());
-    for (block, (g, bn)) in cg.zip(cb).enumerate() {
-        let mut any = false;
-        for l in 0..LANES {
-            any |= c(g[l], bn[l]) <= limit;
-        }
-        if any {
-            for l in 0..LANES {
-                let x = c(g[l], bn[l]);
-                if x <= limit {
-                    take(block * LANES + l, x, &mut limit);
-                }
-            }
-        }
-    }
-    for (l, (&g, &bn)) in rg.iter().zip(rb).enumerate() {
-        let x = c(g, bn);
-        if x <= limit {
-            take(tail + l, x, &mut limit);
-        }
-    }
+    });
     // `base` holds at least `k` rows, so `top` is full.
     let limit = limit_of(top[top.len() - 1].0);
     top.clear();
     for &(x, j) in cands.iter() {
         if x as f32 <= limit {
-            let d2: f64 = query
-                .iter()
-                .zip(base.row(j))
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum();
+            let d2 = direct_d2(query, base.row(j));
             keep_smallest(top, k, d2, j);
         }
     }

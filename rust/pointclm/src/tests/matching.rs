@@ -322,18 +322,8 @@ fn given_nearest_sources_are_checked() {
 
 #[test]
 fn the_nearest_row_fast_path_equals_the_general_ranking() {
-    // k = 1 takes `nearest_one`; the first of k = 2 comes from `nearest_k`. Duplicated and
-    // nearly duplicated rows test the ties (lowest row first).
-    let mut base = pseudo_random(700, 33, 9);
-    let copies: Vec<Vec<f64>> = base[..50].to_vec();
-    base.extend(copies);
-    let nudged: Vec<Vec<f64>> = base[..30]
-        .iter()
-        .map(|r| r.iter().map(|v| v * (1.0 + 1e-12)).collect())
-        .collect();
-    base.extend(nudged);
-    let mut queries = pseudo_random(400, 33, 10);
-    queries.extend(base[..40].iter().cloned());
+    // k = 1 takes `nearest_one`; the first of k = 2 comes from `nearest_k`.
+    let (base, queries) = tied_rows(700, 50, 30, 400, 40, 9);
     let (b, q) = (features(&base), features(&queries));
     let (one, d_one) = nearest_rows(&q, &b, 1);
     let (two, d_two) = nearest_rows(&q, &b, 2);
@@ -343,41 +333,37 @@ fn the_nearest_row_fast_path_equals_the_general_ranking() {
     }
 }
 
-/// Every query's `k` nearest base rows by the general sweep ([`rank_query`] over the f64
-/// screen), whatever the descriptors' size.
-fn general_nearest_rows(queries: &Features, base: &Features, k: usize) -> (Vec<usize>, Vec<f64>) {
-    let dim = base.dim();
-    let norm: Vec<f64> = (0..base.len())
-        .map(|i| base.row(i).iter().map(|v| v * v).sum())
+/// `n` base rows with the first `copies` duplicated and the first `nudged` nearly duplicated
+/// (ties, lowest row first), and `m` queries followed by the first `own` base rows.
+fn tied_rows(
+    n: usize,
+    copies: usize,
+    nudged: usize,
+    m: usize,
+    own: usize,
+    salt: u64,
+) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    let mut base = pseudo_random(n, 33, salt);
+    let copied: Vec<Vec<f64>> = base[..copies].to_vec();
+    base.extend(copied);
+    let near: Vec<Vec<f64>> = base[..nudged]
+        .iter()
+        .map(|r| r.iter().map(|v| v * (1.0 + 1e-12)).collect())
         .collect();
-    let mat = Mat::<f64>::from_fn(base.len(), dim, |i, j| base.row(i)[j]);
-    let (mut idx, mut d2) = (Vec::new(), Vec::new());
-    for b in 0..queries.len().div_ceil(BLOCK) {
-        let (i, d) = screened_block(queries, base, &mat, &norm, b, k);
-        idx.extend(i);
-        d2.extend(d);
-    }
-    (idx, d2)
+    base.extend(near);
+    let mut queries = pseudo_random(m, 33, salt + 1);
+    queries.extend(base[..own].iter().cloned());
+    (base, queries)
 }
 
 #[test]
 fn the_k_nearest_fast_path_equals_the_general_ranking() {
-    // Duplicated and nearly duplicated rows (ties, lowest row first), queries that are base
-    // rows, and k from 2 to all rows.
-    let mut base = pseudo_random(500, 33, 21);
-    let copies: Vec<Vec<f64>> = base[..40].to_vec();
-    base.extend(copies);
-    let nudged: Vec<Vec<f64>> = base[..25]
-        .iter()
-        .map(|r| r.iter().map(|v| v * (1.0 + 1e-12)).collect())
-        .collect();
-    base.extend(nudged);
-    let mut queries = pseudo_random(300, 33, 22);
-    queries.extend(base[..30].iter().cloned());
+    // k from 2 to all rows; the general sweep is `rank_query` over the f64 screen.
+    let (base, queries) = tied_rows(500, 40, 25, 300, 30, 21);
     let (b, q) = (features(&base), features(&queries));
     for k in [2, 5, 64, base.len()] {
         let (fast, d_fast) = nearest_rows(&q, &b, k);
-        let (general, d_general) = general_nearest_rows(&q, &b, k);
+        let (general, d_general) = screened_rows::<f64>(&q, &b, k);
         assert_eq!(fast, general, "k {k}");
         assert_eq!(d_fast, d_general, "k {k}");
     }
