@@ -148,12 +148,12 @@ def refine_poses(
         depth cells of 1.5 voxels and one surface within 3 voxels along a ray.
     viewpoint : (3,) array_like, optional
         The position of the sensor that took `target_points` (one view): poses are then
-        judged by what it could see of them (the module's acceptance rules).
+        judged by what it could see of them (the module's acceptance rules), and ICP leaves
+        out the model's far side from it (a scan does not hold it).
     icp : bool
         False: verification only, the poses are kept as given.
-    min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness :
-        float in [0, 1]
-        The acceptance rules (module documentation); all 0 (and `max_contradiction` 1):
+    min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness : float
+        The acceptance rules, in [0, 1] (module documentation); all 0 (and `max_contradiction` 1):
         nothing is rejected but duplicates.
     max_shared : float in [0, 1]
         The share of a pose's explained scan points a surer pose may also explain before it

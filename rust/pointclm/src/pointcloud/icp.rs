@@ -11,6 +11,7 @@
 
 use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 
+use super::visibility::DepthMap;
 use super::PointIndex;
 use crate::kabsch::RigidTransform;
 
@@ -27,6 +28,14 @@ pub const COARSE_POINTS: usize = 500;
 /// left out of its steps. A stage ends after `iterations` steps or once a step moves no model
 /// point by more than 1e-4 of the radius; a step that cannot be solved (fewer than 3 pairs, or
 /// a degenerate system) keeps the pose it has.
+///
+/// With `sight` (the scan's depth map around its sensor), each stage also leaves out the
+/// model points that the model itself hides from the sensor at the stage's starting pose
+/// ([`DepthMap::self_hidden`]). Why: a range scan holds nothing of a copy's far side, so
+/// those points can only pair with other surfaces; in a heap its underside lies a voxel or
+/// two above the copies it rests on, and the coarse stages pulled poses that started within
+/// 1-3 degrees to 6-15 degrees off (validation bins, BENCHMARKS.md).
+#[allow(clippy::too_many_arguments)] // one ICP: the clouds, the start, the schedule, the sensor
 pub fn icp(
     source: &[[f64; 3]],
     target: &[[f64; 3]],
@@ -35,19 +44,27 @@ pub fn icp(
     mut pose: RigidTransform,
     radii: &[f64],
     iterations: usize,
+    sight: Option<&DepthMap>,
 ) -> RigidTransform {
     // How far a rotation change can move a model point: rotations turn about the origin.
     let reach = source
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .fold(0.0, f64::max);
-    let stride = source.len().div_ceil(COARSE_POINTS).max(1);
-    let coarse: Vec<[f64; 3]> = source.iter().step_by(stride).copied().collect();
     for (stage, &radius) in radii.iter().enumerate() {
+        let facing = sight.map(|depth| facing(source, &pose, depth));
+        let shown = match &facing {
+            Some(points) if points.len() >= 3 => &points[..],
+            _ => source,
+        };
+        // The stages before the last only bring the pose within the next radius.
+        let coarse: Vec<[f64; 3]>;
         let points = if stage + 1 < radii.len() {
+            let stride = shown.len().div_ceil(COARSE_POINTS).max(1);
+            coarse = shown.iter().step_by(stride).copied().collect();
             &coarse
         } else {
-            source
+            shown
         };
         for _ in 0..iterations {
             let Some(next) = plane_step(points, target, normals, index, &pose, radius) else {
@@ -62,6 +79,17 @@ pub fn icp(
         }
     }
     pose
+}
+
+/// The model points that `depth` does not find hidden behind the model itself at `pose`.
+fn facing(source: &[[f64; 3]], pose: &RigidTransform, depth: &DepthMap) -> Vec<[f64; 3]> {
+    let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
+    source
+        .iter()
+        .zip(depth.self_hidden(&posed))
+        .filter(|(_, hidden)| !hidden)
+        .map(|(p, _)| *p)
+        .collect()
 }
 
 /// One Gauss-Newton step on the pairs (posed model point, nearest scan point within

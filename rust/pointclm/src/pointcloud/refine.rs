@@ -299,6 +299,7 @@ impl RefineContext {
                     *pose,
                     &params.radii,
                     params.iterations,
+                    self.depth.as_ref(),
                 );
                 let judged = judge(
                     source,

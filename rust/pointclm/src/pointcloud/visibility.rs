@@ -105,20 +105,32 @@ impl DepthMap {
         hidden as f64 / scan.len() as f64
     }
 
-    /// The verdict on each point of `posed` (a model already moved by a pose): hidden by the
-    /// model itself (a nearer point of it on the same ray) or by the scan; else contradicted
-    /// when the scan's first return on that ray lies clearly behind it; else seen.
-    pub fn judge(&self, posed: &[[f64; 3]]) -> Vec<Sight> {
+    /// Which points of `posed` (a model already moved by a pose) the model itself hides from
+    /// the sensor: a nearer point of it lies on the same ray, more than the tolerance ahead
+    /// (its far side). A point at the sensor is hidden.
+    pub fn self_hidden(&self, posed: &[[f64; 3]]) -> Vec<bool> {
         let own = self.nearest_ranges(posed);
         posed
             .iter()
-            .map(|p| {
-                let Some((key, range)) = self.ray(p) else {
+            .map(|p| match self.ray(p) {
+                Some((key, range)) => own[&key] < range - self.tolerance,
+                None => true,
+            })
+            .collect()
+    }
+
+    /// The verdict on each point of `posed` (a model already moved by a pose): hidden by the
+    /// model itself ([`DepthMap::self_hidden`]) or by the scan; else contradicted when the
+    /// scan's first return on that ray lies clearly behind it; else seen.
+    pub fn judge(&self, posed: &[[f64; 3]]) -> Vec<Sight> {
+        let own_hidden = self.self_hidden(posed);
+        posed
+            .iter()
+            .zip(own_hidden)
+            .map(|(p, hidden)| {
+                let Some((key, range)) = self.ray(p).filter(|_| !hidden) else {
                     return Sight::Hidden;
                 };
-                if own[&key] < range - self.tolerance {
-                    return Sight::Hidden;
-                }
                 match self.nearest.get(&key) {
                     Some(&scan) if scan < range - self.tolerance => Sight::Hidden,
                     Some(&scan) if scan > range + self.tolerance => Sight::Contradicted,
