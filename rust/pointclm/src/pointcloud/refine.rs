@@ -94,7 +94,7 @@ impl RefineParams {
             min_visible_fitness: 0.85,
             max_contradiction: 0.01,
             max_incidence_deg: 75.0,
-            min_seen: 0.05,
+            min_seen: 0.15,
             depth_cell: 1.5 * voxel,
             depth_tolerance: 3.0 * voxel,
             trust_cell: voxel,
