@@ -149,3 +149,24 @@ def test_a_scan_said_to_be_a_heap_relaxes_the_check_in_every_pass(scene, monkeyp
 def test_heap_is_true_false_or_none(scene, bad) -> None:
     with pytest.raises(InputError, match="heap must be True or False"):
         _register(scene, heap=bad)
+
+
+def _empty_tail(reg: pointclm.PointCloudRegistration) -> int:
+    """How many passes at the end added no copy."""
+    tail = 0
+    for p in reversed(reg.passes[1:]):
+        if p.added:
+            break
+        tail += 1
+    return tail
+
+
+@pytest.mark.parametrize("rounds", [1, 2, 3])
+def test_in_a_heap_peeling_stops_after_its_count_of_empty_rounds(scene, monkeypatch, rounds):
+    monkeypatch.setattr(pc, "HEAP_EMPTY_ROUNDS", rounds)
+    reg = _register(scene, mutual_window=None, heap=True)
+    if len(reg.passes) <= pc.MAX_PEEL_ROUNDS:  # not cut by the round limit
+        assert _empty_tail(reg) == rounds
+    # Outside a heap one empty round ends it, whatever the heap's count.
+    plain = _register(scene, mutual_window=None, heap=False)
+    assert _empty_tail(plain) <= 1

@@ -72,14 +72,19 @@ MIN_SEEN = 0.15
 #: (a face on the table) keep 0.96-0.99, its right pose 0.48-0.88; on the validation bins and
 #: realistic scenes no right pose was lost (BENCHMARKS.md).
 MAX_SLID_FITNESS = 0.9
-#: A half turn of the model is tried by :func:`resolve_flips` only when at least this share of
-#: the turned model lies farther than 1.5 voxels (the fitness radius) from the model: below it
-#: the turn maps the model onto itself as far as verification can tell (the elliptic cylinder
-#: and the capsule of the validation bins), so the scan cannot choose, and switching would only
-#: follow noise. A bed turned end for end moves 1-4 % of it (the headboard), and a scan that
-#: sees the headboard can choose: 0.05 -> 0.01 found 5 -> 8 of the 16 beds of the realistic
-#: validation scenes, the validation bins unchanged (stop 33, BENCHMARKS.md).
+#: With a viewpoint, a half turn of the model is tried by :func:`resolve_flips` only when at
+#: least this share of the turned model lies farther than 1.5 voxels (the fitness radius) from
+#: the model: below it the turn maps the model onto itself as far as verification can tell
+#: (the elliptic cylinder and the capsule of the validation bins), so the scan cannot choose,
+#: and switching would only follow noise. A bed turned end for end moves 1-4 % of it (the
+#: headboard), and the sensor's free-space test tells which end it saw: 0.05 -> 0.01 found
+#: 5 -> 8 of the 16 beds of the realistic validation scenes, the validation bins unchanged
+#: (stop 33, BENCHMARKS.md).
 MIN_FLIP_CHANGE = 0.01
+#: :data:`MIN_FLIP_CHANGE` for poses judged without a viewpoint: the share of the model
+#: explained cannot tell a change of a few percent from noise (at 0.01 the realistic
+#: validation scenes without a viewpoint lost their 3 right beds of 16).
+MIN_FLIP_CHANGE_BY_FITNESS = 0.05
 #: Without a viewpoint: poses explaining less of the model are rejected whatever the rest of
 #: the scene holds.
 MIN_FITNESS = 0.3
@@ -311,9 +316,12 @@ def _number(value: float, name: str) -> float:
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None
 
 
-def flip_turns(source_points: ArrayLike, voxel_size: float) -> np.ndarray:
+def flip_turns(
+    source_points: ArrayLike, voxel_size: float, min_change: float = MIN_FLIP_CHANGE
+) -> np.ndarray:
     """(F, 4, 4) half turns of the model about its principal axes through its centroid that
-    verification can tell from the model itself (`MIN_FLIP_CHANGE`); F <= 3."""
+    verification can tell from the model itself (at least `min_change` of the turned model
+    farther than 1.5 voxels from it, `MIN_FLIP_CHANGE`); F <= 3."""
     from scipy.spatial import cKDTree
 
     src = pp.as_points(source_points, "source_points")
@@ -325,7 +333,7 @@ def flip_turns(source_points: ArrayLike, voxel_size: float) -> np.ndarray:
     for axis in axes.T:
         rot = 2.0 * np.outer(axis, axis) - np.eye(3)  # half a turn about `axis`
         dist, _ = tree.query((src - centre) @ rot.T + centre)
-        if np.mean(dist > 1.5 * voxel) >= MIN_FLIP_CHANGE:
+        if np.mean(dist > 1.5 * voxel) >= min_change:
             turn = np.eye(4)
             turn[:3, :3], turn[:3, 3] = rot, centre - rot @ centre
             turns.append(turn)
@@ -353,11 +361,14 @@ def resolve_flips(
     and scored like the pose; a turned pose replaces it when it is surer (``confidence``) and
     explains at least as much of the whole model (``fitness``): visible fitness alone rewards
     a pose that turns the unexplained part away from the sensor. Turns that map the model onto
-    itself are not tried: the scan cannot decide between them. `context`: a
+    itself are not tried: the scan cannot decide between them (`MIN_FLIP_CHANGE`, or
+    `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a viewpoint). `context`: a
     :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
     """
     src = pp.as_points(source_points, "source_points")
-    turns = flip_turns(src, voxel_size)
+    # Judged by the share of the model alone, a small change is not told from noise.
+    min_change = MIN_FLIP_CHANGE if poses.by_visibility else MIN_FLIP_CHANGE_BY_FITNESS
+    turns = flip_turns(src, voxel_size, min_change)
     n = len(poses.transformations)
     if n == 0 or len(turns) == 0:
         return poses, np.arange(n)
