@@ -485,11 +485,7 @@ fn screened_block<T: Screen>(
                 max_norm,
                 bound: (err32, tiny),
             };
-            if k == 1 {
-                nearest_one_dispatched(&screened, base, &mut best);
-            } else {
-                nearest_k_dispatched(&screened, base, k, &mut scratch, &mut best);
-            }
+            nearest_screened_dispatched(&screened, base, k, &mut scratch, &mut best);
             continue;
         }
         let bounds = |j: usize| {
@@ -643,34 +639,6 @@ fn under_limit(
     }
 }
 
-/// [`nearest_one`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn nearest_one_avx2(
-    s: &ScreenedQuery<'_>,
-    base: &Features,
-    out: &mut (Vec<usize>, Vec<f64>),
-) {
-    nearest_one(s, base, out)
-}
-
-/// [`nearest_one`], in 8 lanes where the CPU has AVX2.
-fn nearest_one_dispatched(
-    s: &ScreenedQuery<'_>,
-    base: &Features,
-    out: &mut (Vec<usize>, Vec<f64>),
-) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::cpu::has_avx2() {
-        // SAFETY: the CPU has AVX2, checked on the line above.
-        return unsafe { nearest_one_avx2(s, base, out) };
-    }
-    nearest_one(s, base, out)
-}
-
 /// The `k` nearest base rows of the query, nearest first: what [`rank_query`] gives, from the
 /// f32 screen as [`nearest_one`] reads it. One sweep keeps the `k` least screened values `c`
 /// and every row whose `c` is within twice the error bound of the running `k`-th least (the
@@ -716,24 +684,41 @@ fn nearest_k(
     }
 }
 
-/// [`nearest_k`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn nearest_k_avx2(
+/// The query's `k` nearest base rows from its f32 screen: [`nearest_one`] for one,
+/// [`nearest_k`] for more.
+#[inline(always)]
+fn nearest_screened(
     s: &ScreenedQuery<'_>,
     base: &Features,
     k: usize,
     scratch: &mut (Ranked, Ranked),
     out: &mut (Vec<usize>, Vec<f64>),
 ) {
-    nearest_k(s, base, k, scratch, out)
+    if k == 1 {
+        nearest_one(s, base, out)
+    } else {
+        nearest_k(s, base, k, scratch, out)
+    }
 }
 
-/// [`nearest_k`], in 8 lanes where the CPU has AVX2.
-fn nearest_k_dispatched(
+/// [`nearest_screened`] compiled for AVX2 (no FMA: the arithmetic is the baseline build's).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn nearest_screened_avx2(
+    s: &ScreenedQuery<'_>,
+    base: &Features,
+    k: usize,
+    scratch: &mut (Ranked, Ranked),
+    out: &mut (Vec<usize>, Vec<f64>),
+) {
+    nearest_screened(s, base, k, scratch, out)
+}
+
+/// [`nearest_screened`], in 8 lanes where the CPU has AVX2.
+fn nearest_screened_dispatched(
     s: &ScreenedQuery<'_>,
     base: &Features,
     k: usize,
@@ -743,9 +728,9 @@ fn nearest_k_dispatched(
     #[cfg(target_arch = "x86_64")]
     if crate::cpu::has_avx2() {
         // SAFETY: the CPU has AVX2, checked on the line above.
-        return unsafe { nearest_k_avx2(s, base, k, scratch, out) };
+        return unsafe { nearest_screened_avx2(s, base, k, scratch, out) };
     }
-    nearest_k(s, base, k, scratch, out)
+    nearest_screened(s, base, k, scratch, out)
 }
 
 /// One query of [`nearest_one`]: its row and squared norm, its f32 screen column and the base

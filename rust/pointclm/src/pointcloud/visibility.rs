@@ -76,13 +76,17 @@ impl DepthMap {
     }
 
     fn nearest_ranges(&self, points: &[[f64; 3]]) -> HashMap<[i32; 3], f64> {
-        let mut out: HashMap<[i32; 3], f64> = HashMap::with_capacity(points.len());
-        for (key, range) in points.iter().filter_map(|p| self.ray(p)) {
-            out.entry(key)
-                .and_modify(|r| *r = r.min(range))
-                .or_insert(range);
-        }
-        out
+        nearest_of(points.iter().filter_map(|p| self.ray(p)), points.len())
+    }
+
+    /// Each point's ray, `None` where the model itself hides it (a nearer point of `posed`
+    /// on the same ray, more than the tolerance ahead) or where it has none (at the sensor).
+    fn own_view(&self, posed: &[[f64; 3]]) -> Vec<Option<Ray>> {
+        let rays: Vec<Option<Ray>> = posed.iter().map(|p| self.ray(p)).collect();
+        let own = nearest_of(rays.iter().flatten().copied(), posed.len());
+        rays.into_iter()
+            .map(|ray| ray.filter(|(key, range)| own[key] >= range - self.tolerance))
+            .collect()
     }
 
     /// The sensor's position.
@@ -109,26 +113,17 @@ impl DepthMap {
     /// the sensor: a nearer point of it lies on the same ray, more than the tolerance ahead
     /// (its far side). A point at the sensor is hidden.
     pub fn self_hidden(&self, posed: &[[f64; 3]]) -> Vec<bool> {
-        let own = self.nearest_ranges(posed);
-        posed
-            .iter()
-            .map(|p| match self.ray(p) {
-                Some((key, range)) => own[&key] < range - self.tolerance,
-                None => true,
-            })
-            .collect()
+        self.own_view(posed).iter().map(Option::is_none).collect()
     }
 
     /// The verdict on each point of `posed` (a model already moved by a pose): hidden by the
     /// model itself ([`DepthMap::self_hidden`]) or by the scan; else contradicted when the
     /// scan's first return on that ray lies clearly behind it; else seen.
     pub fn judge(&self, posed: &[[f64; 3]]) -> Vec<Sight> {
-        let own_hidden = self.self_hidden(posed);
-        posed
-            .iter()
-            .zip(own_hidden)
-            .map(|(p, hidden)| {
-                let Some((key, range)) = self.ray(p).filter(|_| !hidden) else {
+        self.own_view(posed)
+            .into_iter()
+            .map(|ray| {
+                let Some((key, range)) = ray else {
                     return Sight::Hidden;
                 };
                 match self.nearest.get(&key) {
@@ -143,4 +138,15 @@ impl DepthMap {
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// The nearest range per ray cell of `rays`.
+fn nearest_of(rays: impl Iterator<Item = Ray>, capacity: usize) -> HashMap<[i32; 3], f64> {
+    let mut out: HashMap<[i32; 3], f64> = HashMap::with_capacity(capacity);
+    for (key, range) in rays {
+        out.entry(key)
+            .and_modify(|r| *r = r.min(range))
+            .or_insert(range);
+    }
+    out
 }
