@@ -172,6 +172,46 @@ def test_a_mostly_hidden_copy_is_kept_with_the_viewpoint() -> None:
     assert np.all(seen.contradiction < 0.05)
 
 
+def test_a_copy_that_sits_loosely_on_the_scan_stands_out_against_the_others() -> None:
+    # Validation model (dragon): the true poses' visible sides lie on the scan alike (within
+    # 1.1 times their median); one of them moved by 1.5 voxels, the inlier distance, still
+    # passes every rule that judges a pose alone, and lies 1.7 times looser than the median.
+    from pointclm.refinement import MAX_RELATIVE_VISIBLE_RMSE, loose_poses
+
+    scene = make_realistic_scene(1, SceneParams(model="stanford/dragon"))
+    if scene.viewpoint is None or scene.n_instances < 3:
+        pytest.skip("scene without a sensor position or with fewer than three copies")
+    shaken = scene.poses[0].copy()
+    shaken[:3, 3] += [1.5 * scene.voxel_size, 0.0, 0.0]
+    poses = np.concatenate([scene.poses, shaken[None]])
+    kw = {"voxel_size": scene.voxel_size, "max_shared": 1.0, "icp": False}
+    out = pointclm.refine_poses(
+        scene.source_points, scene.target_points, poses, viewpoint=scene.viewpoint, **kw
+    )
+    assert out.by_visibility and len(out.origin) == len(poses)
+    rmse = out.visible_rmse[np.argsort(out.origin)]
+    assert np.isfinite(rmse).all() and (rmse < 1.5 * scene.voxel_size).all()
+    truth = rmse[:-1]
+    assert truth.max() <= MAX_RELATIVE_VISIBLE_RMSE * np.median(truth)
+    assert loose_poses(rmse).tolist() == [False] * len(truth) + [True]
+    blind = pointclm.refine_poses(scene.source_points, scene.target_points, poses, **kw)
+    assert np.isnan(blind.visible_rmse).all() and not loose_poses(blind.visible_rmse).any()
+
+
+def test_loose_poses_compares_with_the_median_of_known_values() -> None:
+    from pointclm.refinement import loose_poses
+
+    rmse = np.array([1.0, np.nan, 1.0, 0.9, 1.25, 1.4])  # median 1.0
+    before = rmse.copy()
+    assert loose_poses(rmse).tolist() == [False, False, False, False, False, True]
+    np.testing.assert_array_equal(rmse, before)  # the input is not modified
+    assert loose_poses(rmse, 1.2).tolist() == [False, False, False, False, True, True]
+    # Fewer than three known values: nothing to compare with.
+    assert not loose_poses([1.0, 5.0]).any()
+    assert not loose_poses([1.0, np.nan, 5.0]).any()
+    assert loose_poses([]).shape == (0,)
+
+
 def test_a_pose_turned_about_a_near_symmetry_is_turned_back() -> None:
     # The box with a block on one corner posed half a turn about one of its axes: ICP settles
     # the cuboid on the copy and the pose passes verification, but the block is on the wrong

@@ -35,6 +35,7 @@ from .refinement import (
     MIN_VISIBLE_FITNESS,
     RefinedPoses,
     RefinementContext,
+    loose_poses,
     resolve_flips,
 )
 from .registration import as_config, as_threads, register
@@ -734,8 +735,7 @@ def _register(
     if refine and peel and len(tags):
         refined, tags = _peel(run, refined, tags, passes, cfg)
     t6 = time.perf_counter()
-    if refine and flips and len(tags):
-        refined, tags = _resolve_flips(run, refined, tags)
+    refined, tags = _settle(run, refined, tags, refine and flips)
     t7 = time.perf_counter()
     stage = dict(result.timings)
     timings = {
@@ -1058,6 +1058,21 @@ def _reverify(
     pool_tags = tags + [(round_, int(o)) for o in new.origin]
     both = run.refiner.refine(pool, icp=False, num_threads=run.num_threads)
     return both, [pool_tags[int(o)] for o in both.origin]
+
+
+def _settle(
+    run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]], flips: bool
+) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+    """The scene's accepted poses, final: half turns resolved (if asked), then, when the
+    sensor judged them, those that fit loosely against the others dropped
+    (:func:`pointclm.refinement.loose_poses`). Why only at the end: the comparison needs every
+    copy the scan shows, and peeling needs the dropped poses' scan points explained."""
+    if flips and len(tags):
+        refined, tags = _resolve_flips(run, refined, tags)
+    if not refined.by_visibility:
+        return refined, tags
+    keep = np.flatnonzero(~loose_poses(refined.visible_rmse))
+    return _take(refined, keep), [tags[int(i)] for i in keep]
 
 
 def _resolve_flips(

@@ -268,7 +268,7 @@ pub fn nearest_neighbours<'py>(
 
 type RefinedArrays<'py> = (
     Bound<'py, PyArray3<f64>>,
-    [Bound<'py, PyArray1<f64>>; 6],
+    [Bound<'py, PyArray1<f64>>; 7],
     Bound<'py, PyArray1<i64>>,
     bool,
 );
@@ -500,6 +500,7 @@ fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArr
             column(|r| r.contradiction),
             column(|r| r.seen),
             column(|r| r.inlier_rmse),
+            column(|r| r.visible_rmse),
         ],
         indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
         out.by_visibility,

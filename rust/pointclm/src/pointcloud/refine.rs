@@ -167,6 +167,11 @@ pub struct RefinedPose {
     pub seen: f64,
     /// RMS distance from the explained model points to their nearest scan points.
     pub inlier_rmse: f64,
+    /// The same over the explained model points the sensor could see at this pose (NaN
+    /// without a trusted viewpoint, or when it sees none): how tightly the visible side
+    /// lies on the scan, without the points explained only by surfaces the model hides or
+    /// that hide it.
+    pub visible_rmse: f64,
     /// Index of the input pose this one came from.
     pub origin: usize,
 }
@@ -478,6 +483,7 @@ fn keep_surest(
             contradiction: j.contradiction,
             seen: j.seen,
             inlier_rmse: j.rmse,
+            visible_rmse: j.visible_rmse,
             origin: k,
         });
     }
@@ -512,6 +518,7 @@ struct Judged {
     seen: f64,
     confidence: f64,
     rmse: f64,
+    visible_rmse: f64,
     /// The scan points the model lands on (sorted, distinct).
     targets: Vec<usize>,
     /// Which model points the scan explains at this pose.
@@ -534,7 +541,9 @@ fn judge(
     radius: f64,
 ) -> Judged {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    let (explained, targets, hits, rmse) = explain(index, &posed, radius);
+    let (explained, dist_sq, targets, rmse) = explain(index, &posed, radius);
+    let hits = targets.1;
+    let targets = targets.0;
     let n = source.len() as f64;
     let fitness = hits as f64 / n;
     let Some(sensor) = sensor else {
@@ -545,12 +554,14 @@ fn judge(
             seen: f64::NAN,
             confidence: fitness,
             rmse,
+            visible_rmse: f64::NAN,
             targets,
             explained,
         };
     };
     let grazing = grazing(sensor, pose, &posed);
-    let (seen, contradicted) = sensor_verdict(sensor.depth, &posed, &explained, &grazing);
+    let (seen, contradicted, visible_sq) =
+        sensor_verdict(sensor.depth, &posed, &explained, &dist_sq, &grazing);
     let share = |k: usize| {
         if seen > 0 {
             k as f64 / seen as f64
@@ -566,6 +577,7 @@ fn judge(
         seen: seen as f64 / n,
         confidence: visible_fitness * (1.0 - contradiction),
         rmse,
+        visible_rmse: visible_sq.sqrt(),
         targets,
         explained,
     }
@@ -629,23 +641,29 @@ fn slid_fitness(
     most.min(hits) as f64 / hits as f64
 }
 
-/// Which posed model points have a scan point within `radius`; the scan points that explain
-/// them (sorted, distinct), how many are explained, and their RMS distance.
+/// Which posed model points have a scan point within `radius`, their squared distances to it
+/// (NaN where none); the scan points that explain them (sorted, distinct) with how many
+/// model points are explained; and their RMS distance.
 fn explain(
     index: &PointIndex,
     posed: &[[f64; 3]],
     radius: f64,
-) -> (Vec<bool>, Vec<usize>, usize, f64) {
+) -> (Vec<bool>, Vec<f64>, (Vec<usize>, usize), f64) {
     let (mut sum, mut targets) = (0.0, Vec::new());
+    let mut dist_sq = Vec::with_capacity(posed.len());
     let explained: Vec<bool> = posed
         .iter()
         .map(|q| match index.nearest_within(q, radius) {
             Some((j, d_sq)) => {
                 sum += d_sq;
                 targets.push(j);
+                dist_sq.push(d_sq);
                 true
             }
-            None => false,
+            None => {
+                dist_sq.push(f64::NAN);
+                false
+            }
         })
         .collect();
     let hits = targets.len();
@@ -656,23 +674,34 @@ fn explain(
     } else {
         0.0
     };
-    (explained, targets, hits, rmse)
+    (explained, dist_sq, (targets, hits), rmse)
 }
 
-/// How many posed model points the sensor could see, and how many of those lie where it saw
-/// free space. A point the scan explains was evidently seen, whatever its depth cell says
-/// (cells straddle occlusion edges); the others count by the sensor's verdict.
+/// How many posed model points the sensor could see, how many of those lie where it saw free
+/// space, and the mean squared distance (`dist_sq`) of the explained points its depth map
+/// does not hide (NaN: none). A point the scan explains was evidently seen, whatever its
+/// depth cell says (cells straddle occlusion edges), so it counts as seen; the others count
+/// by the sensor's verdict. Why the hidden explained points are left out of the distance: a
+/// model point behind the model's own front, or behind a nearer surface, is explained by
+/// whatever surface lies near it, not by the side of the copy the sensor saw.
 fn sensor_verdict(
     depth: &DepthMap,
     posed: &[[f64; 3]],
     explained: &[bool],
+    dist_sq: &[f64],
     grazing: &[bool],
-) -> (usize, usize) {
+) -> (usize, usize, f64) {
     let hits = explained.iter().filter(|&&e| e).count();
     let (mut seen, mut contradicted) = (hits, 0usize);
-    for ((sight, hit), graze) in depth.judge(posed).into_iter().zip(explained).zip(grazing) {
+    let (mut sum, mut visible) = (0.0, 0usize);
+    let verdicts = depth.judge(posed).into_iter().zip(explained);
+    for ((sight, hit), (graze, d_sq)) in verdicts.zip(grazing.iter().zip(dist_sq)) {
         match (sight, hit) {
-            (_, true) | (Sight::Hidden, _) => {}
+            (Sight::Hidden, _) => {}
+            (_, true) => {
+                sum += d_sq;
+                visible += 1;
+            }
             _ if *graze => {}
             (Sight::Seen, false) => seen += 1,
             (Sight::Contradicted, false) => {
@@ -681,7 +710,12 @@ fn sensor_verdict(
             }
         }
     }
-    (seen, contradicted)
+    let mean_sq = if visible > 0 {
+        sum / visible as f64
+    } else {
+        f64::NAN
+    };
+    (seen, contradicted, mean_sq)
 }
 
 /// Which posed model points the sensor sees at grazing incidence (their surface within

@@ -292,6 +292,15 @@ fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
     assert!(hidden.fitness < 0.8 * open.fitness);
     assert!(hidden.seen < 0.6 * open.seen);
     assert!(hidden.visible_fitness > 0.8 && hidden.contradiction < 0.05);
+    // Both copies' visible sides lie on the scan alike, within the scan's sampling.
+    for r in [open, hidden] {
+        assert!(
+            r.visible_rmse.is_finite() && r.visible_rmse < 0.1,
+            "{}",
+            r.visible_rmse
+        );
+    }
+    assert!(hidden.visible_rmse < 1.5 * open.visible_rmse);
     // Judged by the share of the best copy's fitness, the hidden copy goes.
     let blind = refine_poses(
         &model,
@@ -307,6 +316,7 @@ fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
         blind.poses.iter().map(|r| r.origin).collect::<Vec<_>>(),
         vec![0]
     );
+    assert!(blind.poses[0].visible_rmse.is_nan());
 }
 
 #[test]
