@@ -108,7 +108,172 @@ fn nearest_center(x: &[f64], by_dim: &[f64], dists: &mut [f64]) -> (usize, f64) 
     (bl, bd)
 }
 
+/// The squared distance from `x` to `center`, summed as [`nearest_center`] sums it (so that
+/// the inertia is the plain loop's bit for bit).
+#[inline]
+fn dist_to(x: &[f64], center: &[f64]) -> f64 {
+    let mut acc = 0.0;
+    for (&v, &c) in x.iter().zip(center) {
+        let t = v - c;
+        acc += t * t;
+    }
+    acc
+}
+
+/// [`nearest_center`], and the least squared distance to any other centre (infinite with one
+/// centre).
+#[inline]
+fn nearest_two(x: &[f64], by_dim: &[f64], dists: &mut [f64]) -> (usize, f64, f64) {
+    let (bl, bd) = nearest_center(x, by_dim, dists);
+    let second = dists
+        .iter()
+        .enumerate()
+        .filter(|&(c, _)| c != bl)
+        .fold(f64::INFINITY, |m, (_, &d)| m.min(d));
+    (bl, bd, second)
+}
+
+/// Half the distance from each centre to the nearest other one.
+fn half_gaps(centers: &[f64], dim: usize, k: usize, out: &mut [f64]) {
+    out.fill(f64::INFINITY);
+    for a in 0..k {
+        for b in a + 1..k {
+            let d = 0.5
+                * dist_to(
+                    &centers[a * dim..(a + 1) * dim],
+                    &centers[b * dim..(b + 1) * dim],
+                )
+                .sqrt();
+            out[a] = out[a].min(d);
+            out[b] = out[b].min(d);
+        }
+    }
+}
+
+/// Lloyd's iterations from a k-means++ start, with Hamerly's bounds: each point keeps an upper
+/// bound on the distance to its centre and a lower bound on the distance to every other, moved
+/// by how far the centres move; a point whose upper bound lies below both the lower bound and
+/// half the gap from its centre to the next cannot change label, so its distances are not
+/// computed. Why: in a spectral embedding the groups lie far apart, and after a few iterations
+/// almost no point needs them. The labels, centres and iterations are the plain loop's
+/// exactly: a skip needs the bounds apart by a margin far above their rounding, and every
+/// point not skipped is assigned by [`nearest_center`]; the inertia is summed at the end as
+/// the plain loop sums it.
 fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> (f64, Vec<usize>) {
+    let row = |i: usize| &data[i * dim..(i + 1) * dim];
+    let mut centers = plus_plus_init(data, dim, n, k, rng);
+    let mut labels = vec![usize::MAX; n];
+    let mut inertia = f64::INFINITY;
+    let (mut by_dim, mut dists) = (vec![0.0; k * dim], vec![0.0; k]);
+    let (mut upper, mut lower) = (vec![f64::INFINITY; n], vec![0.0; n]);
+    let (mut gaps, mut moved, mut previous) = (vec![0.0; k], vec![0.0; k], vec![0.0; k * dim]);
+    // Bounds count as apart only by more than their rounding (relative 1e-13 after hundreds
+    // of updates), relative to their size and to the data's scale.
+    let scale = data.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let apart = |u: f64, m: f64| u + 1e-9 * (u + m) + 1e-12 * scale < m;
+    for iteration in 0..MAX_ITERATIONS {
+        let mut changed = false;
+        transpose(&centers, dim, k, &mut by_dim);
+        half_gaps(&centers, dim, k, &mut gaps);
+        for (i, label) in labels.iter_mut().enumerate() {
+            if *label != usize::MAX {
+                let bound = gaps[*label].max(lower[i]);
+                if apart(upper[i], bound) {
+                    continue;
+                }
+                upper[i] = dist_to(row(i), &centers[*label * dim..(*label + 1) * dim]).sqrt();
+                if apart(upper[i], bound) {
+                    continue;
+                }
+            }
+            let (bl, bd, second) = nearest_two(row(i), &by_dim, &mut dists);
+            (upper[i], lower[i]) = (bd.sqrt(), second.sqrt());
+            if *label != bl {
+                *label = bl;
+                changed = true;
+            }
+        }
+        if !changed || iteration + 1 == MAX_ITERATIONS {
+            // Every label is its nearest centre: the plain loop's sum of those distances.
+            inertia = 0.0;
+            for (i, &l) in labels.iter().enumerate() {
+                inertia += dist_to(row(i), &centers[l * dim..(l + 1) * dim]);
+            }
+        }
+        if !changed {
+            break;
+        }
+        previous.copy_from_slice(&centers);
+        update_centers(data, dim, n, k, &labels, &mut centers);
+        for c in 0..k {
+            let span = c * dim..(c + 1) * dim;
+            moved[c] = dist_to(&previous[span.clone()], &centers[span]).sqrt();
+        }
+        let (mut first, mut top, mut runner_up) = (0, 0.0f64, 0.0f64);
+        for (c, &m) in moved.iter().enumerate() {
+            if m > top {
+                (first, top, runner_up) = (c, m, top);
+            } else if m > runner_up {
+                runner_up = m;
+            }
+        }
+        for (i, &l) in labels.iter().enumerate() {
+            upper[i] += moved[l];
+            lower[i] -= if l == first { runner_up } else { top };
+        }
+    }
+    (inertia, labels)
+}
+
+/// Each centre the mean of its points; an empty cluster takes the point farthest from its own
+/// centre (centres updated in order, as they are read).
+fn update_centers(
+    data: &[f64],
+    dim: usize,
+    n: usize,
+    k: usize,
+    labels: &[usize],
+    centers: &mut [f64],
+) {
+    let row = |i: usize| &data[i * dim..(i + 1) * dim];
+    let mut sums = vec![0.0; k * dim];
+    let mut counts = vec![0usize; k];
+    for (i, &l) in labels.iter().enumerate() {
+        counts[l] += 1;
+        for (s, v) in sums[l * dim..(l + 1) * dim].iter_mut().zip(row(i)) {
+            *s += v;
+        }
+    }
+    for c in 0..k {
+        if counts[c] > 0 {
+            for (dst, s) in centers[c * dim..(c + 1) * dim]
+                .iter_mut()
+                .zip(&sums[c * dim..(c + 1) * dim])
+            {
+                *dst = s / counts[c] as f64;
+            }
+        } else {
+            let far = (0..n)
+                .max_by(|&a, &b| {
+                    let da = dist_sq(row(a), &centers[labels[a] * dim..(labels[a] + 1) * dim]);
+                    let db = dist_sq(row(b), &centers[labels[b] * dim..(labels[b] + 1) * dim]);
+                    da.total_cmp(&db)
+                })
+                .unwrap_or(0);
+            centers[c * dim..(c + 1) * dim].copy_from_slice(row(far));
+        }
+    }
+}
+
+/// The plain Lloyd loop the bounded one must equal (tests only).
+#[cfg(test)]
+fn lloyd_plain(
+    data: &[f64],
+    dim: usize,
+    n: usize,
+    k: usize,
+    rng: &mut ChaCha8Rng,
+) -> (f64, Vec<usize>) {
     let row = |i: usize| &data[i * dim..(i + 1) * dim];
     let mut centers = plus_plus_init(data, dim, n, k, rng);
     let mut labels = vec![usize::MAX; n];

@@ -45,3 +45,47 @@ fn nearest_center_is_the_plain_loop_bit_for_bit() {
         }
     }
 }
+
+#[test]
+fn bounded_lloyd_is_the_plain_loop_exactly() {
+    // Well-separated groups (where the bounds skip most points), overlapping ones, points on
+    // a grid with exact ties and duplicates, and one group split into many centres.
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for case in 0..48 {
+        let (dim, k, groups, spread) = match case % 6 {
+            0 => (3, 4, 4, 0.05),
+            1 => (8, 12, 12, 0.3),
+            2 => (25, 30, 25, 0.1),
+            3 => (5, 9, 3, 1.0),
+            4 => (2, 16, 1, 1.0),
+            _ => (40, 64, 60, 0.02),
+        };
+        let n = 30 + (case * 37) % 400;
+        let means: Vec<f64> = (0..groups * dim)
+            .map(|_| rng.random::<f64>() * 2.0 - 1.0)
+            .collect();
+        let mut data = Vec::with_capacity(n * dim);
+        for i in 0..n {
+            let g = i % groups;
+            for d in 0..dim {
+                let v = means[g * dim + d] + spread * (rng.random::<f64>() - 0.5);
+                // Every third case on a coarse grid: many equal points and exact ties.
+                data.push(if case % 3 == 0 {
+                    (v * 4.0).round() / 4.0
+                } else {
+                    v
+                });
+            }
+        }
+        let k = k.min(n);
+        let seed = 100 + case as u64;
+        let bounded = lloyd(&data, dim, n, k, &mut ChaCha8Rng::seed_from_u64(seed));
+        let plain = lloyd_plain(&data, dim, n, k, &mut ChaCha8Rng::seed_from_u64(seed));
+        assert_eq!(bounded.1, plain.1, "labels, case {case}");
+        assert_eq!(
+            bounded.0.to_bits(),
+            plain.0.to_bits(),
+            "inertia, case {case}"
+        );
+    }
+}
