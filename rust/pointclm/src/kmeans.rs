@@ -205,9 +205,9 @@ fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> 
         }
         previous.copy_from_slice(&centers);
         update_centers(data, dim, n, k, &labels, &mut centers);
-        for c in 0..k {
+        for (c, m) in moved.iter_mut().enumerate() {
             let span = c * dim..(c + 1) * dim;
-            moved[c] = dist_to(&previous[span.clone()], &centers[span]).sqrt();
+            *m = dist_to(&previous[span.clone()], &centers[span]).sqrt();
         }
         let (mut first, mut top, mut runner_up) = (0, 0.0f64, 0.0f64);
         for (c, &m) in moved.iter().enumerate() {
