@@ -125,6 +125,10 @@ def test_register_point_clouds_recovers_planted_bunny_scans() -> None:
     r = pointclm.register_point_clouds(BUNNY, scene, viewpoint=scene.mean(0) + [0, 0, 1.0])
     score = score_scene(r.transformations, np.array(poses), 15.0, 0.025)
     assert score.n_matched == 4 and score.precision == 1.0
+    # Four real scans of one bunny, judged from the sensor: they fit the model alike.
+    rmse = np.array([i.visible_rmse for i in r.instances])
+    assert np.isfinite(rmse).all() and rmse.max() <= 1.3 * np.median(rmse)
+    assert (rmse < 1.5 * r.voxel_size).all()
     for key in ("load", "fpfh", "matching", "pruning", "clustering", "poses", "total"):
         assert key in r.timings
     again = pointclm.register_point_clouds(BUNNY, scene, viewpoint=scene.mean(0) + [0, 0, 1.0])

@@ -221,7 +221,10 @@ class CloudInstance:
     first): with a trusted viewpoint, the share of what the sensor could see of the copy at
     that pose that the scan explains, times one minus the share where the sensor saw free
     space (``visible_fitness``, ``contradiction``); without one, ``fitness``
-    (:func:`pointclm.refinement.refine_poses`). ``matches`` is the correspondence-stage
+    (:func:`pointclm.refinement.refine_poses`). ``visible_rmse`` is the RMS distance of the
+    explained model points the sensor could see (NaN without a trusted viewpoint): copies
+    whose visible side fits more than 1.3 times as loosely as the scene's median copy are not
+    returned (:func:`pointclm.refinement.loose_poses`). ``matches`` is the correspondence-stage
     instance the pose was refined from (its ``inliers`` index the correspondences of the
     pass that proposed it, ``PointCloudRegistration.passes[pass_index].correspondences``;
     pass 0's are ``PointCloudRegistration.correspondences``).
@@ -235,6 +238,7 @@ class CloudInstance:
     visible_fitness: float = float("nan")
     contradiction: float = float("nan")
     pass_index: int = 0
+    visible_rmse: float = float("nan")
 
     @property
     def inliers(self) -> np.ndarray:
@@ -844,6 +848,7 @@ def _instances(
             float(refined.visible_fitness[i]),
             float(refined.contradiction[i]),
             tags[i][0],
+            float(refined.visible_rmse[i]),
         )
         for i in range(len(tags))
     ]
