@@ -218,12 +218,59 @@ fn grid_neighbourhoods(points: &[[f64; 3]], radius: f64, max_nn: usize) -> Optio
             keys.select_nth_unstable(max_nn - 1);
             keys.truncate(max_nn);
         }
-        keys.sort_unstable();
+        let sorted = sort_by_distance(keys, r_sq);
         chunk.push(
-            keys.iter()
+            sorted
+                .iter()
                 .map(|&k| (k as u32, f64::from_bits((k >> 64) as u64))),
         );
     }))
+}
+
+/// Lists shorter than this are sorted by comparisons alone, and so are longer ones than
+/// [`BUCKETS`] (a radius far beyond FPFH's 100 neighbours).
+const BUCKET_SORT_FROM: usize = 32;
+const BUCKETS: usize = 256;
+
+/// `keys` (squared distance bits above, within `r_sq`) in increasing order: the order of
+/// `sort_unstable`, as a slice of `keys` (which it extends as scratch). Why buckets: the
+/// squared distances of a surface's points within a radius spread evenly over `0..r_sq` (the
+/// count within `rho` grows as `rho^2`), so `n` buckets of equal width hold one or two keys
+/// each, and a counting pass plus a few tiny sorts replace a comparison sort of 50-100 keys.
+/// The bucket of a key is monotone in its distance, so keys only need sorting within their
+/// bucket.
+fn sort_by_distance(keys: &mut Vec<u128>, r_sq: f64) -> &[u128] {
+    let n = keys.len();
+    let scale = n as f64 / r_sq;
+    if !(BUCKET_SORT_FROM..=BUCKETS).contains(&n) || !scale.is_finite() {
+        keys.sort_unstable();
+        return keys;
+    }
+    let bucket = |k: u128| ((f64::from_bits((k >> 64) as u64) * scale) as usize).min(n - 1);
+    let mut ends = [0u16; BUCKETS + 1];
+    for &k in keys.iter() {
+        ends[bucket(k) + 1] += 1;
+    }
+    for b in 0..n {
+        ends[b + 1] += ends[b];
+    }
+    keys.resize(2 * n, 0);
+    let (input, out) = keys.split_at_mut(n);
+    for &k in input.iter() {
+        let b = bucket(k);
+        out[usize::from(ends[b])] = k;
+        ends[b] += 1;
+    }
+    // Each bucket now ends where the next begins: sort the runs.
+    let mut begin = 0;
+    for &end in &ends[..n] {
+        let end = usize::from(end);
+        if end > begin + 1 {
+            out[begin..end].sort_unstable();
+        }
+        begin = end;
+    }
+    &keys[n..]
 }
 
 /// Points per chunk of [`Neighbourhoods`]: one parallel task's share. Why chunks: lists built

@@ -283,3 +283,60 @@ fn isolated_points_are_those_with_too_few_neighbours() {
     assert!(isolated_points(&[], 0.1, 3).is_err());
     assert!(isolated_points(&pts, 0.0, 3).is_err());
 }
+
+#[test]
+fn bucket_sort_orders_as_the_comparison_sort() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+    let r_sq = 2.5;
+    for n in [1, 5, 31, 32, 33, 64, 100, 257] {
+        for trial in 0..20 {
+            let mut keys: Vec<u128> = (0..n)
+                .map(|j| {
+                    // Even spread, a cluster of equal distances, zero and the radius itself.
+                    let d: f64 = match (trial + j) % 7 {
+                        0 => 0.0,
+                        1 => r_sq,
+                        2 => 0.5,
+                        _ => rng.random_range(0.0..r_sq) * if trial % 2 == 0 { 1.0 } else { 0.01 },
+                    };
+                    let other = u128::from(j != 0);
+                    u128::from(d.to_bits()) << 64 | other << 32 | j as u128
+                })
+                .collect();
+            let mut expected = keys.clone();
+            expected.sort_unstable();
+            assert_eq!(
+                sort_by_distance(&mut keys, r_sq),
+                &expected[..],
+                "n {n} trial {trial}"
+            );
+        }
+    }
+}
+
+#[test]
+fn large_neighbourhoods_equal_the_trees() {
+    // Lists of 40-100 points, which the bucket sort orders.
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    let surface: Vec<[f64; 3]> = (0..4000)
+        .map(|_| {
+            let (x, y): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+            [x, y, 0.1 * (6.0 * x).sin()]
+        })
+        .collect();
+    let index = PointIndex::new(&surface).unwrap();
+    for max_nn in [40, 100] {
+        let grid = grid_neighbourhoods(&surface, 0.08, max_nn).unwrap();
+        let mut long = 0;
+        for (i, p) in surface.iter().enumerate().step_by(7) {
+            let (idx, d2) = grid.of(i);
+            long += usize::from(idx.len() >= 32);
+            let list: Vec<(usize, f64)> =
+                idx.iter().map(|&j| j as usize).zip(d2.to_vec()).collect();
+            assert_eq!(list, index.hybrid(p, 0.08, max_nn), "point {i}");
+        }
+        assert!(long > 400, "{long} lists of 32 or more");
+    }
+}
