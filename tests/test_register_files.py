@@ -108,6 +108,13 @@ def test_one_line_per_scan_in_order_with_the_copies_found(
         match = pose_match_matrix(poses, data["truth"][record["scan"]], 5.0, 0.02 * data["d"])
         assert poses.shape == (2, 4, 4) and match.any(0).all() and match.any(1).all()
         assert all(0 < inst["fitness"] <= 1 for inst in record["instances"])
+        for inst in record["instances"]:
+            # The sensor's scores: null where no viewpoint judged the poses (JSON has no NaN).
+            seen = inst["visible_fitness"]
+            assert seen is None or 0.0 <= seen <= 1.0
+            assert (inst["contradiction"] is None) == (seen is None)
+            rmse = inst["visible_rmse"]
+            assert rmse is None or 0.0 <= rmse < 0.05 * data["d"]
     assert [r["diagnosis"] for r in reference[:4]] == [""] * 4
     # The PCD's VIEWPOINT was used; two whole copies are no view from it, which is said, in
     # the words a caller of register_files uses.

@@ -29,6 +29,10 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
             "fitness": _number(inst.fitness),
             "inlier_rmse": _number(inst.inlier_rmse),
             "confidence": _number(inst.confidence),
+            # What the sensor at the viewpoint could see of the copy (null without one).
+            "visible_fitness": _number(inst.visible_fitness),
+            "contradiction": _number(inst.contradiction),
+            "visible_rmse": _number(inst.visible_rmse),
             "pass": inst.pass_index,
         }
         for inst in reg.instances
