@@ -265,7 +265,8 @@ fn update_centers(
     }
 }
 
-/// The plain Lloyd loop the bounded one must equal (tests only).
+/// The plain Lloyd loop the bounded one must equal (tests only): every point's distances to
+/// every centre in every iteration.
 #[cfg(test)]
 fn lloyd_plain(
     data: &[f64],
@@ -294,34 +295,7 @@ fn lloyd_plain(
         if !changed {
             break;
         }
-        let mut sums = vec![0.0; k * dim];
-        let mut counts = vec![0usize; k];
-        for (i, &l) in labels.iter().enumerate() {
-            counts[l] += 1;
-            for (s, v) in sums[l * dim..(l + 1) * dim].iter_mut().zip(row(i)) {
-                *s += v;
-            }
-        }
-        for c in 0..k {
-            if counts[c] > 0 {
-                for (dst, s) in centers[c * dim..(c + 1) * dim]
-                    .iter_mut()
-                    .zip(&sums[c * dim..(c + 1) * dim])
-                {
-                    *dst = s / counts[c] as f64;
-                }
-            } else {
-                // An empty cluster takes the point farthest from its own center.
-                let far = (0..n)
-                    .max_by(|&a, &b| {
-                        let da = dist_sq(row(a), &centers[labels[a] * dim..(labels[a] + 1) * dim]);
-                        let db = dist_sq(row(b), &centers[labels[b] * dim..(labels[b] + 1) * dim]);
-                        da.total_cmp(&db)
-                    })
-                    .unwrap_or(0);
-                centers[c * dim..(c + 1) * dim].copy_from_slice(row(far));
-            }
-        }
+        update_centers(data, dim, n, k, &labels, &mut centers);
     }
     (inertia, labels)
 }

@@ -541,9 +541,8 @@ fn judge(
     radius: f64,
 ) -> Judged {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    let (explained, dist_sq, targets, rmse) = explain(index, &posed, radius);
-    let hits = targets.1;
-    let targets = targets.0;
+    let (dist_sq, targets, hits, rmse) = explain(index, &posed, radius);
+    let explained: Vec<bool> = dist_sq.iter().map(|d| !d.is_nan()).collect();
     let n = source.len() as f64;
     let fitness = hits as f64 / n;
     let Some(sensor) = sensor else {
@@ -561,7 +560,7 @@ fn judge(
     };
     let grazing = grazing(sensor, pose, &posed);
     let (seen, contradicted, visible_sq) =
-        sensor_verdict(sensor.depth, &posed, &explained, &dist_sq, &grazing);
+        sensor_verdict(sensor.depth, &posed, &dist_sq, hits, &grazing);
     let share = |k: usize| {
         if seen > 0 {
             k as f64 / seen as f64
@@ -641,29 +640,24 @@ fn slid_fitness(
     most.min(hits) as f64 / hits as f64
 }
 
-/// Which posed model points have a scan point within `radius`, their squared distances to it
-/// (NaN where none); the scan points that explain them (sorted, distinct) with how many
-/// model points are explained; and their RMS distance.
+/// Each posed model point's squared distance to the nearest scan point within `radius` (NaN
+/// where none: the point is not explained); the scan points that explain them (sorted,
+/// distinct), how many model points are explained, and their RMS distance.
 fn explain(
     index: &PointIndex,
     posed: &[[f64; 3]],
     radius: f64,
-) -> (Vec<bool>, Vec<f64>, (Vec<usize>, usize), f64) {
+) -> (Vec<f64>, Vec<usize>, usize, f64) {
     let (mut sum, mut targets) = (0.0, Vec::new());
-    let mut dist_sq = Vec::with_capacity(posed.len());
-    let explained: Vec<bool> = posed
+    let dist_sq: Vec<f64> = posed
         .iter()
         .map(|q| match index.nearest_within(q, radius) {
             Some((j, d_sq)) => {
                 sum += d_sq;
                 targets.push(j);
-                dist_sq.push(d_sq);
-                true
+                d_sq
             }
-            None => {
-                dist_sq.push(f64::NAN);
-                false
-            }
+            None => f64::NAN,
         })
         .collect();
     let hits = targets.len();
@@ -674,12 +668,12 @@ fn explain(
     } else {
         0.0
     };
-    (explained, dist_sq, (targets, hits), rmse)
+    (dist_sq, targets, hits, rmse)
 }
 
 /// How many posed model points the sensor could see, how many of those lie where it saw free
-/// space, and the mean squared distance (`dist_sq`) of the explained points its depth map
-/// does not hide (NaN: none). A point the scan explains was evidently seen, whatever its
+/// space, and the mean squared distance of the explained points (`dist_sq` not NaN; `hits`
+/// of them) its depth map does not hide (NaN: none). A point the scan explains was evidently seen, whatever its
 /// depth cell says (cells straddle occlusion edges), so it counts as seen; the others count
 /// by the sensor's verdict. Why the hidden explained points are left out of the distance: a
 /// model point behind the model's own front, or behind a nearer surface, is explained by
@@ -687,16 +681,15 @@ fn explain(
 fn sensor_verdict(
     depth: &DepthMap,
     posed: &[[f64; 3]],
-    explained: &[bool],
     dist_sq: &[f64],
+    hits: usize,
     grazing: &[bool],
 ) -> (usize, usize, f64) {
-    let hits = explained.iter().filter(|&&e| e).count();
     let (mut seen, mut contradicted) = (hits, 0usize);
     let (mut sum, mut visible) = (0.0, 0usize);
-    let verdicts = depth.judge(posed).into_iter().zip(explained);
-    for ((sight, hit), (graze, d_sq)) in verdicts.zip(grazing.iter().zip(dist_sq)) {
-        match (sight, hit) {
+    let verdicts = depth.judge(posed).into_iter().zip(grazing);
+    for ((sight, graze), &d_sq) in verdicts.zip(dist_sq) {
+        match (sight, !d_sq.is_nan()) {
             (Sight::Hidden, _) => {}
             (_, true) => {
                 sum += d_sq;

@@ -168,15 +168,28 @@ fn grid_neighbourhoods_equal_the_trees() {
         (&surface, 0.05, 1000),
         (&volume, 0.2, 16),
     ] {
-        let index = PointIndex::new(points).unwrap();
-        let grid = grid_neighbourhoods(points, radius, max_nn).unwrap();
-        for (i, p) in points.iter().enumerate() {
-            let (idx, d2) = grid.of(i);
-            let list: Vec<(usize, f64)> =
-                idx.iter().map(|&j| j as usize).zip(d2.to_vec()).collect();
-            assert_eq!(list, index.hybrid(p, radius, max_nn), "point {i}");
-        }
+        assert_lists_are_the_trees(points, radius, max_nn, 1);
     }
+}
+
+/// Asserts that the grid's neighbour lists of every `step`-th point equal the tree's hybrid
+/// search; how many of them hold 32 points or more.
+fn assert_lists_are_the_trees(
+    points: &[[f64; 3]],
+    radius: f64,
+    max_nn: usize,
+    step: usize,
+) -> usize {
+    let index = PointIndex::new(points).unwrap();
+    let grid = grid_neighbourhoods(points, radius, max_nn).unwrap();
+    let mut long = 0;
+    for (i, p) in points.iter().enumerate().step_by(step) {
+        let (idx, d2) = grid.of(i);
+        long += usize::from(idx.len() >= 32);
+        let list: Vec<(usize, f64)> = idx.iter().map(|&j| j as usize).zip(d2.to_vec()).collect();
+        assert_eq!(list, index.hybrid(p, radius, max_nn), "point {i}");
+    }
+    long
 }
 
 #[test]
@@ -326,17 +339,8 @@ fn large_neighbourhoods_equal_the_trees() {
             [x, y, 0.1 * (6.0 * x).sin()]
         })
         .collect();
-    let index = PointIndex::new(&surface).unwrap();
     for max_nn in [40, 100] {
-        let grid = grid_neighbourhoods(&surface, 0.08, max_nn).unwrap();
-        let mut long = 0;
-        for (i, p) in surface.iter().enumerate().step_by(7) {
-            let (idx, d2) = grid.of(i);
-            long += usize::from(idx.len() >= 32);
-            let list: Vec<(usize, f64)> =
-                idx.iter().map(|&j| j as usize).zip(d2.to_vec()).collect();
-            assert_eq!(list, index.hybrid(p, 0.08, max_nn), "point {i}");
-        }
+        let long = assert_lists_are_the_trees(&surface, 0.08, max_nn, 7);
         assert!(long > 400, "{long} lists of 32 or more");
     }
 }
