@@ -429,3 +429,41 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
         _core.isolated_points(scan, 0.0)
     with pytest.raises(ValueError):
         _core.isolated_points(np.full((3, 3), np.nan), 0.1)
+
+
+def _angle_and_ratio(estimate: np.ndarray, truth: np.ndarray, centre: np.ndarray) -> tuple:
+    a, b = estimate - centre, truth - centre
+    cos = float(a @ b / np.linalg.norm(a) / np.linalg.norm(b))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), np.linalg.norm(a) / np.linalg.norm(b)
+
+
+def test_a_world_frame_scan_without_viewpoint_is_judged_from_its_estimated_sensor() -> None:
+    # Realistic scenes are single views from a sensor away from the origin: without the
+    # viewpoint, the position from which the scan hides the fewest of its points is guessed
+    # and, once pass 0 confirms it, poses are judged by what the sensor could see.
+    for seed in (2, 3):
+        sc = make_realistic_scene(seed)
+        r = pointclm.register_point_clouds(sc.source_points, sc.target_points, sc.voxel_size)
+        assert r.viewpoint is not None, r.orientation
+        angle, ratio = _angle_and_ratio(r.viewpoint, sc.viewpoint, r.target_points.mean(0))
+        assert angle < 10.0 and 0.7 < ratio < 1.5, (angle, ratio)
+        s = score_scene(r.transformations, sc.poses, 15.0, sc.max_translation)
+        assert s.n_pred >= 1 and s.n_matched == s.n_pred
+
+
+def test_a_scan_merged_from_two_views_gets_no_estimated_sensor() -> None:
+    from pointclm import _core
+
+    a, b = make_realistic_scene(2), make_realistic_scene(3)
+    one = pp.voxel_downsample(a.target_points, a.voxel_size)
+    merged = pp.voxel_downsample(np.vstack([a.target_points, b.target_points]), a.voxel_size)
+    before = merged.copy()
+    for pts, alone in ((one, True), (merged, False)):
+        towards = tuple(float(v) for v in pts.mean(0) + [0.0, 0.0, 1.0])
+        position, hidden = _core.estimate_sensor(pts, a.voxel_size, towards)
+        assert _core.looks_like_one_view(pts, position, a.voxel_size) is alone, hidden
+    np.testing.assert_array_equal(merged, before)
+    with pytest.raises(ValueError, match="towards"):
+        _core.estimate_sensor(one, a.voxel_size, None)
+    with pytest.raises(ValueError):
+        _core.estimate_sensor(one[:2], a.voxel_size, (0.0, 0.0, 1.0))

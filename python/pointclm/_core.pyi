@@ -37,6 +37,7 @@ __all__ = [
     "nearest_neighbours",
     "refine_poses",
     "looks_like_one_view",
+    "estimate_sensor",
 ]
 
 __version__: str
@@ -242,6 +243,11 @@ def nearest_neighbours(
     queries: npt.NDArray[np.float64],
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]: ...
+def estimate_sensor(
+    points: npt.NDArray[np.float64],
+    voxel_size: float,
+    towards: tuple[float, float, float] | None,
+) -> tuple[tuple[float, float, float], float]: ...
 def looks_like_one_view(
     points: npt.NDArray[np.float64],
     viewpoint: tuple[float, float, float] | None,

@@ -601,13 +601,13 @@ def _describe_target(
     num_threads: int | None,
 ) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None, bool]:
     """:func:`_describe_scan`, and the viewpoint of the run: `view` (given, or recorded in the
-    file when `not_given`), else the origin of a scan in its sensor's frame, a guess the first
-    pass confirms (the last value True)."""
-    tgt_d, orientation, sensor_frame = _describe_scan(tgt, voxel, view, src_d, num_threads)
+    file when `not_given`), else a guess the first pass confirms (the last value True): the
+    origin of a scan in its sensor's frame, or the sensor position estimated from the scan."""
+    tgt_d, orientation, guess = _describe_scan(tgt, voxel, view, src_d, num_threads)
     if view is not None and not_given:
         orientation += " (the file's VIEWPOINT)"
-    guessed = view is None and sensor_frame
-    return tgt_d, orientation, (0.0, 0.0, 0.0) if guessed else view, guessed
+    guessed = view is None and guess is not None
+    return tgt_d, orientation, guess if guessed else view, guessed
 
 
 def _describe_scan(
@@ -616,9 +616,11 @@ def _describe_scan(
     view: tuple[float, float, float] | None,
     src_d: pp.DescribedCloud,
     num_threads: int | None,
-) -> tuple[pp.DescribedCloud, str, bool]:
-    """The scan downsampled, with normals and FPFH, how its normals were oriented, and whether
-    it is in its sensor's frame (the origin is then its likely viewpoint).
+) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None]:
+    """The scan downsampled, with normals and FPFH, how its normals were oriented, and where
+    its sensor likely stood (None: unknown), for the first pass to confirm: the origin when the
+    scan is in its sensor's frame, else the position estimated from the scan
+    (:func:`_estimated_sensor`).
 
     With a viewpoint the normals face it. A scan in its sensor's frame (one view from the
     origin, :func:`pointclm._core.looks_like_one_view`, and :func:`_in_front` of it) has its
@@ -638,7 +640,7 @@ def _describe_scan(
         radii: dict[str, Any] = {"normal_radius": 2.0 * voxel, "feature_radius": 5.0 * voxel}
         described = pp.describe(pts, None, towards=view, num_threads=num_threads, **radii)
         described.timings["downsample"] = t1 - t0
-        return described, f"towards the viewpoint {_xyz(view)}", False
+        return described, f"towards the viewpoint {_xyz(view)}", None
     raw = pp.estimate_normals(pts, 2.0 * voxel, num_threads=num_threads)
     # One view from the origin orients the normals consistently (up to one sign); with every
     # point in front of it, the sign too (see `_in_front`).
@@ -648,24 +650,61 @@ def _describe_scan(
     nrm = pp.orient_towards(pts, raw, eye)
     t2 = time.perf_counter()
     desc = pp.compute_fpfh(pts, nrm, 5.0 * voxel, num_threads=num_threads)
+    guess: tuple[float, float, float] | None = (0.0, 0.0, 0.0) if sensor_frame else None
     if sensor_frame:
         text = (
             "no viewpoint: towards the origin, a sensor's position (the scan is one view from it)"
         )
     else:
-        flipped = pp.flip_fpfh(desc)
-        towards = _median_distance(src_d.descriptors, desc, num_threads)
-        away = _median_distance(src_d.descriptors, flipped, num_threads)
-        if away < towards:
-            nrm, desc = -nrm, flipped
-        side = "away from" if away < towards else "towards"
-        text = (
-            f"no viewpoint: {side} the estimated point {_xyz(eye)}, the sign whose descriptors "
-            f"match the model's (median distance {min(towards, away):.3g} vs "
-            f"{max(towards, away):.3g})"
-        )
-    timings = {"downsample": t1 - t0, "normals": t2 - t1, "fpfh": time.perf_counter() - t2}
-    return pp.DescribedCloud(pts, nrm, desc, timings), text, sensor_frame
+        nrm, desc, text, outside = _signed_by_descriptors(src_d, pts, nrm, desc, eye, num_threads)
+    t3 = time.perf_counter()
+    if not one_view:
+        guess = _estimated_sensor(pts, voxel, outside)
+    timings = {
+        "downsample": t1 - t0,
+        "normals": t2 - t1 + time.perf_counter() - t3,
+        "fpfh": t3 - t2,
+    }
+    return pp.DescribedCloud(pts, nrm, desc, timings), text, guess
+
+
+def _signed_by_descriptors(
+    src_d: pp.DescribedCloud,
+    pts: np.ndarray,
+    nrm: np.ndarray,
+    desc: np.ndarray,
+    eye: np.ndarray,
+    num_threads: int | None,
+) -> tuple[np.ndarray, np.ndarray, str, np.ndarray]:
+    """The scan's normals (oriented towards `eye`) and descriptors with the sign whose
+    descriptors lie nearer the model's, how they were oriented, and a point on the side they
+    face (`eye`, or its mirror image through the scan)."""
+    flipped = pp.flip_fpfh(desc)
+    towards = _median_distance(src_d.descriptors, desc, num_threads)
+    away = _median_distance(src_d.descriptors, flipped, num_threads)
+    side = "away from" if away < towards else "towards"
+    text = (
+        f"no viewpoint: {side} the estimated point {_xyz(eye)}, the sign whose descriptors "
+        f"match the model's (median distance {min(towards, away):.3g} vs "
+        f"{max(towards, away):.3g})"
+    )
+    if away < towards:
+        return -nrm, flipped, text, 2.0 * pts.mean(0) - eye
+    return nrm, desc, text, eye
+
+
+def _estimated_sensor(
+    pts: np.ndarray, voxel: float, outside: np.ndarray
+) -> tuple[float, float, float] | None:
+    """Where the sensor of the scan `pts` stood, estimated on the side of `outside` (the side
+    its normals face): the position from which the scan hides the fewest of its own points
+    (:func:`pointclm._core.estimate_sensor`), when the scan looks like one view from there
+    (else None: a scan merged from several views has no one sensor). Why: verification by
+    what a sensor could see keeps the right copies and drops the wrong ones that the share of
+    the model explained lets through; the estimate is a guess that pass 0 confirms."""
+    x, y, z = (float(v) for v in outside)
+    position, _ = _core.estimate_sensor(pts, voxel, (x, y, z))
+    return position if _core.looks_like_one_view(pts, position, voxel) else None
 
 
 def _without_strays(points: np.ndarray, voxel: float, num_threads: int | None) -> np.ndarray:

@@ -389,6 +389,29 @@ pub fn looks_like_one_view(
     })
 }
 
+/// The position from which `points` (one range scan downsampled at `voxel_size`) hide the
+/// fewest of their own points, on the side of `towards`, and the share hidden from there.
+#[pyfunction]
+#[pyo3(signature = (points, voxel_size, towards))]
+pub fn estimate_sensor(
+    py: Python<'_>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+    #[pyo3(from_py_with = args::viewpoint)] towards: Option<[f64; 3]>,
+) -> PyResult<((f64, f64, f64), f64)> {
+    let p = rows3(&points, "points")?;
+    let Some(towards) = towards else {
+        return Err(InputError::new_err(
+            "towards must be 3 finite numbers, got None",
+        ));
+    };
+    let est = guarded(py, None, move || {
+        pointcloud::estimate_sensor(&p, voxel_size, towards)
+    })?;
+    let [x, y, z] = est.position;
+    Ok(((x, y, z), est.hidden_share))
+}
+
 /// What `refine_poses` derives from the clouds alone (the scan's index and normals, the depth
 /// maps from the viewpoint, the model's normals), built once for many calls against one scan.
 #[pyclass(frozen, module = "pointclm._core", name = "RefineContext")]

@@ -13,6 +13,7 @@ pub mod icp;
 pub mod normals;
 pub mod refine;
 pub mod search;
+pub mod sensor;
 pub mod visibility;
 pub mod voxel;
 
@@ -24,6 +25,7 @@ pub use refine::{
     RefinedPose, MAX_ROTATION_DEVIATION,
 };
 pub use search::{isolated_points, Neighbourhoods, PointIndex};
+pub use sensor::{estimate_sensor, SensorEstimate};
 pub use voxel::voxel_downsample;
 
 use crate::error::{Error, Result};

@@ -1,0 +1,99 @@
+use super::*;
+
+/// One view of balls resting on a floor, ray-cast from `sensor` through a grid of points on
+/// the floor's plane (as a range camera's pixels): each ray's first hit.
+fn one_view(sensor: [f64; 3]) -> Vec<[f64; 3]> {
+    let balls = [
+        ([0.6, 0.5, 0.3], 0.3),
+        ([-0.6, 0.4, 0.3], 0.3),
+        ([0.5, -0.6, 0.25], 0.25),
+        ([-0.5, -0.5, 0.35], 0.35),
+        ([0.0, 0.0, 0.5], 0.45),
+    ];
+    let mut points = Vec::new();
+    for i in 0..100 {
+        for j in 0..100 {
+            let aim = [-2.0 + 0.04 * i as f64, -2.0 + 0.04 * j as f64, 0.0];
+            let d = unit(sub(aim, sensor)).unwrap();
+            // The floor (z = 0) is hit at the aim point.
+            let mut t_hit = norm(sub(aim, sensor));
+            for (c, r) in balls {
+                let oc = sub(sensor, c);
+                let b = oc[0] * d[0] + oc[1] * d[1] + oc[2] * d[2];
+                let disc = b * b - (norm(oc).powi(2) - r * r);
+                if disc > 0.0 {
+                    let t = -b - disc.sqrt();
+                    if t > 0.0 && t < t_hit {
+                        t_hit = t;
+                    }
+                }
+            }
+            points.push(add(sensor, scale(d, t_hit)));
+        }
+    }
+    points
+}
+
+fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let (a, b) = (unit(a).unwrap(), unit(b).unwrap());
+    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+#[test]
+fn the_sensor_of_one_view_hides_the_fewest_points() {
+    for sensor in [[0.8, -1.2, 2.5], [-1.5, 0.4, 2.0], [0.2, 0.3, 3.5]] {
+        let scan = one_view(sensor);
+        let centre = centroid(&scan);
+        // Only the side is given: straight above the scene.
+        let towards = add(centre, [0.0, 0.0, 1.0]);
+        let est = estimate_sensor(&scan, 0.04, towards).unwrap();
+        let (truth, found) = (sub(sensor, centre), sub(est.position, centre));
+        let angle = angle_deg(truth, found);
+        let ratio = norm(found) / norm(truth);
+        assert!(angle < 5.0, "{sensor:?}: {angle} degrees off ({est:?})");
+        // Farther eyes hide about as little (cells straddling an edge count less there): the
+        // estimate may lie beyond the sensor, never much nearer.
+        assert!(
+            (0.9..3.0).contains(&ratio),
+            "{sensor:?}: distance ratio {ratio}"
+        );
+        assert!(est.hidden_share < 0.02, "{est:?}");
+        // The same scan seen from a point 20 degrees aside hides more of itself.
+        let aside = DepthMap::new(
+            &scan,
+            add(
+                centre,
+                scale(
+                    unit([truth[0] + 1.0, truth[1], truth[2]]).unwrap(),
+                    norm(truth),
+                ),
+            ),
+            0.04,
+            SENSOR_TOLERANCE_VOXELS * 0.04,
+        )
+        .hidden_share(&scan);
+        assert!(aside > est.hidden_share, "{aside} vs {est:?}");
+    }
+}
+
+#[test]
+fn the_estimate_is_deterministic_and_checks_its_input() {
+    let scan = one_view([0.8, -1.2, 2.5]);
+    let a = estimate_sensor(&scan, 0.04, [0.0, 0.0, 5.0]).unwrap();
+    let b = estimate_sensor(&scan, 0.04, [0.0, 0.0, 5.0]).unwrap();
+    assert_eq!(a, b);
+    // A start at the centroid has no direction: straight up is taken.
+    let stride = scan.len().div_ceil(SENSOR_SAMPLE).max(1);
+    let sample: Vec<[f64; 3]> = scan.iter().step_by(stride).copied().collect();
+    let centre = centroid(&sample);
+    assert!(estimate_sensor(&scan, 0.04, centre).is_ok());
+    assert!(estimate_sensor(&scan[..2], 0.04, [0.0; 3]).is_err());
+    assert!(estimate_sensor(&scan, 0.0, [0.0; 3]).is_err());
+    assert!(estimate_sensor(&scan, 0.04, [f64::NAN, 0.0, 0.0]).is_err());
+    let mut bad = scan.clone();
+    bad[7][1] = f64::INFINITY;
+    assert!(estimate_sensor(&bad, 0.04, [0.0; 3]).is_err());
+}
