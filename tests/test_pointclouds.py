@@ -460,7 +460,8 @@ def test_a_scan_merged_from_two_views_gets_no_estimated_sensor() -> None:
     before = merged.copy()
     for pts, alone in ((one, True), (merged, False)):
         towards = tuple(float(v) for v in pts.mean(0) + [0.0, 0.0, 1.0])
-        position, hidden = _core.estimate_sensor(pts, a.voxel_size, towards)
+        position, hidden, counted = _core.estimate_sensor(pts, a.voxel_size, towards)
+        assert 0 < counted <= min(len(pts), 8000)
         assert _core.looks_like_one_view(pts, position, a.voxel_size) is alone, hidden
     np.testing.assert_array_equal(merged, before)
     with pytest.raises(ValueError, match="towards"):

@@ -247,7 +247,7 @@ def estimate_sensor(
     points: npt.NDArray[np.float64],
     voxel_size: float,
     towards: tuple[float, float, float] | None,
-) -> tuple[tuple[float, float, float], float]: ...
+) -> tuple[tuple[float, float, float], float, int]: ...
 def looks_like_one_view(
     points: npt.NDArray[np.float64],
     viewpoint: tuple[float, float, float] | None,

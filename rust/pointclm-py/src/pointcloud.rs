@@ -390,7 +390,8 @@ pub fn looks_like_one_view(
 }
 
 /// The position from which `points` (one range scan downsampled at `voxel_size`) hide the
-/// fewest of their own points, on the side of `towards`, and the share hidden from there.
+/// fewest of their own points, on the side of `towards`, the share hidden from there and the
+/// number of points it counts.
 #[pyfunction]
 #[pyo3(signature = (points, voxel_size, towards))]
 pub fn estimate_sensor(
@@ -398,7 +399,7 @@ pub fn estimate_sensor(
     #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
     #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
     #[pyo3(from_py_with = args::viewpoint)] towards: Option<[f64; 3]>,
-) -> PyResult<((f64, f64, f64), f64)> {
+) -> PyResult<((f64, f64, f64), f64, usize)> {
     let p = rows3(&points, "points")?;
     let Some(towards) = towards else {
         return Err(InputError::new_err(
@@ -409,7 +410,7 @@ pub fn estimate_sensor(
         pointcloud::estimate_sensor(&p, voxel_size, towards)
     })?;
     let [x, y, z] = est.position;
-    Ok(((x, y, z), est.hidden_share))
+    Ok(((x, y, z), est.hidden_share, est.points))
 }
 
 /// What `refine_poses` derives from the clouds alone (the scan's index and normals, the depth

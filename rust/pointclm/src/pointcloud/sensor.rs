@@ -42,6 +42,9 @@ pub struct SensorEstimate {
     /// Share of the (sampled) scan points lying more than `SENSOR_TOLERANCE_VOXELS` behind
     /// another scan point along the rays from `position`.
     pub hidden_share: f64,
+    /// How many scan points the share counts (at most `SENSOR_SAMPLE`): its standard error is
+    /// `sqrt(share (1 - share) / points)`.
+    pub points: usize,
 }
 
 /// The position, on the side of `towards` as seen from the scan's centroid, from which
@@ -86,6 +89,7 @@ pub fn estimate_sensor(scan: &[[f64; 3]], voxel: f64, towards: [f64; 3]) -> Resu
     Ok(SensorEstimate {
         position: add(centre, scale(direction, distance)),
         hidden_share: share,
+        points: sample.len(),
     })
 }
 
