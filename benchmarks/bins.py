@@ -32,6 +32,9 @@ the same voxel and the sensor position, in the same run:
 - **pointclm (windowed mutual)**: the same with ``mutual_window=2, n_samples=None``
   (:data:`WINDOWED_MATCHES`): the mutual check within overlapping cubes two part diagonals
   wide, so each copy keeps its own mutual matches, all of them kept.
+- **pointclm (no viewpoint)**: the scan where the scene puts it and no viewpoint given, as a
+  scan exported to a world frame comes: the sensor's position is estimated from the scan
+  (``pointclm._core.estimate_sensor``) and used once pass 0 confirms it.
 - **pointclm (no flips)**: the same with ``flips=False``: the accepted poses are not compared
   with their half-turned alternatives (stop 26's behaviour).
 - **sequential KISS-Matcher** (``benchmarks/peers.py``) on the correspondences of pointclm's
@@ -119,6 +122,7 @@ METHODS = (
     "pointclm (heap switch)",
     "pointclm (no flips)",
     "pointclm (scan in its sensor's frame)",
+    "pointclm (no viewpoint)",
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )
@@ -406,11 +410,12 @@ def main() -> None:
                     method.startswith("sequential KISS") and reg is None
                 ):
                     own_frame = method == "pointclm (scan in its sensor's frame)"
+                    blind = method == "pointclm (no viewpoint)"
                     reg = pointclm.register_point_clouds(
                         sc.model_points,
                         sc.scan - sc.sensor if own_frame else sc.scan,
                         voxel_size=sc.voxel_size,
-                        viewpoint=None if own_frame else sc.sensor,
+                        viewpoint=None if own_frame or blind else sc.sensor,
                         peel=method != "pointclm (one pass)",
                         **MATCHING.get(method, {}),
                     )
