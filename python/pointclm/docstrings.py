@@ -116,14 +116,14 @@ PARAMETERS: dict[str, str] = _entries(
             `target` file records (:func:`file_viewpoint`); else, for a scan in its sensor's
             frame (one view from the origin, every point in front of it, as depth cameras
             write frames), the origin, kept when verification from there keeps the pose the
-            model share ranks first; else the scan's normals are oriented without it
-            (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point that orients them
-            consistently, and of the two signs the one whose descriptors are nearer the model's
-            is kept), and the sensor's position is estimated on the side they face: the point
+            model share ranks first; else the sensor's position is estimated on each side of
+            the scan (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point that
+            orients the normals consistently; the other side is its mirror image): the point
             from which the scan hides the fewest of its own points
-            (:func:`pointclm._core.estimate_sensor`), kept as above when the scan looks like one
-            view from there; else none, and poses are judged by the share of the model they
-            explain. ``PointCloudRegistration.viewpoint`` says which was used. Pass it for
+            (:func:`pointclm._core.estimate_sensor`). The side that hides clearly fewer gives
+            the normals their sign (else the sign whose descriptors lie nearer the model's), and
+            its estimate is kept as above when the scan looks like one view from there; else
+            none, and poses are judged by the share of the model they explain. ``PointCloudRegistration.viewpoint`` says which was used. Pass it for
             scenes where copies hide one another. The model's normals point away from its
             centroid.
         """,
