@@ -123,9 +123,9 @@ PARAMETERS: dict[str, str] = _entries(
             (:func:`pointclm._core.estimate_sensor`). The side that hides clearly fewer gives
             the normals their sign (else the sign whose descriptors lie nearer the model's), and
             its estimate is kept as above when the scan looks like one view from there; else
-            none, and poses are judged by the share of the model they explain. ``PointCloudRegistration.viewpoint`` says which was used. Pass it for
-            scenes where copies hide one another. The model's normals point away from its
-            centroid.
+            none, and poses are judged by the share of the model they explain.
+            ``PointCloudRegistration.viewpoint`` says which was used. Pass it for scenes where
+            copies hide one another. The model's normals point away from its centroid.
         """,
     matching="""
         top_k, mutual, n_samples, k
