@@ -4,7 +4,8 @@ thinned (``--fractions``) or with Gaussian noise added (``--noise``, in model vo
 Each scene of ``realistic_models.py`` (as ``point_cloud_scenes.py`` builds them: benchmark
 seeds for the held-out models, threshold seeds for the validation ones) keeps a random share
 of its scan points (``--fractions``; seed 0), as a sensor of lower resolution would see it,
-and is registered with the default voxel (``voxel_size`` not given) and the sensor's position.
+and is registered with the default voxel (``voxel_size`` not given) and the sensor's position
+(``--no-viewpoint``: without it, the scan in the scene's frame).
 Reports per share: correct / predicted / copies, precision, recall and F1 pooled over the
 models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in model voxels
 (the model's diagonal / 40). A call that finds too few matches to register counts as no pose.
@@ -53,6 +54,11 @@ def main() -> None:
     ap.add_argument("--outliers", default="", help="stray-point rows: shares of the scan")
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
+    ap.add_argument(
+        "--no-viewpoint",
+        action="store_true",
+        help="register without the sensor's position (the scan stays in the scene's frame)",
+    )
     args = ap.parse_args()
     data_dir = rm.data_folder(args.data_dir)
     scenes = rm.cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
@@ -81,7 +87,7 @@ def main() -> None:
             spacing.append(_spacing(scan) / voxel)
             try:
                 poses = pointclm.register_point_clouds(
-                    model, scan, viewpoint=sc.viewpoint
+                    model, scan, viewpoint=None if args.no_viewpoint else sc.viewpoint
                 ).transformations
             except ValueError:  # too few matches to register
                 poses = np.zeros((0, 4, 4))
