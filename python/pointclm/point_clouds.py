@@ -853,15 +853,17 @@ def _confirm_viewpoint(
     run: _Run, result: RegistrationResult
 ) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
     """Pass 0 of a run whose viewpoint is a guess (the origin of a scan in its sensor's
-    frame): the run with it, when verification from there keeps the pose that the model share
-    ranks first, else the run without a viewpoint; pass 0's poses verified accordingly.
+    frame, or the sensor position estimated from the scan): the run with it, when verification
+    from there keeps the pose that the model share ranks first, else the run without a
+    viewpoint; pass 0's poses verified accordingly.
 
     Why: a scan looks like one view from many points near its sensor (at most 12 % of it
     hidden from there), which is enough to orient normals but not to judge poses, where 1 %
     of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the origin
     looks like one view from it, and every pose fails there; a depth camera's frame keeps
-    its surest copy. ICP does not depend on the viewpoint, so the poses are refined once and
-    judged both ways."""
+    its surest copy. An estimate 10 degrees off costs about a twentieth of the realistic F1,
+    20 degrees a fifth (BENCHMARKS.md, stop 35). ICP does not depend on the viewpoint, so the
+    poses are refined once and judged both ways."""
     blind_run = replace(run, viewpoint=None, guessed_viewpoint=False)
     fitted = blind_run.refiner.refine(
         np.asarray(result.transformations).reshape(-1, 4, 4),
