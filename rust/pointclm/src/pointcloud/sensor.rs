@@ -75,7 +75,7 @@ pub fn estimate_sensor(scan: &[[f64; 3]], voxel: f64, towards: [f64; 3]) -> Resu
         .max(voxel);
     let hidden = |direction: [f64; 3], distance: f64| {
         let eye = add(centre, scale(direction, distance));
-        DepthMap::new(&sample, eye, voxel, SENSOR_TOLERANCE_VOXELS * voxel).hidden_share(&sample)
+        DepthMap::own_hidden_share(&sample, eye, voxel, SENSOR_TOLERANCE_VOXELS * voxel)
     };
     let start = unit(sub(towards, centre)).unwrap_or([0.0, 0.0, 1.0]);
     let (mut direction, _) = pattern_search(start, &COARSE_STEPS_DEG, |d| hidden(d, 2.0 * radius));

@@ -95,6 +95,46 @@ impl DepthMap {
         map
     }
 
+    /// [`DepthMap::new`] of `scan` followed by [`DepthMap::hidden_share`] of the same points,
+    /// each point's ray computed once instead of three times: the same share. Why: the sensor
+    /// estimate ([`super::sensor`]) asks it for a hundred or more positions per scan.
+    pub fn own_hidden_share(
+        scan: &[[f64; 3]],
+        viewpoint: [f64; 3],
+        cell_length: f64,
+        tolerance: f64,
+    ) -> f64 {
+        if scan.is_empty() {
+            return 0.0;
+        }
+        let offsets: Vec<([f64; 3], f64)> = scan
+            .iter()
+            .map(|p| {
+                let d = [
+                    p[0] - viewpoint[0],
+                    p[1] - viewpoint[1],
+                    p[2] - viewpoint[2],
+                ];
+                (d, (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+            })
+            .collect();
+        let mut ranges: Vec<f64> = offsets.iter().map(|o| o.1).collect();
+        let mid = ranges.len() / 2;
+        let median = *ranges.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let cell = cell_length / median.max(f64::MIN_POSITIVE);
+        let rays: Vec<Ray> = offsets
+            .iter()
+            .filter(|(_, range)| *range > 0.0 && range.is_finite())
+            .map(|&(d, range)| (d.map(|c| (c / range / cell).floor() as i32), range))
+            .collect();
+        let nearest = nearest_of(rays.iter().copied(), rays.len());
+        let hidden = rays
+            .iter()
+            .filter(|(key, range)| nearest[key] < range - tolerance)
+            .count();
+        hidden as f64 / scan.len() as f64
+    }
+
     fn ray(&self, p: &[f64; 3]) -> Option<Ray> {
         let d = [
             p[0] - self.viewpoint[0],

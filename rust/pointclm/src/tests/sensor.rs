@@ -97,3 +97,23 @@ fn the_estimate_is_deterministic_and_checks_its_input() {
     bad[7][1] = f64::INFINITY;
     assert!(estimate_sensor(&bad, 0.04, [0.0; 3]).is_err());
 }
+
+#[test]
+fn the_fused_hidden_share_is_the_depth_maps() {
+    let mut scan = one_view([0.8, -1.2, 2.5]);
+    scan.push([0.8, -1.2, 2.5]); // a point at the sensor has no ray
+    scan.push([40.0, 3.0, -7.0]);
+    for eye in [
+        [0.8, -1.2, 2.5],
+        [-2.0, 1.0, 1.0],
+        [0.0, 0.0, 9.0],
+        [0.3, 0.2, 0.1],
+    ] {
+        for (cell, tol) in [(0.04, 0.08), (0.02, 0.2), (0.1, 0.01)] {
+            let map = DepthMap::new(&scan, eye, cell, tol).hidden_share(&scan);
+            let fused = DepthMap::own_hidden_share(&scan, eye, cell, tol);
+            assert_eq!(map.to_bits(), fused.to_bits(), "{eye:?} {cell} {tol}");
+        }
+    }
+    assert_eq!(DepthMap::own_hidden_share(&[], [0.0; 3], 0.1, 0.1), 0.0);
+}
