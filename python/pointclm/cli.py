@@ -722,7 +722,9 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
         "--viewpoint",
         type=_viewpoint,
         help="sensor position x,y,z for scene normals and verification, or none (default: a "
-        "PCD scene's VIEWPOINT, else none: normals oriented without it)",
+        "PCD scene's VIEWPOINT; without one, a position guessed from the scan, its frame's "
+        "origin or where it hides the fewest of its own points, kept if the first pass "
+        "confirms it)",
     )
     p.add_argument(
         "--correspondences", type=_int_at_least(1), default=1000, help="sampled (default 1000)"
