@@ -115,6 +115,10 @@ def test_one_line_per_scan_in_order_with_the_copies_found(
             assert (inst["contradiction"] is None) == (seen is None)
             rmse = inst["visible_rmse"]
             assert rmse is None or 0.0 <= rmse < 0.05 * data["d"]
+            # Scores from a sensor need the viewpoint they were judged from, which is recorded.
+            assert seen is None or record["viewpoint"] is not None
+        assert record["viewpoint"] is None or len(record["viewpoint"]) == 3
+        assert record["scan_normals"]
     assert [r["diagnosis"] for r in reference[:4]] == [""] * 4
     # The PCD's VIEWPOINT was used; two whole copies are no view from it, which is said, in
     # the words a caller of register_files uses.

@@ -20,8 +20,9 @@ def _number(value: float) -> float | None:
 
 def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
     """Voxel, config, instances (``T_target_source`` 4x4 lists, surest first, with their
-    scores), `diagnosis` ("" when there is nothing to say) and timings of a
-    :class:`pointclm.point_clouds.PointCloudRegistration`."""
+    scores), the viewpoint verification judged from (given, recorded or guessed and confirmed;
+    null: none) and how the scan's normals were oriented, `diagnosis` ("" when there is
+    nothing to say) and timings of a :class:`pointclm.point_clouds.PointCloudRegistration`."""
     instances = [
         {
             "T_target_source": inst.transformation.tolist(),
@@ -41,6 +42,8 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
         "voxel_size": reg.voxel_size,
         "config": reg.config.to_dict(),
         "instances": instances,
+        "viewpoint": None if reg.viewpoint is None else [float(v) for v in reg.viewpoint],
+        "scan_normals": reg.orientation,
         "diagnosis": diagnosis,
         "timings_s": dict(reg.timings),
     }

@@ -75,7 +75,8 @@ def register_files(
     CPUs). `png_dir`, `ply_dir`: a picture or coloured cloud per scan, named by the scan.
     `options`: :func:`pointclm.register_point_clouds`' keyword options (``voxel_size``,
     ``config``, ``seed``, ``model``, ``viewpoint``, ...), the same for every scan; with no
-    ``viewpoint`` a PCD scan's ``VIEWPOINT`` is used, ``viewpoint="none"`` uses none. Every
+    ``viewpoint`` a PCD scan's ``VIEWPOINT`` is used, ``viewpoint="none"`` ignores it (then,
+    as without one, a position guessed from the scan may be confirmed and used). Every
     scan gets the same seed, so its poses are the same bit for bit whichever engine, worker
     or position ran it. Worker processes use ``num_threads=1`` unless given; they are
     spawned, so a script calling this with ``workers > 1`` does so under
