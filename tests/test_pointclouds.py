@@ -468,3 +468,14 @@ def test_a_scan_merged_from_two_views_gets_no_estimated_sensor() -> None:
         _core.estimate_sensor(one, a.voxel_size, None)
     with pytest.raises(ValueError):
         _core.estimate_sensor(one[:2], a.voxel_size, (0.0, 0.0, 1.0))
+
+
+def test_only_a_scan_reaching_past_one_model_decides_its_side_by_sight() -> None:
+    from pointclm.point_clouds import SCENE_EXTENT, _spans_a_scene
+
+    rng = np.random.default_rng(0)
+    model = rng.normal(size=(500, 3))
+    alone = model @ np.diag([1.0, 1.0, 0.2]) + 5.0  # one object, seen alone
+    floor = np.c_[rng.uniform(-3, 3, size=(2000, 2)) * SCENE_EXTENT * 2, np.zeros(2000)]
+    assert not _spans_a_scene(alone, model)
+    assert _spans_a_scene(np.vstack([alone - 5.0, floor]), model)
