@@ -120,8 +120,9 @@ PARAMETERS: dict[str, str] = _entries(
             the scan (:func:`pointclm.preprocessing.estimate_viewpoint` finds a point that
             orients the normals consistently; the other side is its mirror image): the point
             from which the scan hides the fewest of its own points
-            (:func:`pointclm._core.estimate_sensor`). The side that hides clearly fewer gives
-            the normals their sign (else the sign whose descriptors lie nearer the model's), and
+            (:func:`pointclm._core.estimate_sensor`). In a scan reaching beyond two model radii,
+            the side that hides clearly fewer gives the normals their sign (else the sign whose
+            descriptors lie nearer the model's), and
             its estimate is kept as above when the scan looks like one view from there; else
             none, and poses are judged by the share of the model they explain.
             ``PointCloudRegistration.viewpoint`` says which was used. Pass it for scenes where
