@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cache, cached_property
 from typing import Any
 
 import numpy as np
@@ -674,11 +674,6 @@ def _describe_scan(
     return pp.DescribedCloud(pts, nrm, desc, timings), text, guess
 
 
-def _xyz3(p: np.ndarray) -> tuple[float, float, float]:
-    x, y, z = (float(v) for v in p)
-    return x, y, z
-
-
 def _signed_by_sight(
     src_d: pp.DescribedCloud,
     pts: np.ndarray,
@@ -694,8 +689,14 @@ def _signed_by_sight(
     of its own points (:func:`_side_by_sight`), else the sign whose descriptors lie nearer the
     model's (:func:`_signed_by_descriptors`), which alone decides for a scan of about one
     model's extent (`_spans_a_scene`)."""
-    sides = [_core.estimate_sensor(pts, voxel, _xyz3(p)) for p in (eye, 2 * pts.mean(0) - eye)]
-    seen_from = _side_by_sight(pts, voxel, sides) if _spans_a_scene(pts, src_d.points) else None
+    towards = (eye, 2 * pts.mean(0) - eye)
+    sides = [_core.estimate_sensor(pts, voxel, pp.as_point(p, "towards")) for p in towards]
+
+    @cache
+    def one_view(side: int) -> bool:
+        return bool(_core.looks_like_one_view(pts, sides[side][0], voxel))
+
+    seen_from = _side_by_sight(sides, one_view) if _spans_a_scene(pts, src_d.points) else None
     if seen_from is None:
         nrm, desc, text, flipped = _signed_by_descriptors(src_d, nrm, desc, eye, num_threads)
         seen_from = int(flipped)
@@ -706,8 +707,7 @@ def _signed_by_sight(
             f"no viewpoint: towards the estimated sensor position {_xyz(sides[seen_from][0])}, "
             "from which the scan hides the fewest of its own points"
         )
-    position = sides[seen_from][0]
-    return nrm, desc, text, position if _core.looks_like_one_view(pts, position, voxel) else None
+    return nrm, desc, text, sides[seen_from][0] if one_view(seen_from) else None
 
 
 def _spans_a_scene(scan: np.ndarray, model: np.ndarray) -> bool:
@@ -722,22 +722,23 @@ def _spans_a_scene(scan: np.ndarray, model: np.ndarray) -> bool:
 
 
 def _side_by_sight(
-    pts: np.ndarray, voxel: float, sides: list[tuple[tuple[float, float, float], float, int]]
+    sides: list[tuple[tuple[float, float, float], float, int]], one_view: Callable[[int], bool]
 ) -> int | None:
     """Which of two sensor estimates (:func:`pointclm._core.estimate_sensor` on each side of
-    the scan) is its sensor: the one the scan looks like one view from, hiding fewer of its
+    the scan) is its sensor: the one the scan looks like one view from (`one_view`, by index),
+    hiding fewer of its
     points by more than two standard errors; None when that does not decide (a flat scene
     looks alike from both sides, a merged scan like one view from neither). Why: from its
     mirror image behind the surfaces, a single view's foreground hides its background, and
     that count picked the right side on the 15 realistic validation scans wherever it decided
     (the flat beds tie), where the descriptors' sign test erred in 2 (BENCHMARKS.md)."""
-    (p0, h0, n0), (p1, h1, n1) = sides
+    (_, h0, n0), (_, h1, n1) = sides
     low = min(h0, h1)
     noise = 2.0 * np.sqrt(low * (1.0 - low) / max(min(n0, n1), 1))
     if abs(h0 - h1) <= noise:
         return None
     best = 0 if h0 < h1 else 1
-    return best if _core.looks_like_one_view(pts, (p0, p1)[best], voxel) else None
+    return best if one_view(best) else None
 
 
 def _signed_by_descriptors(

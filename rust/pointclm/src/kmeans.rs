@@ -108,18 +108,6 @@ fn nearest_center(x: &[f64], by_dim: &[f64], dists: &mut [f64]) -> (usize, f64) 
     (bl, bd)
 }
 
-/// The squared distance from `x` to `center`, summed as [`nearest_center`] sums it (so that
-/// the inertia is the plain loop's bit for bit).
-#[inline]
-fn dist_to(x: &[f64], center: &[f64]) -> f64 {
-    let mut acc = 0.0;
-    for (&v, &c) in x.iter().zip(center) {
-        let t = v - c;
-        acc += t * t;
-    }
-    acc
-}
-
 /// [`nearest_center`], and the least squared distance to any other centre (infinite with one
 /// centre).
 #[inline]
@@ -139,7 +127,7 @@ fn half_gaps(centers: &[f64], dim: usize, k: usize, out: &mut [f64]) {
     for a in 0..k {
         for b in a + 1..k {
             let d = 0.5
-                * dist_to(
+                * dist_sq(
                     &centers[a * dim..(a + 1) * dim],
                     &centers[b * dim..(b + 1) * dim],
                 )
@@ -181,7 +169,7 @@ fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> 
                 if apart(upper[i], bound) {
                     continue;
                 }
-                upper[i] = dist_to(row(i), &centers[*label * dim..(*label + 1) * dim]).sqrt();
+                upper[i] = dist_sq(row(i), &centers[*label * dim..(*label + 1) * dim]).sqrt();
                 if apart(upper[i], bound) {
                     continue;
                 }
@@ -197,7 +185,7 @@ fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> 
             // Every label is its nearest centre: the plain loop's sum of those distances.
             inertia = 0.0;
             for (i, &l) in labels.iter().enumerate() {
-                inertia += dist_to(row(i), &centers[l * dim..(l + 1) * dim]);
+                inertia += dist_sq(row(i), &centers[l * dim..(l + 1) * dim]);
             }
         }
         if !changed {
@@ -207,7 +195,7 @@ fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> 
         update_centers(data, dim, n, k, &labels, &mut centers);
         for (c, m) in moved.iter_mut().enumerate() {
             let span = c * dim..(c + 1) * dim;
-            *m = dist_to(&previous[span.clone()], &centers[span]).sqrt();
+            *m = dist_sq(&previous[span.clone()], &centers[span]).sqrt();
         }
         let (mut first, mut top, mut runner_up) = (0, 0.0f64, 0.0f64);
         for (c, &m) in moved.iter().enumerate() {

@@ -673,9 +673,9 @@ fn explain(
 
 /// How many posed model points the sensor could see, how many of those lie where it saw free
 /// space, and the mean squared distance of the explained points (`dist_sq` not NaN; `hits`
-/// of them) its depth map does not hide (NaN: none). A point the scan explains was evidently seen, whatever its
-/// depth cell says (cells straddle occlusion edges), so it counts as seen; the others count
-/// by the sensor's verdict. Why the hidden explained points are left out of the distance: a
+/// of them) its depth map does not hide (NaN: none). A point the scan explains was evidently
+/// seen, whatever its depth cell says (cells straddle occlusion edges), so it counts as seen;
+/// the others count by the sensor's verdict. Why the hidden explained points are left out of the distance: a
 /// model point behind the model's own front, or behind a nearer surface, is explained by
 /// whatever surface lies near it, not by the side of the copy the sensor saw.
 fn sensor_verdict(

@@ -10,8 +10,9 @@
 //! more the farther the eye moves from the sensor. The position that hides the fewest scan
 //! points estimates the sensor. The count is flat in the distance beyond the sensor (far eyes
 //! see the scan almost orthographically) and rises towards the scan, so the search keeps the
-//! nearest distance among equals.
+//! nearest distance among counts equal within their noise.
 
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::visibility::DepthMap;
@@ -35,6 +36,8 @@ const DISTANCES: usize = 12;
 const COARSE_STEPS_DEG: [f64; 3] = [12.0, 6.0, 3.0];
 const FINE_STEPS_DEG: [f64; 2] = [3.0, 1.5];
 
+type V = Vector3<f64>;
+
 /// An estimated sensor position and the share of the scan it hides.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorEstimate {
@@ -49,8 +52,9 @@ pub struct SensorEstimate {
 
 /// The position, on the side of `towards` as seen from the scan's centroid, from which
 /// `scan` (downsampled at `voxel`) hides the fewest of its own points: a pattern search over
-/// directions at twice the scan's radius, then over distances along the best direction (the
-/// nearest among equal counts), then over directions again there. Deterministic.
+/// directions at twice the scan's radius, then twice over distances along the best direction
+/// (the nearest whose count is the lowest within its noise) and over directions again at the
+/// distance found, in finer steps. Deterministic.
 ///
 /// `towards` picks the side: a single view looks alike from its sensor and from the mirror
 /// position behind its surfaces when they are flat, so the caller says which side is outside
@@ -70,14 +74,14 @@ pub fn estimate_sensor(scan: &[[f64; 3]], voxel: f64, towards: [f64; 3]) -> Resu
     let centre = centroid(&sample);
     let radius = sample
         .iter()
-        .map(|p| norm(sub(*p, centre)))
+        .map(|p| (V::from(*p) - centre).norm())
         .fold(0.0, f64::max)
         .max(voxel);
-    let hidden = |direction: [f64; 3], distance: f64| {
-        let eye = add(centre, scale(direction, distance));
-        DepthMap::own_hidden_share(&sample, eye, voxel, SENSOR_TOLERANCE_VOXELS * voxel)
+    let hidden = |direction: V, distance: f64| {
+        let eye = centre + direction * distance;
+        DepthMap::own_hidden_share(&sample, eye.into(), voxel, SENSOR_TOLERANCE_VOXELS * voxel)
     };
-    let start = unit(sub(towards, centre)).unwrap_or([0.0, 0.0, 1.0]);
+    let start = unit(V::from(towards) - centre).unwrap_or(V::z());
     let (mut direction, _) = pattern_search(start, &COARSE_STEPS_DEG, |d| hidden(d, 2.0 * radius));
     // The best direction depends on the distance and the other way round: alternate.
     let mut distance = 2.0 * radius;
@@ -87,7 +91,7 @@ pub fn estimate_sensor(scan: &[[f64; 3]], voxel: f64, towards: [f64; 3]) -> Resu
         (direction, share) = pattern_search(direction, steps, |d| hidden(d, distance));
     }
     Ok(SensorEstimate {
-        position: add(centre, scale(direction, distance)),
+        position: (centre + direction * distance).into(),
         hidden_share: share,
         points: sample.len(),
     })
@@ -117,11 +121,7 @@ fn nearest_best_distance(radius: f64, n: usize, cost: impl Fn(f64) -> f64 + Sync
 /// Compass search on the unit sphere from `start`: at each step size, move to the best of
 /// eight neighbours (four along two tangent axes, four diagonal) while one lowers `cost`.
 /// Returns the direction and its cost.
-fn pattern_search(
-    start: [f64; 3],
-    steps_deg: &[f64],
-    cost: impl Fn([f64; 3]) -> f64 + Sync,
-) -> ([f64; 3], f64) {
+fn pattern_search(start: V, steps_deg: &[f64], cost: impl Fn(V) -> f64 + Sync) -> (V, f64) {
     const MOVES: [(f64, f64); 8] = [
         (1.0, 0.0),
         (-1.0, 0.0),
@@ -138,22 +138,24 @@ fn pattern_search(
         // Each move must lower the cost, so the walk ends; the bound guards against a cost
         // that is not a function of the direction alone.
         for _ in 0..1000 {
-            let (a, b) = tangents(at);
+            let (a, b) = tangents(&at);
             // The neighbours' costs in parallel; the lowest wins, the first among equals.
-            let tried: Vec<Option<([f64; 3], f64)>> = MOVES
+            let tried: Vec<Option<(V, f64)>> = MOVES
                 .par_iter()
                 .map(|&(x, y)| {
-                    let next = unit(add(at, scale(add(scale(a, x), scale(b, y)), step)))?;
+                    let next = unit(at + (a * x + b * y) * step)?;
                     Some((next, cost(next)))
                 })
                 .collect();
-            let Some((next, c)) = tried.into_iter().flatten().fold(
-                None,
-                |low: Option<([f64; 3], f64)>, t| match low {
-                    Some(l) if l.1 <= t.1 => Some(l),
-                    _ => Some(t),
-                },
-            ) else {
+            let Some((next, c)) =
+                tried
+                    .into_iter()
+                    .flatten()
+                    .fold(None, |low: Option<(V, f64)>, t| match low {
+                        Some(l) if l.1 <= t.1 => Some(l),
+                        _ => Some(t),
+                    })
+            else {
                 break;
             };
             if c >= best {
@@ -166,49 +168,21 @@ fn pattern_search(
 }
 
 /// Two unit vectors orthogonal to `d` and to each other.
-fn tangents(d: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let helper = if d[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let a = unit(cross(d, helper)).unwrap_or([0.0, 0.0, 1.0]);
-    (a, cross(d, a))
+fn tangents(d: &V) -> (V, V) {
+    let helper = if d.x.abs() < 0.9 { V::x() } else { V::y() };
+    let a = unit(d.cross(&helper)).unwrap_or(V::z());
+    (a, d.cross(&a))
 }
 
-fn centroid(points: &[[f64; 3]]) -> [f64; 3] {
-    let sum = points.iter().fold([0.0; 3], |s, p| add(s, *p));
-    scale(sum, 1.0 / points.len() as f64)
-}
-
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+fn centroid(points: &[[f64; 3]]) -> V {
+    let sum = points.iter().fold(V::zeros(), |s, p| s + V::from(*p));
+    sum * (1.0 / points.len() as f64)
 }
 
 /// `a` scaled to unit length; `None` for a zero (or non-finite) vector.
-fn unit(a: [f64; 3]) -> Option<[f64; 3]> {
-    let n = norm(a);
-    (n > 0.0 && n.is_finite()).then(|| scale(a, 1.0 / n))
+fn unit(a: V) -> Option<V> {
+    let n = a.norm();
+    (n > 0.0 && n.is_finite()).then(|| a * (1.0 / n))
 }
 
 #[cfg(test)]

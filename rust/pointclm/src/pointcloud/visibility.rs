@@ -78,7 +78,31 @@ impl DepthMap {
     /// median range (so about one scan point per cell when `cell_length` is a little over the
     /// sampling step); ranges within `tolerance` of each other are one surface.
     pub fn new(scan: &[[f64; 3]], viewpoint: [f64; 3], cell_length: f64, tolerance: f64) -> Self {
-        let mut ranges: Vec<f64> = scan.iter().map(|p| dist(p, &viewpoint)).collect();
+        Self::with_rays(scan, viewpoint, cell_length, tolerance).0
+    }
+
+    /// [`DepthMap::new`] of `scan` followed by [`DepthMap::hidden_share`] of the same points,
+    /// each point's ray computed once. Why: the sensor estimate ([`super::sensor`]) asks it
+    /// for a hundred or more positions per scan.
+    pub fn own_hidden_share(
+        scan: &[[f64; 3]],
+        viewpoint: [f64; 3],
+        cell_length: f64,
+        tolerance: f64,
+    ) -> f64 {
+        let (map, rays) = Self::with_rays(scan, viewpoint, cell_length, tolerance);
+        map.share_hidden(rays.into_iter(), scan.len())
+    }
+
+    /// The map of `scan` and the rays of its points (those not at the sensor).
+    fn with_rays(
+        scan: &[[f64; 3]],
+        viewpoint: [f64; 3],
+        cell_length: f64,
+        tolerance: f64,
+    ) -> (Self, Vec<Ray>) {
+        let offsets: Vec<([f64; 3], f64)> = scan.iter().map(|p| offset(p, viewpoint)).collect();
+        let mut ranges: Vec<f64> = offsets.iter().map(|o| o.1).collect();
         let mid = ranges.len() / 2;
         let median = if ranges.is_empty() {
             1.0
@@ -91,66 +115,26 @@ impl DepthMap {
             tolerance,
             nearest: CellMap::default(),
         };
-        map.nearest = map.nearest_ranges(scan);
-        map
-    }
-
-    /// [`DepthMap::new`] of `scan` followed by [`DepthMap::hidden_share`] of the same points,
-    /// each point's ray computed once instead of three times: the same share. Why: the sensor
-    /// estimate ([`super::sensor`]) asks it for a hundred or more positions per scan.
-    pub fn own_hidden_share(
-        scan: &[[f64; 3]],
-        viewpoint: [f64; 3],
-        cell_length: f64,
-        tolerance: f64,
-    ) -> f64 {
-        if scan.is_empty() {
-            return 0.0;
-        }
-        let offsets: Vec<([f64; 3], f64)> = scan
-            .iter()
-            .map(|p| {
-                let d = [
-                    p[0] - viewpoint[0],
-                    p[1] - viewpoint[1],
-                    p[2] - viewpoint[2],
-                ];
-                (d, (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
-            })
-            .collect();
-        let mut ranges: Vec<f64> = offsets.iter().map(|o| o.1).collect();
-        let mid = ranges.len() / 2;
-        let median = *ranges.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let cell = cell_length / median.max(f64::MIN_POSITIVE);
         let rays: Vec<Ray> = offsets
             .iter()
-            .filter(|(_, range)| *range > 0.0 && range.is_finite())
-            .map(|&(d, range)| (d.map(|c| (c / range / cell).floor() as i32), range))
+            .filter_map(|&(d, range)| map.ray_along(d, range))
             .collect();
-        let nearest = nearest_of(rays.iter().copied(), rays.len());
-        let hidden = rays
-            .iter()
-            .filter(|(key, range)| nearest[key] < range - tolerance)
-            .count();
-        hidden as f64 / scan.len() as f64
+        map.nearest = nearest_of(rays.iter().copied(), rays.len());
+        (map, rays)
     }
 
     fn ray(&self, p: &[f64; 3]) -> Option<Ray> {
-        let d = [
-            p[0] - self.viewpoint[0],
-            p[1] - self.viewpoint[1],
-            p[2] - self.viewpoint[2],
-        ];
-        let range = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let (d, range) = offset(p, self.viewpoint);
+        self.ray_along(d, range)
+    }
+
+    /// The ray of the offset `d` from the sensor, of length `range`; `None` at the sensor.
+    fn ray_along(&self, d: [f64; 3], range: f64) -> Option<Ray> {
         if !(range > 0.0 && range.is_finite()) {
             return None;
         }
         let key = d.map(|c| (c / range / self.cell).floor() as i32);
         Some((key, range))
-    }
-
-    fn nearest_ranges(&self, points: &[[f64; 3]]) -> CellMap {
-        nearest_of(points.iter().filter_map(|p| self.ray(p)), points.len())
     }
 
     /// Each point's ray, `None` where the model itself hides it (a nearer point of `posed`
@@ -172,15 +156,18 @@ impl DepthMap {
     /// single view taken from this viewpoint has almost none (only grazing surfaces and
     /// edges); a scan merged from several views, or a wrong viewpoint, has many.
     pub fn hidden_share(&self, scan: &[[f64; 3]]) -> f64 {
-        if scan.is_empty() {
+        self.share_hidden(scan.iter().filter_map(|p| self.ray(p)), scan.len())
+    }
+
+    /// The share of `total` points whose `rays` lie clearly behind the map's nearest range.
+    fn share_hidden(&self, rays: impl Iterator<Item = Ray>, total: usize) -> f64 {
+        if total == 0 {
             return 0.0;
         }
-        let hidden = scan
-            .iter()
-            .filter_map(|p| self.ray(p))
+        let hidden = rays
             .filter(|(key, range)| self.nearest[key] < range - self.tolerance)
             .count();
-        hidden as f64 / scan.len() as f64
+        hidden as f64 / total as f64
     }
 
     /// Which points of `posed` (a model already moved by a pose) the model itself hides from
@@ -210,8 +197,14 @@ impl DepthMap {
     }
 }
 
-fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+/// The offset of `p` from `viewpoint` and its length.
+fn offset(p: &[f64; 3], viewpoint: [f64; 3]) -> ([f64; 3], f64) {
+    let d = [
+        p[0] - viewpoint[0],
+        p[1] - viewpoint[1],
+        p[2] - viewpoint[2],
+    ];
+    (d, (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
 }
 
 /// The nearest range per ray cell of `rays`.

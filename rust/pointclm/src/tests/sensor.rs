@@ -14,13 +14,14 @@ fn one_view(sensor: [f64; 3]) -> Vec<[f64; 3]> {
     for i in 0..100 {
         for j in 0..100 {
             let aim = [-2.0 + 0.04 * i as f64, -2.0 + 0.04 * j as f64, 0.0];
-            let d = unit(sub(aim, sensor)).unwrap();
+            let (aim, eye) = (V::from(aim), V::from(sensor));
+            let d = unit(aim - eye).unwrap();
             // The floor (z = 0) is hit at the aim point.
-            let mut t_hit = norm(sub(aim, sensor));
+            let mut t_hit = (aim - eye).norm();
             for (c, r) in balls {
-                let oc = sub(sensor, c);
-                let b = oc[0] * d[0] + oc[1] * d[1] + oc[2] * d[2];
-                let disc = b * b - (norm(oc).powi(2) - r * r);
+                let oc = eye - V::from(c);
+                let b = oc.dot(&d);
+                let disc = b * b - (oc.norm().powi(2) - r * r);
                 if disc > 0.0 {
                     let t = -b - disc.sqrt();
                     if t > 0.0 && t < t_hit {
@@ -28,18 +29,15 @@ fn one_view(sensor: [f64; 3]) -> Vec<[f64; 3]> {
                     }
                 }
             }
-            points.push(add(sensor, scale(d, t_hit)));
+            points.push((eye + d * t_hit).into());
         }
     }
     points
 }
 
-fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+fn angle_deg(a: V, b: V) -> f64 {
     let (a, b) = (unit(a).unwrap(), unit(b).unwrap());
-    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees()
+    a.dot(&b).clamp(-1.0, 1.0).acos().to_degrees()
 }
 
 #[test]
@@ -48,11 +46,11 @@ fn the_sensor_of_one_view_hides_the_fewest_points() {
         let scan = one_view(sensor);
         let centre = centroid(&scan);
         // Only the side is given: straight above the scene.
-        let towards = add(centre, [0.0, 0.0, 1.0]);
-        let est = estimate_sensor(&scan, 0.04, towards).unwrap();
-        let (truth, found) = (sub(sensor, centre), sub(est.position, centre));
+        let towards = centre + V::z();
+        let est = estimate_sensor(&scan, 0.04, towards.into()).unwrap();
+        let (truth, found) = (V::from(sensor) - centre, V::from(est.position) - centre);
         let angle = angle_deg(truth, found);
-        let ratio = norm(found) / norm(truth);
+        let ratio = found.norm() / truth.norm();
         assert!(angle < 5.0, "{sensor:?}: {angle} degrees off ({est:?})");
         // Farther eyes hide about as little (cells straddling an edge count less there): the
         // estimate may lie beyond the sensor, never much nearer.
@@ -62,19 +60,9 @@ fn the_sensor_of_one_view_hides_the_fewest_points() {
         );
         assert!(est.hidden_share < 0.02, "{est:?}");
         // The same scan seen from a point 20 degrees aside hides more of itself.
-        let aside = DepthMap::new(
-            &scan,
-            add(
-                centre,
-                scale(
-                    unit([truth[0] + 1.0, truth[1], truth[2]]).unwrap(),
-                    norm(truth),
-                ),
-            ),
-            0.04,
-            SENSOR_TOLERANCE_VOXELS * 0.04,
-        )
-        .hidden_share(&scan);
+        let aside = centre + unit(truth + V::x()).unwrap() * truth.norm();
+        let aside = DepthMap::new(&scan, aside.into(), 0.04, SENSOR_TOLERANCE_VOXELS * 0.04)
+            .hidden_share(&scan);
         assert!(aside > est.hidden_share, "{aside} vs {est:?}");
     }
 }
@@ -89,7 +77,7 @@ fn the_estimate_is_deterministic_and_checks_its_input() {
     let stride = scan.len().div_ceil(SENSOR_SAMPLE).max(1);
     let sample: Vec<[f64; 3]> = scan.iter().step_by(stride).copied().collect();
     let centre = centroid(&sample);
-    assert!(estimate_sensor(&scan, 0.04, centre).is_ok());
+    assert!(estimate_sensor(&scan, 0.04, centre.into()).is_ok());
     assert!(estimate_sensor(&scan[..2], 0.04, [0.0; 3]).is_err());
     assert!(estimate_sensor(&scan, 0.0, [0.0; 3]).is_err());
     assert!(estimate_sensor(&scan, 0.04, [f64::NAN, 0.0, 0.0]).is_err());
