@@ -13,6 +13,7 @@ use nalgebra::{Matrix3, Matrix6, Rotation3, Vector3, Vector6};
 
 use super::visibility::DepthMap;
 use super::PointIndex;
+use crate::grid::dist_sq;
 use crate::kabsch::RigidTransform;
 
 /// Weight of the point-to-point term against the point-to-plane one: enough to pin the
@@ -41,33 +42,60 @@ pub fn icp(
     target: &[[f64; 3]],
     normals: &[[f64; 3]],
     index: &PointIndex,
-    mut pose: RigidTransform,
+    pose: RigidTransform,
     radii: &[f64],
     iterations: usize,
     sight: Option<&DepthMap>,
 ) -> RigidTransform {
+    icp_paired(
+        source, target, normals, index, pose, radii, iterations, sight,
+    )
+    .0
+}
+
+/// [`icp`], and each model point's scan point at its last step ([`NO_PAIR`]: none), which
+/// bounds the verification's search at the final pose.
+#[allow(clippy::too_many_arguments)] // as `icp`
+pub(crate) fn icp_paired(
+    source: &[[f64; 3]],
+    target: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    index: &PointIndex,
+    mut pose: RigidTransform,
+    radii: &[f64],
+    iterations: usize,
+    sight: Option<&DepthMap>,
+) -> (RigidTransform, Vec<u32>) {
     // How far a rotation change can move a model point: rotations turn about the origin.
     let reach = source
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .fold(0.0, f64::max);
+    // Each model point's pair at its previous step, in any stage (`NO_PAIR`: none).
+    let mut paired = vec![NO_PAIR; source.len()];
     for (stage, &radius) in radii.iter().enumerate() {
-        let facing = sight.map(|depth| facing(source, &pose, depth));
-        let shown = match &facing {
-            Some(points) if points.len() >= 3 => &points[..],
-            _ => source,
+        let shown = match sight.map(|depth| facing(source, &pose, depth)) {
+            Some(rows) if rows.len() >= 3 => rows,
+            _ => (0..source.len()).collect(),
         };
         // The stages before the last only bring the pose within the next radius.
-        let coarse: Vec<[f64; 3]>;
-        let points = if stage + 1 < radii.len() {
+        let rows: Vec<usize> = if stage + 1 < radii.len() {
             let stride = shown.len().div_ceil(COARSE_POINTS).max(1);
-            coarse = shown.iter().step_by(stride).copied().collect();
-            &coarse
+            shown.into_iter().step_by(stride).collect()
         } else {
             shown
         };
         for _ in 0..iterations {
-            let Some(next) = plane_step(points, target, normals, index, &pose, radius) else {
+            let Some(next) = plane_step(
+                source,
+                &rows,
+                target,
+                normals,
+                index,
+                &pose,
+                radius,
+                &mut paired,
+            ) else {
                 break;
             };
             let moved = (next.rotation - pose.rotation).amax() * reach
@@ -78,36 +106,53 @@ pub fn icp(
             }
         }
     }
-    pose
+    (pose, paired)
 }
 
-/// The model points that `depth` does not find hidden behind the model itself at `pose`.
-fn facing(source: &[[f64; 3]], pose: &RigidTransform, depth: &DepthMap) -> Vec<[f64; 3]> {
+/// The rows of the model points that `depth` does not find hidden behind the model itself at
+/// `pose`.
+fn facing(source: &[[f64; 3]], pose: &RigidTransform, depth: &DepthMap) -> Vec<usize> {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    source
-        .iter()
-        .zip(depth.self_hidden(&posed))
+    depth
+        .self_hidden(&posed)
+        .into_iter()
+        .enumerate()
         .filter(|(_, hidden)| !hidden)
-        .map(|(p, _)| *p)
+        .map(|(i, _)| i)
         .collect()
 }
 
-/// One Gauss-Newton step on the pairs (posed model point, nearest scan point within
-/// `radius`), linearised about the pairs' centroid so that the rotation and translation
-/// parts of the system have comparable scales.
+/// A model point without a pair at the previous ICP step.
+pub(crate) const NO_PAIR: u32 = u32::MAX;
+
+/// One Gauss-Newton step on the pairs (posed model point of `rows`, nearest scan point
+/// within `radius`), linearised about the pairs' centroid so that the rotation and
+/// translation parts of the system have comparable scales. `paired` holds each model point's
+/// scan point at its previous step ([`NO_PAIR`]: none), which bounds its search, and is
+/// updated.
+#[allow(clippy::too_many_arguments)] // one step: the clouds, the rows, the pose, the pairs
 fn plane_step(
     source: &[[f64; 3]],
+    rows: &[usize],
     target: &[[f64; 3]],
     normals: &[[f64; 3]],
     index: &PointIndex,
     pose: &RigidTransform,
     radius: f64,
+    paired: &mut [u32],
 ) -> Option<RigidTransform> {
     let mut pairs = Vec::new();
     let mut centroid = Vector3::zeros();
-    for p in source {
-        let posed = pose.apply(*p);
-        if let Some((j, _)) = index.nearest_within(&posed, radius) {
+    for &i in rows {
+        let posed = pose.apply(source[i]);
+        let last = &mut paired[i];
+        let near = (*last != NO_PAIR).then(|| {
+            let j = *last as usize;
+            (j, dist_sq(&target[j], &posed))
+        });
+        let found = index.nearest_within_near(&posed, radius, near);
+        *last = found.map_or(NO_PAIR, |(j, _)| u32::try_from(j).unwrap_or(NO_PAIR));
+        if let Some((j, _)) = found {
             let posed = Vector3::from(posed);
             centroid += posed;
             pairs.push((posed, j));

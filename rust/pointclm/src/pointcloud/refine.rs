@@ -14,11 +14,12 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use super::icp::icp;
+use super::icp::{icp_paired, NO_PAIR};
 use super::normals::{estimate_normals, Orientation};
 use super::visibility::{DepthMap, Sight};
 use super::{check_points, check_positive, PointIndex};
 use crate::error::{Error, Result};
+use crate::grid::dist_sq;
 use crate::kabsch::RigidTransform;
 
 /// Neighbours a scan normal is fitted to, as `describe`'s default.
@@ -296,7 +297,7 @@ impl RefineContext {
         let fitted: Vec<(RigidTransform, Judged)> = poses
             .par_iter()
             .map(|pose| {
-                let refined = icp(
+                let (refined, paired) = icp_paired(
                     source,
                     target,
                     normals,
@@ -307,10 +308,11 @@ impl RefineContext {
                     self.depth.as_ref(),
                 );
                 let judged = judge(
-                    source,
+                    (source, target),
                     &self.index,
                     sensor.as_ref(),
                     &refined,
+                    &paired,
                     params.fit_radius,
                 );
                 (refined, judged)
@@ -533,15 +535,22 @@ struct Sensor<'a> {
     min_cos: f64,
 }
 
+/// `paired`: each model point's scan point at ICP's last step ([`NO_PAIR`]: none), which
+/// bounds its search (empty: none known).
 fn judge(
-    source: &[[f64; 3]],
+    (source, target): (&[[f64; 3]], &[[f64; 3]]),
     index: &PointIndex,
     sensor: Option<&Sensor>,
     pose: &RigidTransform,
+    paired: &[u32],
     radius: f64,
 ) -> Judged {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    let (dist_sq, targets, hits, rmse) = explain(index, &posed, radius);
+    let near = |i: usize| match paired.get(i) {
+        Some(&j) if j != NO_PAIR => Some((j as usize, dist_sq(&target[j as usize], &posed[i]))),
+        _ => None,
+    };
+    let (dist_sq, targets, hits, rmse) = explain(index, &posed, radius, near);
     let explained: Vec<bool> = dist_sq.iter().map(|d| !d.is_nan()).collect();
     let n = source.len() as f64;
     let fitness = hits as f64 / n;
@@ -642,23 +651,29 @@ fn slid_fitness(
 
 /// Each posed model point's squared distance to the nearest scan point within `radius` (NaN
 /// where none: the point is not explained); the scan points that explain them (sorted,
-/// distinct), how many model points are explained, and their RMS distance.
+/// distinct), how many model points are explained, and their RMS distance. `near(i)`: a
+/// scan point known near model point `i`, with its squared distance (it only bounds the
+/// search: [`PointIndex::nearest_within_near`]).
 fn explain(
     index: &PointIndex,
     posed: &[[f64; 3]],
     radius: f64,
+    near: impl Fn(usize) -> Option<(usize, f64)>,
 ) -> (Vec<f64>, Vec<usize>, usize, f64) {
     let (mut sum, mut targets) = (0.0, Vec::new());
     let dist_sq: Vec<f64> = posed
         .iter()
-        .map(|q| match index.nearest_within(q, radius) {
-            Some((j, d_sq)) => {
-                sum += d_sq;
-                targets.push(j);
-                d_sq
-            }
-            None => f64::NAN,
-        })
+        .enumerate()
+        .map(
+            |(i, q)| match index.nearest_within_near(q, radius, near(i)) {
+                Some((j, d_sq)) => {
+                    sum += d_sq;
+                    targets.push(j);
+                    d_sq
+                }
+                None => f64::NAN,
+            },
+        )
         .collect();
     let hits = targets.len();
     targets.sort_unstable();

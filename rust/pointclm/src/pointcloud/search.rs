@@ -70,13 +70,35 @@ impl PointIndex {
     pub fn nearest_within(&self, query: &[f64; 3], radius: f64) -> Option<(usize, f64)> {
         let r_sq = radius * radius;
         if let Some(grid) = &self.grid {
-            return nearest_in_grid(grid, query, radius, r_sq);
+            return nearest_in_grid(grid, query, radius, r_sq, false);
         }
         self.tree
             .nearest_n_within::<SquaredEuclidean>(query, r_sq, NonZero::<usize>::MIN, true)
             .into_iter()
             .map(|n| (n.item as usize, n.distance))
             .find(|&(_, d)| d < r_sq)
+    }
+
+    /// [`Self::nearest_within`], told of an indexed point `near` (its index and squared
+    /// distance to `query`), as ICP is of each model point's pair at the previous step: the
+    /// same answer, found in the small box that point bounds when it lies within the radius.
+    /// Why: between ICP steps a pose moves a fraction of a voxel, so the previous pair is
+    /// usually within half a voxel and its box meets a few cells instead of 27.
+    pub fn nearest_within_near(
+        &self,
+        query: &[f64; 3],
+        radius: f64,
+        near: Option<(usize, f64)>,
+    ) -> Option<(usize, f64)> {
+        match (&self.grid, near) {
+            (Some(grid), Some((_, d))) if d < radius * radius => {
+                // Every point at most as near as `near` lies in the box of half-side
+                // sqrt(d), widened against the rounding of the root.
+                let side = d.sqrt() * (1.0 + 1e-9) + f64::MIN_POSITIVE;
+                nearest_in_grid(grid, query, side, d, true)
+            }
+            _ => self.nearest_within(query, radius),
+        }
     }
 
     /// Whether an indexed point lies strictly within `radius` of `query`: the same answer as
@@ -158,13 +180,16 @@ pub fn isolated_points(
         .collect())
 }
 
-/// The nearest point of `grid` strictly within `radius` (squared: `r_sq`) of `query`, the
-/// lowest input index among equally near ones: `(index, squared distance)`.
+/// The nearest point of `grid` strictly within `radius` (squared: `r_sq`) of `query` (at
+/// most `r_sq` away if `inclusive`; then every such point must lie within the box of
+/// half-side `radius`), the lowest input index among equally near ones: `(index, squared
+/// distance)`.
 fn nearest_in_grid(
     grid: &UniformGrid,
     query: &[f64; 3],
     radius: f64,
     r_sq: f64,
+    inclusive: bool,
 ) -> Option<(usize, f64)> {
     let (points, index) = grid.points();
     let mut best: Option<(u32, f64)> = None;
@@ -172,7 +197,7 @@ fn nearest_in_grid(
         for k in run {
             let d = dist_sq(&points[k], query);
             let better = best.is_none_or(|(i, b)| d < b || (d == b && index[k] < i));
-            if d < r_sq && better {
+            if (d < r_sq || (inclusive && d == r_sq)) && better {
                 best = Some((index[k], d));
             }
         }

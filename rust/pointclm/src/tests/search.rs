@@ -344,3 +344,34 @@ fn large_neighbourhoods_equal_the_trees() {
         assert!(long > 400, "{long} lists of 32 or more");
     }
 }
+
+#[test]
+fn a_near_point_bounds_the_search_without_changing_its_answer() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    // A surface patch on a lattice (exact ties between lattice points) with duplicates.
+    let mut pts: Vec<[f64; 3]> = (0..40)
+        .flat_map(|i| (0..40).map(move |j| [i as f64 * 0.025, j as f64 * 0.025, 0.0]))
+        .collect();
+    pts.extend_from_within(..100);
+    for cell in [0.01, 0.03, 0.1] {
+        let grid = PointIndex::with_cells(&pts, cell).unwrap();
+        for k in 0..2000 {
+            let p = pts[rng.random_range(0..pts.len())];
+            // Lattice midpoints (ties) and random offsets, on and off the patch.
+            let q = if k % 3 == 0 {
+                [p[0] + 0.0125, p[1] + 0.0125, 0.0]
+            } else {
+                [0, 1, 2].map(|a| p[a] + (rng.random::<f64>() - 0.5) * 0.08)
+            };
+            for radius in [0.02, 0.045, 0.1] {
+                let plain = grid.nearest_within(&q, radius);
+                // Any point as the one known near, within the radius or not, and none.
+                let j = rng.random_range(0..pts.len());
+                for near in [Some((j, dist_sq(&pts[j], &q))), plain, None] {
+                    assert_eq!(grid.nearest_within_near(&q, radius, near), plain);
+                }
+            }
+        }
+    }
+}
