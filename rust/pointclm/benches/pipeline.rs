@@ -10,7 +10,8 @@ use pointclm::lowest_eigen::lowest_eigenpairs;
 use pointclm::matching::{match_features, nearest_sources, MatchingConfig};
 use pointclm::pointcloud::icp::icp;
 use pointclm::pointcloud::{
-    estimate_normals, fpfh, FpfhVariant, Orientation, PointIndex, FPFH_DIM,
+    describe, estimate_normals, fpfh, DescribeParams, FpfhVariant, Orientation, PointIndex,
+    FPFH_DIM,
 };
 use pointclm::pruning::{density_counts, select_kept};
 use pointclm::spectral::{affinity, normalized_laplacian};
@@ -128,6 +129,15 @@ fn bench_point_clouds(c: &mut Criterion) {
             pool.install(|| fpfh(&scan, &normals, &index, 5.0, 100, FpfhVariant::Open3d))
                 .expect("fpfh")
         })
+    });
+    // Both stages as `describe` runs them: one neighbour search serves normals and FPFH.
+    let params = DescribeParams {
+        voxel_size: None,
+        orientation: towards,
+        ..DescribeParams::for_voxel(1.0)
+    };
+    c.bench_function("describe_20k_points_1_thread", |b| {
+        b.iter(|| pool.install(|| describe(&scan, None, &params).expect("describe")))
     });
     let desc = fpfh(&scan, &normals, &index, 5.0, 100, FpfhVariant::Open3d).expect("fpfh");
     let flat = |rows: &[[f64; FPFH_DIM]]| {
