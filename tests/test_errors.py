@@ -217,6 +217,16 @@ def test_the_public_api_raises_the_core_classes() -> None:
             r"viewpoint must be 3 finite numbers",
             lambda: _core.looks_like_one_view(PTS, None, 0.1),
         ),
+        (
+            InputError,
+            r"rank = 30 \(must be below the number of points\)",
+            lambda: _core.edge_on_scores(PTS[:30], PTS[:30], PTS[:2], 30),
+        ),
+        (
+            InputError,
+            r"normals \(one per point\): expected 30, got 29",
+            lambda: _core.edge_on_scores(PTS[:30], PTS[:29], PTS[:2], 0),
+        ),
         (InputError, r"path must be a str", lambda: _core.Network(3)),
         (
             ConfigError,

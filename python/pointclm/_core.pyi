@@ -38,6 +38,7 @@ __all__ = [
     "refine_poses",
     "looks_like_one_view",
     "estimate_sensor",
+    "edge_on_scores",
 ]
 
 __version__: str
@@ -248,6 +249,13 @@ def estimate_sensor(
     voxel_size: float,
     towards: tuple[float, float, float] | None,
 ) -> tuple[tuple[float, float, float], float, int]: ...
+def edge_on_scores(
+    points: npt.NDArray[np.float64],
+    normals: npt.NDArray[np.float64],
+    eyes: npt.NDArray[np.float64],
+    rank: int,
+    num_threads: int | None = None,
+) -> npt.NDArray[np.float64]: ...
 def looks_like_one_view(
     points: npt.NDArray[np.float64],
     viewpoint: tuple[float, float, float] | None,

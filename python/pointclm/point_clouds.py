@@ -652,7 +652,7 @@ def _describe_scan(
     # point in front of it, the sign too (see `_in_front`).
     one_view = bool(_core.looks_like_one_view(pts, (0.0, 0.0, 0.0), voxel))
     sensor_frame = one_view and _in_front(pts)
-    eye = np.zeros(3) if one_view else pp.estimate_viewpoint(pts, raw)
+    eye = np.zeros(3) if one_view else pp.estimate_viewpoint(pts, raw, num_threads=num_threads)
     nrm = pp.orient_towards(pts, raw, eye)
     t2 = time.perf_counter()
     desc = pp.compute_fpfh(pts, nrm, 5.0 * voxel, num_threads=num_threads)

@@ -197,7 +197,7 @@ def _sphere(n: int) -> np.ndarray:
 
 
 def estimate_viewpoint(
-    points: ArrayLike, normals: ArrayLike, n_directions: int = 256
+    points: ArrayLike, normals: ArrayLike, n_directions: int = 256, num_threads: int | None = None
 ) -> np.ndarray:
     """A point from which one sign rule orients every normal consistently (3,).
 
@@ -211,7 +211,8 @@ def estimate_viewpoint(
     that sensor or a point that orients like it, up to one global sign (its mirror image
     behind the surface, or the inside of a convex object): which side is outside is left
     to the caller (:func:`pointclm.register_point_clouds` asks which sign makes the scan's
-    descriptors look like the model's).
+    descriptors look like the model's). The eyes are scored in Rust
+    (:func:`pointclm._core.edge_on_scores`) on `num_threads` threads.
     """
     p = as_points(points, "points")
     n = as_matrix(normals, "normals", 3)
@@ -225,13 +226,14 @@ def estimate_viewpoint(
     eyes = np.vstack(
         [np.zeros((1, 3)), centre[None]] + [centre + r * radius * dirs for r in (2.0, 8.0, 1e3)]
     )
-    scores = np.empty(len(eyes))
     tenth = (len(p) - 1) // 10
-    for start in range(0, len(eyes), 64):  # 64 eyes at a time bound the memory
-        sight = eyes[start : start + 64, None, :] - p[None]
-        length = np.maximum(np.linalg.norm(sight, axis=2), np.finfo(float).tiny)
-        cos = np.abs(np.einsum("kij,ij->ki", sight, n)) / length
-        scores[start : start + 64] = np.partition(cos, tenth, axis=1)[:, tenth]
+    scores = _core.edge_on_scores(
+        np.ascontiguousarray(p),
+        np.ascontiguousarray(n),
+        eyes,
+        tenth,
+        num_threads=as_threads(num_threads),
+    )
     return np.asarray(eyes[int(np.argmax(scores))], dtype=np.float64)
 
 

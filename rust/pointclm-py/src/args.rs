@@ -165,6 +165,7 @@ converters! {
     min_neighbours -> usize = |o| usize_in(o, "min_neighbours", 0, usize::MAX);
     top_k -> usize = |o| usize_in(o, "top_k", 0, usize::MAX);
     k -> usize = |o| usize_in(o, "k", 1, usize::MAX);
+    rank -> usize = |o| usize_in(o, "rank", 0, usize::MAX);
     min_visible_fitness -> f64 = |o| real(o, "min_visible_fitness");
     max_contradiction -> f64 = |o| real(o, "max_contradiction");
     min_seen -> f64 = |o| real(o, "min_seen");
@@ -212,6 +213,7 @@ array_converters! {
     correspondences: matrix -> PyReadonlyArray2;
     points: matrix -> PyReadonlyArray2;
     normals: matrix -> PyReadonlyArray2;
+    eyes: matrix -> PyReadonlyArray2;
     source: matrix -> PyReadonlyArray2;
     target: matrix -> PyReadonlyArray2;
     reference: matrix -> PyReadonlyArray2;

@@ -106,6 +106,28 @@ pub fn estimate_normals<'py>(
     rows_to_py(py, &out)
 }
 
+/// For each eye (rows of `eyes`), the `rank`-th smallest |cos| between a normal and its
+/// point's line of sight from the eye (`pointclm.preprocessing.estimate_viewpoint`).
+#[pyfunction]
+#[pyo3(signature = (points, normals, eyes, rank, num_threads=None))]
+pub fn edge_on_scores<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::normals)] normals: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::eyes)] eyes: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::rank)] rank: usize,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let p = rows3(&points, "points")?;
+    let n = rows3(&normals, "normals")?;
+    let e = rows3(&eyes, "eyes")?;
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, threads, move || {
+        pointcloud::edge_on_scores(&p, &n, &e, rank)
+    })?;
+    Ok(out.into_pyarray(py))
+}
+
 /// FPFH descriptors (N, 33) over hybrid neighbourhoods (at most `max_nn` within `radius`).
 #[pyfunction]
 #[pyo3(

@@ -19,7 +19,7 @@ pub mod voxel;
 
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
-pub use normals::{estimate_normals, Orientation};
+pub use normals::{edge_on_scores, estimate_normals, Orientation};
 pub use refine::{
     looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,
     RefinedPose, MAX_ROTATION_DEVIATION,

@@ -52,6 +52,51 @@ pub fn estimate_normals(
         .collect())
 }
 
+/// For each eye of `eyes`, the `rank`-th smallest (from 0) `|cos|` of the angle between a
+/// normal of `normals` and its point's line of sight from the eye: how close to edge-on the
+/// eye sees the normals it sees worst, ignoring the `rank` worst. The eye that maximises it
+/// orients the most normals unambiguously (`pointclm.preprocessing.estimate_viewpoint`). A
+/// sight of zero length counts as `f64::MIN_POSITIVE`. Errors: no points, a length mismatch,
+/// non-finite input, `rank` beyond the points.
+pub fn edge_on_scores(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    eyes: &[[f64; 3]],
+    rank: usize,
+) -> Result<Vec<f64>> {
+    check_points(points, "points", 1)?;
+    check_points(normals, "normals", 1)?;
+    check_points(eyes, "eyes", 0)?;
+    if normals.len() != points.len() {
+        return Err(Error::LengthMismatch {
+            what: "normals (one per point)",
+            expected: points.len(),
+            got: normals.len(),
+        });
+    }
+    if rank >= points.len() {
+        return Err(Error::InvalidParameter {
+            name: "rank",
+            value: rank.to_string(),
+            reason: "must be below the number of points",
+        });
+    }
+    Ok(eyes
+        .par_iter()
+        .map_init(Vec::new, |cos, eye| {
+            cos.clear();
+            cos.extend(points.iter().zip(normals).map(|(p, n)| {
+                let s = [eye[0] - p[0], eye[1] - p[1], eye[2] - p[2]];
+                let length = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+                    .sqrt()
+                    .max(f64::MIN_POSITIVE);
+                (s[0] * n[0] + s[1] * n[1] + s[2] * n[2]).abs() / length
+            }));
+            *cos.select_nth_unstable_by(rank, f64::total_cmp).1
+        })
+        .collect())
+}
+
 fn pca_normal(points: &[[f64; 3]], neighbours: &[u32]) -> [f64; 3] {
     if neighbours.len() < 3 {
         return [0.0, 0.0, 1.0];
