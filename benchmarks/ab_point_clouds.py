@@ -25,18 +25,12 @@ import numpy as np
 
 _ONE_ROUND = r"""
 import json, sys, time
-from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import numpy as np
 import pointclm
-from realistic_models import benchmark_seeds, load_scenes, scene_params
-from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
+from point_cloud_speed import speed_scenes
 per, threads, cache, blind = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
-data = str(default_data_dir())
-jobs = [
-    (m, s, scene_params(m, 1000, data)) for m in HELDOUT_MODELS for s in benchmark_seeds(m, per)
-]
-scenes = load_scenes(jobs, Path(cache), 2, progress=False)
+scenes = speed_scenes(per, cache)
 def call(sc):
     view = None if blind else sc.viewpoint
     return pointclm.register_point_clouds(

@@ -27,6 +27,23 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+def speed_scenes(per_model: int, cache: str | Path) -> list:
+    """The held-out models' benchmark scenes timed here, `per_model` each (built into `cache`
+    the first time)."""
+    from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
+    from realistic_models import benchmark_seeds, load_scenes, scene_params
+
+    data_dir = default_data_dir()
+    if data_dir is None:
+        raise SystemExit("the data folder is missing: set POINTCLM_DATA_DIR")
+    jobs = [
+        (m, s, scene_params(m, 1000, str(data_dir)))
+        for m in HELDOUT_MODELS
+        for s in benchmark_seeds(m, per_model)
+    ]
+    return load_scenes(jobs, Path(cache), os.cpu_count() or 1, progress=False)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes-per-model", type=int, default=2)
@@ -37,18 +54,8 @@ def main() -> None:
     args = ap.parse_args()
 
     import pointclm
-    from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
-    from realistic_models import benchmark_seeds, load_scenes, scene_params
 
-    data_dir = default_data_dir()
-    if data_dir is None:
-        raise SystemExit("the data folder is missing: set POINTCLM_DATA_DIR")
-    jobs = [
-        (m, s, scene_params(m, 1000, str(data_dir)))
-        for m in HELDOUT_MODELS
-        for s in benchmark_seeds(m, args.scenes_per_model)
-    ]
-    scenes = load_scenes(jobs, Path(args.cache), os.cpu_count() or 1, progress=False)
+    scenes = speed_scenes(args.scenes_per_model, args.cache)
 
     def call(sc):
         return pointclm.register_point_clouds(

@@ -6,7 +6,7 @@ use super::fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 use super::normals::{estimate_normals, Orientation};
 use super::search::PointIndex;
 use super::voxel::voxel_downsample;
-use super::{check_points, check_positive};
+use super::{check_normals, check_points, check_positive};
 use crate::correspondences::Features;
 use crate::error::{Error, Result};
 
@@ -135,13 +135,7 @@ fn downsampled(
 }
 
 fn given_normals(normals: &[[f64; 3]], n_points: usize) -> Result<Vec<[f64; 3]>> {
-    if normals.len() != n_points {
-        return Err(Error::LengthMismatch {
-            what: "normals (one per point)",
-            expected: n_points,
-            got: normals.len(),
-        });
-    }
+    check_normals(normals, n_points, "normals", "normals (one per point)")?;
     Ok(normals.to_vec())
 }
 

@@ -17,7 +17,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 use rayon::prelude::*;
 
 use super::search::{Neighbourhoods, PointIndex};
-use super::{check_count, check_index, check_points, check_positive};
+use super::{check_count, check_index, check_normals, check_points, check_positive};
 use crate::error::{Error, Result};
 
 /// Length of an FPFH descriptor: 3 angles x 11 bins.
@@ -46,22 +46,7 @@ pub fn fpfh(
     variant: FpfhVariant,
 ) -> Result<Vec<[f64; FPFH_DIM]>> {
     check_points(points, "points for FPFH", 1)?;
-    if normals.len() != points.len() {
-        return Err(Error::LengthMismatch {
-            what: "normals (one per point)",
-            expected: points.len(),
-            got: normals.len(),
-        });
-    }
-    if let Some(row) = normals
-        .iter()
-        .position(|n| !n.iter().all(|v| v.is_finite()))
-    {
-        return Err(Error::NonFinite {
-            what: "normals",
-            row,
-        });
-    }
+    check_normals(normals, points.len(), "normals", "normals (one per point)")?;
     check_index(index, points)?;
     check_positive("feature radius", radius)?;
     check_count("feature max_nn", max_nn, 2)?;

@@ -125,6 +125,20 @@ fn facing(source: &[[f64; 3]], pose: &RigidTransform, depth: &DepthMap) -> Vec<u
 /// A model point without a pair at the previous ICP step.
 pub(crate) const NO_PAIR: u32 = u32::MAX;
 
+/// The scan point `paired` with a model point now at `posed` ([`NO_PAIR`]: none) with its
+/// squared distance: what bounds the point's next search
+/// ([`PointIndex::nearest_within_near`]).
+pub(crate) fn previous_pair(
+    paired: u32,
+    target: &[[f64; 3]],
+    posed: &[f64; 3],
+) -> Option<(usize, f64)> {
+    (paired != NO_PAIR).then(|| {
+        let j = paired as usize;
+        (j, dist_sq(&target[j], posed))
+    })
+}
+
 /// One Gauss-Newton step on the pairs (posed model point of `rows`, nearest scan point
 /// within `radius`), linearised about the pairs' centroid so that the rotation and
 /// translation parts of the system have comparable scales. `paired` holds each model point's
@@ -146,11 +160,7 @@ fn plane_step(
     for &i in rows {
         let posed = pose.apply(source[i]);
         let last = &mut paired[i];
-        let near = (*last != NO_PAIR).then(|| {
-            let j = *last as usize;
-            (j, dist_sq(&target[j], &posed))
-        });
-        let found = index.nearest_within_near(&posed, radius, near);
+        let found = index.nearest_within_near(&posed, radius, previous_pair(*last, target, &posed));
         *last = found.map_or(NO_PAIR, |(j, _)| u32::try_from(j).unwrap_or(NO_PAIR));
         if let Some((j, _)) = found {
             let posed = Vector3::from(posed);

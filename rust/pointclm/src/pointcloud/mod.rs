@@ -45,6 +45,24 @@ pub(crate) fn check_points(points: &[[f64; 3]], what: &'static str, min: usize) 
     Ok(())
 }
 
+/// Rejects normals that are not one per point (`one_per` names that rule in the error) or not
+/// finite (`what` names them).
+pub(crate) fn check_normals(
+    normals: &[[f64; 3]],
+    n_points: usize,
+    what: &'static str,
+    one_per: &'static str,
+) -> Result<()> {
+    if normals.len() != n_points {
+        return Err(Error::LengthMismatch {
+            what: one_per,
+            expected: n_points,
+            got: normals.len(),
+        });
+    }
+    check_points(normals, what, 0)
+}
+
 /// Rejects an index built on another cloud than `points`.
 pub(crate) fn check_index(index: &PointIndex, points: &[[f64; 3]]) -> Result<()> {
     if index.len() != points.len() {

@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
 use super::search::PointIndex;
-use super::{check_count, check_index, check_points, check_positive};
+use super::{check_count, check_index, check_normals, check_points, check_positive};
 use crate::error::{Error, Result};
 
 /// How to choose the sign of each normal, which PCA leaves undetermined. FPFH compares
@@ -65,15 +65,8 @@ pub fn edge_on_scores(
     rank: usize,
 ) -> Result<Vec<f64>> {
     check_points(points, "points", 1)?;
-    check_points(normals, "normals", 1)?;
+    check_normals(normals, points.len(), "normals", "normals (one per point)")?;
     check_points(eyes, "eyes", 0)?;
-    if normals.len() != points.len() {
-        return Err(Error::LengthMismatch {
-            what: "normals (one per point)",
-            expected: points.len(),
-            got: normals.len(),
-        });
-    }
     if rank >= points.len() {
         return Err(Error::InvalidParameter {
             name: "rank",

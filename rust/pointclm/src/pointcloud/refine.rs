@@ -14,12 +14,11 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use super::icp::{icp_paired, NO_PAIR};
+use super::icp::{icp_paired, previous_pair};
 use super::normals::{estimate_normals, Orientation};
 use super::visibility::{DepthMap, Sight};
-use super::{check_points, check_positive, PointIndex};
+use super::{check_normals, check_points, check_positive, PointIndex};
 use crate::error::{Error, Result};
-use crate::grid::dist_sq;
 use crate::kabsch::RigidTransform;
 
 /// Neighbours a scan normal is fitted to, as `describe`'s default.
@@ -308,7 +307,8 @@ impl RefineContext {
                     self.depth.as_ref(),
                 );
                 let judged = judge(
-                    (source, target),
+                    source,
+                    target,
                     &self.index,
                     sensor.as_ref(),
                     &refined,
@@ -388,14 +388,8 @@ fn unsigned_normals(
 
 /// Given target normals, one per target point and finite.
 fn checked_normals<'a>(target: &[[f64; 3]], normals: &'a [[f64; 3]]) -> Result<&'a [[f64; 3]]> {
-    if normals.len() != target.len() {
-        return Err(Error::LengthMismatch {
-            what: "target normals (one per target point)",
-            expected: target.len(),
-            got: normals.len(),
-        });
-    }
-    check_points(normals, "target normals", 0)?;
+    let one_per = "target normals (one per target point)";
+    check_normals(normals, target.len(), "target normals", one_per)?;
     Ok(normals)
 }
 
@@ -535,10 +529,11 @@ struct Sensor<'a> {
     min_cos: f64,
 }
 
-/// `paired`: each model point's scan point at ICP's last step ([`NO_PAIR`]: none), which
-/// bounds its search (empty: none known).
+/// `paired`: each model point's scan point at ICP's last step
+/// ([`super::icp::NO_PAIR`]: none), which bounds its search (empty: none known).
 fn judge(
-    (source, target): (&[[f64; 3]], &[[f64; 3]]),
+    source: &[[f64; 3]],
+    target: &[[f64; 3]],
     index: &PointIndex,
     sensor: Option<&Sensor>,
     pose: &RigidTransform,
@@ -546,10 +541,7 @@ fn judge(
     radius: f64,
 ) -> Judged {
     let posed: Vec<[f64; 3]> = source.iter().map(|p| pose.apply(*p)).collect();
-    let near = |i: usize| match paired.get(i) {
-        Some(&j) if j != NO_PAIR => Some((j as usize, dist_sq(&target[j as usize], &posed[i]))),
-        _ => None,
-    };
+    let near = |i: usize| previous_pair(*paired.get(i)?, target, &posed[i]);
     let (dist_sq, targets, hits, rmse) = explain(index, &posed, radius, near);
     let explained: Vec<bool> = dist_sq.iter().map(|d| !d.is_nan()).collect();
     let n = source.len() as f64;

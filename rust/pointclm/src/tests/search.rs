@@ -144,22 +144,29 @@ fn grid_nearest_within_equals_the_trees() {
     assert!(PointIndex::with_cells(&pts, 0.0).is_err());
 }
 
+/// `n` points of the surface z = 0.1 sin(6 x) over the unit square, each moved by up to
+/// `noise` in z (no draw for the noise when it is 0).
+fn wavy_surface(rng: &mut impl rand::Rng, n: usize, noise: f64) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|_| {
+            let (x, y): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+            let jitter = if noise > 0.0 {
+                noise * rng.random_range(-1.0..1.0)
+            } else {
+                0.0
+            };
+            [x, y, 0.1 * (6.0 * x).sin() + jitter]
+        })
+        .collect()
+}
+
 #[test]
 fn grid_neighbourhoods_equal_the_trees() {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
     // A noisy surface patch (FPFH's case) and a volume; radius and max_nn such that some
     // lists are cut at max_nn and others are not.
-    let surface: Vec<[f64; 3]> = (0..3000)
-        .map(|_| {
-            let (x, y): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
-            [
-                x,
-                y,
-                0.1 * (6.0 * x).sin() + 0.002 * rng.random_range(-1.0..1.0),
-            ]
-        })
-        .collect();
+    let surface = wavy_surface(&mut rng, 3000, 0.002);
     let volume: Vec<[f64; 3]> = (0..2000)
         .map(|_| [0, 1, 2].map(|_| rng.random_range(-1.0..1.0)))
         .collect();
@@ -331,14 +338,9 @@ fn bucket_sort_orders_as_the_comparison_sort() {
 #[test]
 fn large_neighbourhoods_equal_the_trees() {
     // Lists of 40-100 points, which the bucket sort orders.
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
-    let surface: Vec<[f64; 3]> = (0..4000)
-        .map(|_| {
-            let (x, y): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
-            [x, y, 0.1 * (6.0 * x).sin()]
-        })
-        .collect();
+    let surface = wavy_surface(&mut rng, 4000, 0.0);
     for max_nn in [40, 100] {
         let long = assert_lists_are_the_trees(&surface, 0.08, max_nn, 7);
         assert!(long > 400, "{long} lists of 32 or more");
