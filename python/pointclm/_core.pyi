@@ -14,6 +14,7 @@ __all__ = [
     "__version__",
     "Instance",
     "Network",
+    "PpfModel",
     "RefineContext",
     "RegistrationResult",
     "config_schema",
@@ -110,6 +111,35 @@ class RefineContext:
         npt.NDArray[np.int64],
         bool,
     ]: ...
+
+@final
+class PpfModel:
+    """A model's point pair features tabled for voting (Drost et al., CVPR 2010): pose
+    hypotheses of the copies in a scan. The model is sampled one point per cube of a
+    twentieth of `diameter`; pairs farther apart than `diameter` are ignored. `normals` must
+    face outwards, as the scan's face its sensor."""
+
+    def __new__(
+        cls,
+        points: npt.NDArray[np.float64],
+        normals: npt.NDArray[np.float64],
+        diameter: float,
+        max_poses: int = 200,
+        reference_stride: int = 5,
+    ) -> PpfModel: ...
+    def __len__(self) -> int: ...
+    def poses(
+        self,
+        points: npt.NDArray[np.float64],
+        normals: npt.NDArray[np.float64],
+        rows: npt.ArrayLike,
+        offset: int = 0,
+        num_threads: int | None = None,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """Poses `T_scan_model` (K, 4, 4) voted by the scan points `rows` (every
+        `reference_stride`-th sampled point from `offset` a reference), and their votes,
+        most voted first."""
+        ...
 
 @final
 class Network:

@@ -48,6 +48,8 @@ __all__ = [
     "SCENE_EXTENT",
     "HEAP_MIN_COPIES",
     "HEAP_RANK",
+    "HEAP_VOTED_POSES",
+    "VOTED_MIN_RELATIVE_FITNESS",
     "HEAP_WINDOW",
     "MAX_PEEL_ROUNDS",
     "PEEL_CLUSTER_LEVEL",
@@ -168,6 +170,26 @@ HEAP_WINDOW = 2.0
 #: (`pointclm.preprocessing.WINDOW_CANDIDATES`). On the validation bins ranks 16 and 64 found
 #: 0.31 and 0.34 of the half-visible copies against 0.28 (BENCHMARKS.md, bins).
 HEAP_RANK = 64
+#: In a scan said to be a heap (``heap=True``), each peeling round also proposes this many
+#: poses by voting with point pair features (:class:`pointclm._core.PpfModel`, Drost et al.,
+#: CVPR 2010) over the scan points still unexplained, beside its clusters of descriptor
+#: matches; refinement and verification judge both alike. Why: in a heap, FPFH's radius takes
+#: in the neighbouring copies, so a hidden copy keeps too few true descriptor matches to form a
+#: cluster (stop 36: 370 of 399 missed copies had no candidate near them), while two points of
+#: one copy give the model's pair feature whatever lies around it. Only with ``heap=True``:
+#: on the validation bins it raised the ADD-S recall of half-visible copies 0.676 -> 0.869 but
+#: took 3-4 times as long, a cost a scene merely counted as a heap (`HEAP_MIN_COPIES`) does not
+#: pay (BENCHMARKS.md, bins, stop 37).
+HEAP_VOTED_POSES = 40
+#: A voted pose is kept only if it explains at least this share of the model relative to the
+#: median copy accepted so far (``fitness``). Why: a voted pose has no descriptor support, and
+#: in a heap a pose buried among the copies shows the sensor a fifth of the model, which a
+#: scan patch explains perfectly (visible fitness 0.9-0.99, no contradiction); the copies of
+#: one part in one scan show the sensor alike, so the scene's own copies set the floor. On the
+#: validation bins wrong voted poses explained 0.35 (median; 0.55 at the 90th percentile) of
+#: the median accepted copy's share, right ones 0.83; 0.5 / 0.6 kept 785 / 736 right poses
+#: and 53 / 15 wrong ones of 849 / 251 (BENCHMARKS.md, bins, stop 37).
+VOTED_MIN_RELATIVE_FITNESS = 0.6
 
 
 def scaled_config(voxel_size: float, base: Config | None = None) -> Config:
@@ -233,13 +255,14 @@ class CloudInstance:
     returned (:func:`pointclm.refinement.loose_poses`). ``matches`` is the correspondence-stage
     instance the pose was refined from (its ``inliers`` index the correspondences of the
     pass that proposed it, ``PointCloudRegistration.passes[pass_index].correspondences``;
-    pass 0's are ``PointCloudRegistration.correspondences``).
+    pass 0's are ``PointCloudRegistration.correspondences``), or None when the pose was
+    proposed by point pair voting in a heap (`HEAP_VOTED_POSES`; no correspondence inliers).
     """
 
     transformation: np.ndarray
     fitness: float
     inlier_rmse: float
-    matches: Instance
+    matches: Instance | None
     confidence: float = float("nan")
     visible_fitness: float = float("nan")
     contradiction: float = float("nan")
@@ -248,10 +271,12 @@ class CloudInstance:
 
     @property
     def inliers(self) -> np.ndarray:
+        if self.matches is None:
+            return np.empty(0, dtype=np.int64)
         return np.asarray(self.matches.inliers)
 
     def __len__(self) -> int:
-        return len(self.matches)
+        return 0 if self.matches is None else len(self.matches)
 
     def __repr__(self) -> str:
         # One line a person reads: the scores and where the copy sits, not the 4 x 4 matrix.
@@ -275,11 +300,15 @@ class Pass:
     scan_points: np.ndarray
     #: Copies this pass added to the accepted ones.
     added: int
+    #: (K, 4, 4) poses proposed by point pair voting over ``scan_points`` (heap passes,
+    #: `HEAP_VOTED_POSES`; empty otherwise), judged beside ``result``'s: an accepted pose's
+    #: ``CloudInstance.matches`` is None when it came from here.
+    voted: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
 
     def __repr__(self) -> str:
         return (
             f"Pass(correspondences={len(self.correspondences)}, candidates={len(self.result)}, "
-            f"scan_points={len(self.scan_points)}, added={self.added})"
+            f"voted={len(self.voted)}, scan_points={len(self.scan_points)}, added={self.added})"
         )
 
 
@@ -581,6 +610,22 @@ class _Run:
             target_normals=self.tgt_d.normals,
             num_threads=self.num_threads,
         )
+
+    @cached_property
+    def voter(self) -> _core.PpfModel:
+        """The model's point pair features tabled for voting, built once for every pass; its
+        diameter is the model's bounding-box diagonal."""
+        pts = self.src_d.points
+        diameter = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+        return _core.PpfModel(pts, self.src_d.normals, diameter, max_poses=HEAP_VOTED_POSES)
+
+    def voted_poses(self, rows: np.ndarray, offset: int) -> np.ndarray:
+        """Poses voted by point pairs among the scan points `rows`, most voted first (the
+        references start at `offset`, so that each round votes from other points)."""
+        poses, _ = self.voter.poses(
+            self.tgt_d.points, self.tgt_d.normals, rows, offset, num_threads=self.num_threads
+        )
+        return poses
 
     def features(
         self,
@@ -937,12 +982,16 @@ def _verify(
 def _instances(
     refined: RefinedPoses, tags: list[tuple[int, int]], passes: list[Pass]
 ) -> list[CloudInstance]:
+    def matches(tag: tuple[int, int]) -> Instance | None:
+        found = passes[tag[0]].result
+        return found.instances[tag[1]] if tag[1] < len(found) else None
+
     return [
         CloudInstance(
             refined.transformations[i],
             float(refined.fitness[i]),
             float(refined.inlier_rmse[i]),
-            passes[tags[i][0]].result.instances[tags[i][1]],
+            matches(tags[i]),
             float(refined.confidence[i]),
             float(refined.visible_fitness[i]),
             float(refined.contradiction[i]),
@@ -1114,8 +1163,12 @@ def _peel_round(
         return None
     features = run.features(corr, cfg, pair_normals, sims)
     result = register(corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals)
-    candidates = np.asarray(result.transformations).reshape(-1, 4, 4)
+    # Voted poses follow the clusters' (tags past len(result) name them).
+    heap_round = run.heap and matching is run.heap_matching
+    voted = run.voted_poses(free, round_) if heap_round else np.empty((0, 4, 4))
+    candidates = np.concatenate([np.asarray(result.transformations).reshape(-1, 4, 4), voted])
     new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)
+    new = _without_weak_votes(new, len(result), refined)
     if len(new.origin) and new.by_visibility and refined.by_visibility:
         refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
     elif len(new.origin):
@@ -1123,7 +1176,20 @@ def _peel_round(
         # Re-verification may also drop accepted poses: recompute what is explained.
         unexplained = _unexplained(run, refined.transformations)
     added = sum(t[0] == round_ for t in tags)  # the copies this round added
-    return refined, tags, unexplained, Pass(corr, result, free, added)
+    return refined, tags, unexplained, Pass(corr, result, free, added, voted)
+
+
+def _without_weak_votes(new: RefinedPoses, clustered: int, accepted: RefinedPoses) -> RefinedPoses:
+    """`new` without the voted poses (origin at or past `clustered`) that explain less of the
+    model than `VOTED_MIN_RELATIVE_FITNESS` times the median accepted copy (the copies
+    accepted before this round and this round's clustered ones; with none, the best voted)."""
+    voted = new.origin >= clustered
+    if not voted.any():
+        return new
+    peers = np.concatenate([accepted.fitness, new.fitness[~voted]])
+    reference = np.median(peers) if len(peers) else new.fitness[voted].max()
+    keep = ~voted | (new.fitness >= VOTED_MIN_RELATIVE_FITNESS * reference)
+    return _take(new, np.flatnonzero(keep))
 
 
 def _add_seen(

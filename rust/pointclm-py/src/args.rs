@@ -166,6 +166,10 @@ converters! {
     top_k -> usize = |o| usize_in(o, "top_k", 0, usize::MAX);
     k -> usize = |o| usize_in(o, "k", 1, usize::MAX);
     rank -> usize = |o| usize_in(o, "rank", 0, usize::MAX);
+    offset -> usize = |o| usize_in(o, "offset", 0, usize::MAX);
+    max_poses -> usize = |o| usize_in(o, "max_poses", 1, 1_000_000);
+    reference_stride -> usize = |o| usize_in(o, "reference_stride", 1, 1_000_000);
+    diameter -> f64 = |o| real(o, "diameter");
     min_visible_fitness -> f64 = |o| real(o, "min_visible_fitness");
     max_contradiction -> f64 = |o| real(o, "max_contradiction");
     min_seen -> f64 = |o| real(o, "min_seen");
@@ -220,6 +224,34 @@ array_converters! {
     queries: matrix -> PyReadonlyArray2;
     affinity: matrix -> PyReadonlyArray2;
     transformations: tensor3 -> PyReadonlyArray3;
+}
+
+/// A 1-D array (or sequence) of non-negative ints: rows of a cloud.
+pub fn rows(obj: &Bound<'_, PyAny>) -> PyResult<Vec<usize>> {
+    let py = obj.py();
+    let np = py.import("numpy")?;
+    let bad = |why: String| InputError::new_err(format!("rows must be a 1-D array of ints, {why}"));
+    let a = np
+        .call_method1("asarray", (obj,))
+        .map_err(|e| bad(format!("could not be read: {e}")))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    let dims: usize = a.getattr("ndim")?.extract()?;
+    let empty = a.getattr("size")?.extract::<usize>()? == 0;
+    if dims != 1 || !(["i", "u"].contains(&kind.as_str()) || empty) {
+        return Err(bad(format!(
+            "got dtype {} and shape {}",
+            a.getattr("dtype")?,
+            a.getattr("shape")?
+        )));
+    }
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("dtype", np.getattr("int64")?)?;
+    let a = np.call_method("asarray", (a,), Some(&kwargs))?;
+    let a = a.cast_into::<PyArray1<i64>>()?.readonly();
+    a.as_array()
+        .iter()
+        .map(|&v| usize::try_from(v).map_err(|_| bad(format!("got the negative row {v}"))))
+        .collect()
 }
 
 pub fn optional_normals<'py>(

@@ -271,6 +271,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyNetwork>()?;
     m.add_class::<pointcloud::PyRefineContext>()?;
+    m.add_class::<pointcloud::PyPpfModel>()?;
     m.add_function(wrap_pyfunction!(register, m)?)?;
     m.add_function(wrap_pyfunction!(register_batch, m)?)?;
     m.add_function(wrap_pyfunction!(spatial_consistency, m)?)?;

@@ -652,3 +652,76 @@ fn fpfh_variant(variant: &str) -> PyResult<FpfhVariant> {
         ))),
     }
 }
+
+/// Voted poses (K, 4, 4) and their votes (K,).
+type VotedArrays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray1<i64>>);
+
+/// A model's point pair features tabled for voting (Drost et al., CVPR 2010): pose
+/// hypotheses of the copies in a scan, by `poses`.
+#[pyclass(frozen, module = "pointclm._core", name = "PpfModel")]
+pub struct PyPpfModel {
+    inner: Arc<pointcloud::PpfModel>,
+}
+
+#[pymethods]
+impl PyPpfModel {
+    #[new]
+    #[pyo3(signature = (points, normals, diameter, max_poses=200, reference_stride=5))]
+    fn new(
+        py: Python<'_>,
+        #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+        #[pyo3(from_py_with = args::normals)] normals: PyReadonlyArray2<'_, f64>,
+        #[pyo3(from_py_with = args::diameter)] diameter: f64,
+        #[pyo3(from_py_with = args::max_poses)] max_poses: usize,
+        #[pyo3(from_py_with = args::reference_stride)] reference_stride: usize,
+    ) -> PyResult<Self> {
+        if !(diameter.is_finite() && diameter > 0.0) {
+            return Err(InputError::new_err(format!(
+                "diameter must be a positive finite number (the model's size), got {diameter}"
+            )));
+        }
+        let p = rows3(&points, "points")?;
+        let n = rows3(&normals, "normals")?;
+        let params = pointcloud::PpfParams {
+            max_poses,
+            reference_stride,
+            ..pointcloud::PpfParams::for_diameter(diameter)
+        };
+        let inner = guarded(py, None, move || pointcloud::PpfModel::new(&p, &n, params))?;
+        Ok(Self {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// The number of sampled model points tabled.
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// Pose hypotheses `T_scene_model` (K, 4, 4) for the scene points `rows`, and their votes
+    /// (K,), most voted first.
+    #[pyo3(signature = (points, normals, rows, offset=0, num_threads=None))]
+    fn poses<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::normals)] normals: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::rows)] rows: Vec<usize>,
+        #[pyo3(from_py_with = args::offset)] offset: usize,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<VotedArrays<'py>> {
+        let p = rows3(&points, "points")?;
+        let n = rows3(&normals, "normals")?;
+        let model = Arc::clone(&self.inner);
+        let threads = num_threads.map(pool).transpose()?;
+        let found = guarded(py, threads, move || model.poses(&p, &n, &rows, offset))?;
+        let flat: Vec<f64> = found
+            .iter()
+            .flat_map(|h| h.transform.to_matrix().into_iter().flatten())
+            .collect();
+        let poses = Array3::from_shape_vec((found.len(), 4, 4), flat)
+            .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let votes: Vec<i64> = found.iter().map(|h| i64::from(h.votes)).collect();
+        Ok((poses.into_pyarray(py), votes.into_pyarray(py)))
+    }
+}

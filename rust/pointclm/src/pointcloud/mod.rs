@@ -11,6 +11,7 @@ pub mod describe;
 pub mod fpfh;
 pub mod icp;
 pub mod normals;
+pub mod ppf;
 pub mod refine;
 pub mod search;
 pub mod sensor;
@@ -20,6 +21,7 @@ pub mod voxel;
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{edge_on_scores, estimate_normals, Orientation};
+pub use ppf::{PpfModel, PpfParams, PpfPose};
 pub use refine::{
     looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,
     RefinedPose, MAX_ROTATION_DEVIATION,
