@@ -112,6 +112,7 @@ def test_one_line_per_scan_in_order_with_the_copies_found(
             # The sensor's scores: null where no viewpoint judged the poses (JSON has no NaN).
             seen = inst["visible_fitness"]
             assert seen is None or 0.0 <= seen <= 1.0
+            assert inst["voted"] is False  # not a heap: every pose from correspondences
             assert (inst["contradiction"] is None) == (seen is None)
             rmse = inst["visible_rmse"]
             assert rmse is None or 0.0 <= rmse < 0.05 * data["d"]

@@ -290,7 +290,8 @@ def _report(reg: Any, truth: dict[str, Any] | None = None) -> None:
     )
     for i, inst in enumerate(reg.instances):
         line = (
-            f"  [{i}] {_pose_line(inst.transformation)}  matches {len(inst):4d}  "
+            f"  [{i}] {_pose_line(inst.transformation)}  "
+            f"{'voted       ' if inst.matches is None else f'matches {len(inst):4d}'}  "
             f"fitness {inst.fitness:.3f}  rmse {inst.inlier_rmse:.4g}  "
             f"confidence {inst.confidence:.3f}  pass {inst.pass_index}"
         )

@@ -169,8 +169,8 @@ PARAMETERS: dict[str, str] = _entries(
             its scans are heaps): every pass matches as in a heap (`heap_rank`, or the windows
             of ``mutual_window="auto"``), so a part whose scene-wide passes stall below 10
             copies, or find none, gets the heap's matching too (not for a room scan: there it
-            costs precision and time, realistic validation F1 0.895 -> 0.861 in 1.7 times the
-            time). True also makes every peeling round propose poses voted by point pair
+            costs precision and time: realistic validation F1 0.880 -> 0.821 in three times the
+            time, stop 37). True also makes every peeling round propose poses voted by point pair
             features over the unexplained scan points (`HEAP_VOTED_POSES`, Drost et al. 2010),
             verified like the others: copies whose descriptor matches drown among their
             neighbours' are found, at several times the time. False: never.

@@ -27,6 +27,8 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
         {
             "T_target_source": inst.transformation.tolist(),
             "inliers": len(inst),
+            # Proposed by point pair voting in a heap (no correspondence inliers).
+            "voted": inst.matches is None,
             "fitness": _number(inst.fitness),
             "inlier_rmse": _number(inst.inlier_rmse),
             "confidence": _number(inst.confidence),

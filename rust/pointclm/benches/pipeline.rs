@@ -11,7 +11,7 @@ use pointclm::matching::{match_features, nearest_sources, MatchingConfig};
 use pointclm::pointcloud::icp::icp;
 use pointclm::pointcloud::{
     describe, estimate_normals, fpfh, DescribeParams, FpfhVariant, Orientation, PointIndex,
-    FPFH_DIM,
+    PpfModel, PpfParams, FPFH_DIM,
 };
 use pointclm::pruning::{density_counts, select_kept};
 use pointclm::spectral::{affinity, normalized_laplacian};
@@ -190,6 +190,30 @@ fn bench_point_clouds(c: &mut Criterion) {
         rotation: *nalgebra::Rotation3::from_euler_angles(0.02, -0.02, 0.03).matrix(),
         translation: nalgebra::Vector3::new(0.4, -0.3, 0.3),
     };
+    // Point pair voting (a heap's other pose generator): the patch's pairs tabled, every
+    // fifth scan point sampled at a twentieth of its diameter a reference.
+    let patch_normals: Vec<[f64; 3]> = (0..scan.len())
+        .filter(|k| k % 141 < 45 && k / 141 < 45)
+        .map(|k| normals[k])
+        .collect();
+    let (lo, hi) = patch
+        .iter()
+        .fold(([f64::MAX; 3], [f64::MIN; 3]), |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1]), lo[2].min(p[2])],
+                [hi[0].max(p[0]), hi[1].max(p[1]), hi[2].max(p[2])],
+            )
+        });
+    let diameter = ((0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>()).sqrt();
+    let voter = PpfModel::new(&patch, &patch_normals, PpfParams::for_diameter(diameter))
+        .expect("ppf model");
+    let rows: Vec<usize> = (0..scan.len()).collect();
+    c.bench_function("ppf_votes_2k_model_on_20k_scan_1_thread", |b| {
+        b.iter(|| {
+            pool.install(|| voter.poses(&scan, &normals, &rows, 0))
+                .expect("poses")
+        })
+    });
     c.bench_function("icp_2k_model_on_20k_scan", |b| {
         b.iter(|| {
             icp(

@@ -15,12 +15,14 @@
 
 use std::collections::HashMap;
 use std::f64::consts::{PI, TAU};
+use std::hash::BuildHasherDefault;
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
+use super::visibility::CellHasher;
 use super::{check_normals, check_points, check_positive};
 use crate::error::{Error, Result};
 use crate::kabsch::RigidTransform;
@@ -98,6 +100,11 @@ impl PpfParams {
     fn alpha_bins(&self) -> usize {
         2 * self.angle_bins
     }
+
+    /// An angle about a reference normal in units of the turn's bins.
+    fn in_bins(&self, alpha: f64) -> f32 {
+        (alpha * self.alpha_bins() as f64 / TAU) as f32
+    }
 }
 
 /// One pose hypothesis: `T_scene_model` and the votes of the cluster it stands for.
@@ -142,9 +149,14 @@ pub struct PpfModel {
     params: PpfParams,
     points: Vec<[f64; 3]>,
     frames: Vec<Frame>,
-    /// Key -> range of `entries`.
-    table: HashMap<u64, (u32, u32)>,
-    /// (reference model point, its pair's angle about the reference normal), by key.
+    /// Key -> range of `entries`. The keys are quantised features, not an adversary's, so
+    /// FxHash's mixing serves (a lookup per scene pair).
+    table: HashMap<u64, (u32, u32), BuildHasherDefault<CellHasher>>,
+    /// The angle bins' edges as cosines, decreasing: an angle's bin without an arccosine.
+    cos_edges: Vec<f64>,
+    /// (reference model point, its pair's angle about the reference normal in bins), by key.
+    /// Why not binned (as Drost et al. do): binning both angles spreads each turn over two
+    /// bins, and cost an eighth of the copies their pose on the validation bins.
     entries: Vec<(u32, f32)>,
 }
 
@@ -155,6 +167,9 @@ impl PpfModel {
     /// mismatch, bad parameters.
     pub fn new(points: &[[f64; 3]], normals: &[[f64; 3]], params: PpfParams) -> Result<Self> {
         params.check()?;
+        let cos_edges = (1..params.angle_bins)
+            .map(|k| (k as f64 * params.angle_step()).cos())
+            .collect::<Vec<_>>();
         check_points(points, "model points", 2)?;
         check_normals(
             normals,
@@ -181,13 +196,15 @@ impl PpfModel {
                 if i == j || dist_sq(&pts[i], &pts[j]) > max_sq {
                     continue;
                 }
-                if let Some(key) = feature_key(&pts[i], &nrm[i], &pts[j], &nrm[j], &params) {
-                    keyed.push((key, i as u32, frames[i].alpha(&pts[j]) as f32));
+                if let Some(key) =
+                    feature_key(&pts[i], &nrm[i], &pts[j], &nrm[j], &params, &cos_edges)
+                {
+                    keyed.push((key, i as u32, params.in_bins(frames[i].alpha(&pts[j]))));
                 }
             }
         }
         keyed.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut table = HashMap::new();
+        let mut table = HashMap::default();
         let mut start = 0usize;
         while start < keyed.len() {
             let key = keyed[start].0;
@@ -201,6 +218,7 @@ impl PpfModel {
             points: pts,
             frames,
             table,
+            cos_edges,
             entries,
         })
     }
@@ -284,16 +302,20 @@ impl PpfModel {
             if i == r {
                 continue;
             }
-            let Some(key) = feature_key(&spts[r], &snrm[r], &spts[i], &snrm[i], p) else {
+            let Some(key) = feature_key(&spts[r], &snrm[r], &spts[i], &snrm[i], p, &self.cos_edges)
+            else {
                 continue;
             };
             let Some(&(a, b)) = self.table.get(&key) else {
                 continue;
             };
-            let alpha_s = frame.alpha(&spts[i]);
+            let alpha_s = p.in_bins(frame.alpha(&spts[i]));
+            let bins = n_alpha as f32;
             for &(m, alpha_m) in &self.entries[a as usize..b as usize] {
-                let theta = (alpha_s - alpha_m as f64).rem_euclid(TAU);
-                let bin = ((theta / alpha_step) as usize).min(n_alpha - 1);
+                // The turn from the model pair's angle to the scene pair's, in bins.
+                let t = alpha_s - alpha_m;
+                let t = if t < 0.0 { t + bins } else { t };
+                let bin = (t as usize).min(n_alpha - 1);
                 votes[m as usize * n_alpha + bin] += 1;
             }
         }
@@ -358,6 +380,7 @@ fn feature_key(
     p2: &[f64; 3],
     n2: &[f64; 3],
     params: &PpfParams,
+    cos_edges: &[f64],
 ) -> Option<u64> {
     let d = Vector3::from(*p2) - Vector3::from(*p1);
     let dist = d.norm();
@@ -367,10 +390,10 @@ fn feature_key(
     let d = d / dist;
     let (n1, n2) = (Vector3::from(*n1), Vector3::from(*n2));
     let bins = params.angle_bins as u64;
-    let step = params.angle_step();
+    // The angle's bin is the number of bin edges whose cosine its cosine does not exceed.
     let angle = |a: &Vector3<f64>, b: &Vector3<f64>| {
-        let c = (a.dot(b) / (a.norm() * b.norm()).max(f64::MIN_POSITIVE)).clamp(-1.0, 1.0);
-        ((c.acos() / step) as u64).min(bins - 1)
+        let c = a.dot(b) / (a.norm() * b.norm()).max(f64::MIN_POSITIVE);
+        cos_edges.partition_point(|&e| e >= c) as u64
     };
     let dist_bin = (dist / params.distance_step) as u64;
     Some(((dist_bin * bins + angle(&n1, &d)) * bins + angle(&n2, &d)) * bins + angle(&n1, &n2))

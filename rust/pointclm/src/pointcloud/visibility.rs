@@ -26,7 +26,7 @@ type CellMap = HashMap<[i32; 3], f64, BuildHasherDefault<CellHasher>>;
 
 /// FxHash's word mixing (as in rustc): rotate, xor the word, multiply.
 #[derive(Default)]
-struct CellHasher(u64);
+pub(crate) struct CellHasher(u64);
 
 impl Hasher for CellHasher {
     fn finish(&self) -> u64 {
