@@ -176,11 +176,13 @@ HEAP_RANK = 64
 #: matches; refinement and verification judge both alike. Why: in a heap, FPFH's radius takes
 #: in the neighbouring copies, so a hidden copy keeps too few true descriptor matches to form a
 #: cluster (stop 36: 370 of 399 missed copies had no candidate near them), while two points of
-#: one copy give the model's pair feature whatever lies around it. Only with ``heap=True``:
-#: on the validation bins it raised the ADD-S recall of half-visible copies 0.676 -> 0.869 but
-#: took 3-4 times as long, a cost a scene merely counted as a heap (`HEAP_MIN_COPIES`) does not
-#: pay (BENCHMARKS.md, bins, stop 37).
-HEAP_VOTED_POSES = 40
+#: one copy give the model's pair feature whatever lies around it. On the validation bins
+#: 40 / 100 poses a round raised the ADD-S recall of half-visible copies 0.676 -> 0.852 / 0.885
+#: at precision 0.981 / 0.975 (0.993 before), the 10 most visible copies' 0.527 -> 0.609 /
+#: 0.645, in 1 / 1.17 times the time of 40 (BENCHMARKS.md, bins, stop 37). Only with
+#: ``heap=True``: in the default's heap rounds (`HEAP_MIN_COPIES`) voting cost about three
+#: times the time for ADD-S recall 0.564 -> 0.656 at precision 1.000 -> 0.953.
+HEAP_VOTED_POSES = 100
 #: A voted pose is kept only if it explains at least this share of the model relative to the
 #: median copy accepted so far (``fitness``). Why: a voted pose has no descriptor support, and
 #: in a heap a pose buried among the copies shows the sensor a fifth of the model, which a
