@@ -1,8 +1,8 @@
 //! numpy <-> core conversions. The Python layer has already coerced inputs to C-contiguous
 //! float64; these still check shapes so that a direct `_core` caller gets an InputError too.
 
-use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pointclm::correspondences::DEFAULT_NORMAL_TOLERANCE;
 use pointclm::{Correspondences, Features};
 use pyo3::prelude::*;
@@ -142,6 +142,11 @@ pub fn mat_to_py<'py>(py: Python<'py>, m: faer::MatRef<'_, f64>) -> Bound<'py, P
 
 pub fn matrix4<'py>(py: Python<'py>, m: &[[f64; 4]; 4]) -> Bound<'py, PyArray2<f64>> {
     Array2::from_shape_fn((4, 4), |(i, j)| m[i][j]).into_pyarray(py)
+}
+
+/// A stack of 4x4 matrices as an `(M, 4, 4)` array.
+pub fn matrices4<'py>(py: Python<'py>, m: &[[[f64; 4]; 4]]) -> Bound<'py, PyArray3<f64>> {
+    Array3::from_shape_fn((m.len(), 4, 4), |(k, i, j)| m[k][i][j]).into_pyarray(py)
 }
 
 pub fn indices<'py>(py: Python<'py>, v: &[usize]) -> Bound<'py, PyArray1<i64>> {

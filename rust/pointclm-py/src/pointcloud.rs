@@ -2,7 +2,7 @@
 //! descriptor matches (the inputs `register` needs when the user has clouds, not matches).
 
 use nalgebra::{Matrix3, Vector3};
-use numpy::ndarray::{Array2, Array3};
+use numpy::ndarray::Array2;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
 };
@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use crate::args;
-use crate::convert::{indices, points as rows3};
+use crate::convert::{indices, matrices4, points as rows3};
 use crate::errors::{to_py_err_at, InputError};
 use crate::pools::{guarded, pool};
 
@@ -531,14 +531,12 @@ impl PyRefineContext {
 /// `refine_poses`' result as arrays (see its documentation).
 fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArrays<'py> {
     let poses = &out.poses;
-    let mats = Array3::from_shape_fn((poses.len(), 4, 4), |(k, i, j)| {
-        poses[k].pose.to_matrix()[i][j]
-    });
+    let mats: Vec<_> = poses.iter().map(|r| r.pose.to_matrix()).collect();
     let column = |f: fn(&pointcloud::RefinedPose) -> f64| {
         poses.iter().map(f).collect::<Vec<_>>().into_pyarray(py)
     };
     (
-        mats.into_pyarray(py),
+        matrices4(py, &mats),
         [
             column(|r| r.confidence),
             column(|r| r.fitness),
@@ -715,13 +713,8 @@ impl PyPpfModel {
         let model = Arc::clone(&self.inner);
         let threads = num_threads.map(pool).transpose()?;
         let found = guarded(py, threads, move || model.poses(&p, &n, &rows, offset))?;
-        let flat: Vec<f64> = found
-            .iter()
-            .flat_map(|h| h.transform.to_matrix().into_iter().flatten())
-            .collect();
-        let poses = Array3::from_shape_vec((found.len(), 4, 4), flat)
-            .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let mats: Vec<_> = found.iter().map(|h| h.transform.to_matrix()).collect();
         let votes: Vec<i64> = found.iter().map(|h| i64::from(h.votes)).collect();
-        Ok((poses.into_pyarray(py), votes.into_pyarray(py)))
+        Ok((matrices4(py, &mats), votes.into_pyarray(py)))
     }
 }

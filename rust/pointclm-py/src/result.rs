@@ -1,12 +1,12 @@
 //! Result classes in Open3D's vocabulary (`transformation`, `fitness`, `inlier_rmse`,
 //! `correspondence_set`).
 
-use numpy::ndarray::{Array2, Array3};
+use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::convert::{indices, matrix4};
+use crate::convert::{indices, matrices4, matrix4};
 
 /// One registered copy of the source in the target.
 #[pyclass(frozen, module = "pointclm._core", name = "Instance")]
@@ -112,10 +112,7 @@ impl PyRegistration {
     /// `(M, 4, 4)` stack of `T_target_source`, in the order of `instances`.
     #[getter]
     fn transformations<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f64>> {
-        Array3::from_shape_fn((self.matrices.len(), 4, 4), |(k, i, j)| {
-            self.matrices[k][i][j]
-        })
-        .into_pyarray(py)
+        matrices4(py, &self.matrices)
     }
 
     /// `(N,)`: -1 for an outlier, k for `instances[k]`.

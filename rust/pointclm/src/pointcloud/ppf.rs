@@ -17,13 +17,11 @@ use std::collections::HashMap;
 use std::f64::consts::{PI, TAU};
 use std::hash::BuildHasherDefault;
 
-use kiddo::immutable::float::kdtree::ImmutableKdTree;
-use kiddo::SquaredEuclidean;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
 use super::visibility::CellHasher;
-use super::{check_normals, check_points, check_positive};
+use super::{check_normals, check_points, check_positive, PointIndex};
 use crate::error::{Error, Result};
 use crate::kabsch::RigidTransform;
 
@@ -189,13 +187,10 @@ impl PpfModel {
             .zip(&nrm)
             .map(|(p, n)| Frame::new(p, n))
             .collect();
-        let max_sq = params.max_distance * params.max_distance;
         let mut keyed: Vec<(u64, u32, f32)> = Vec::new();
         for i in 0..pts.len() {
             for j in 0..pts.len() {
-                if i == j || dist_sq(&pts[i], &pts[j]) > max_sq {
-                    continue;
-                }
+                // The key bounds the distance (and leaves out i == j).
                 if let Some(key) =
                     feature_key(&pts[i], &nrm[i], &pts[j], &nrm[j], &params, &cos_edges)
                 {
@@ -266,7 +261,7 @@ impl PpfModel {
         }
         let spts: Vec<[f64; 3]> = sampled.iter().map(|&i| points[i]).collect();
         let snrm: Vec<[f64; 3]> = sampled.iter().map(|&i| normals[i]).collect();
-        let tree: ImmutableKdTree<f64, u64, 3, 32> = ImmutableKdTree::new_from_slice(&spts);
+        let index = PointIndex::new(&spts)?;
         let references: Vec<usize> = (offset % p.reference_stride..spts.len())
             .step_by(p.reference_stride)
             .collect();
@@ -275,7 +270,7 @@ impl PpfModel {
             .par_iter()
             .map_init(
                 || vec![0u32; cells],
-                |votes, &r| self.vote(&spts, &snrm, &tree, r, votes),
+                |votes, &r| self.vote(&spts, &snrm, &index, r, votes),
             )
             .flatten()
             .collect();
@@ -287,18 +282,17 @@ impl PpfModel {
         &self,
         spts: &[[f64; 3]],
         snrm: &[[f64; 3]],
-        tree: &ImmutableKdTree<f64, u64, 3, 32>,
+        index: &PointIndex,
         r: usize,
         votes: &mut [u32],
     ) -> Option<(RigidTransform, u32)> {
         let p = &self.params;
         let n_alpha = p.alpha_bins();
         let alpha_step = TAU / n_alpha as f64;
+        let bins = n_alpha as f32;
         let frame = Frame::new(&spts[r], &snrm[r]);
         votes.fill(0);
-        let near = tree.within_unsorted::<SquaredEuclidean>(&spts[r], p.max_distance.powi(2));
-        for n in near {
-            let i = n.item as usize;
+        for (i, _) in index.within(&spts[r], p.max_distance) {
             if i == r {
                 continue;
             }
@@ -310,7 +304,6 @@ impl PpfModel {
                 continue;
             };
             let alpha_s = p.in_bins(frame.alpha(&spts[i]));
-            let bins = n_alpha as f32;
             for &(m, alpha_m) in &self.entries[a as usize..b as usize] {
                 // The turn from the model pair's angle to the scene pair's, in bins.
                 let t = alpha_s - alpha_m;
@@ -401,7 +394,7 @@ fn feature_key(
 
 /// The first of `rows` (in their order) in each cube of side `cell`: a sampling that keeps
 /// original points, so that their normals stay the estimated ones.
-pub fn one_per_cell(points: &[[f64; 3]], rows: &[usize], cell: f64) -> Vec<usize> {
+fn one_per_cell(points: &[[f64; 3]], rows: &[usize], cell: f64) -> Vec<usize> {
     let mut seen = std::collections::HashSet::with_capacity(rows.len());
     rows.iter()
         .copied()
@@ -410,10 +403,6 @@ pub fn one_per_cell(points: &[[f64; 3]], rows: &[usize], cell: f64) -> Vec<usize
             seen.insert(key)
         })
         .collect()
-}
-
-fn dist_sq(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
 #[cfg(test)]

@@ -119,6 +119,15 @@ impl PointIndex {
         .is_break()
     }
 
+    /// Every indexed point within `radius` of `query` (inclusive), in no particular order but
+    /// the same for the same index and query: `(index, squared distance)`.
+    pub fn within(&self, query: &[f64; 3], radius: f64) -> impl Iterator<Item = (usize, f64)> {
+        self.tree
+            .within_unsorted::<SquaredEuclidean>(query, radius * radius)
+            .into_iter()
+            .map(|n| (n.item as usize, n.distance))
+    }
+
     /// The nearest indexed point to `query`: `(index, squared distance)`.
     pub fn nearest(&self, query: &[f64; 3]) -> (usize, f64) {
         let n = self.tree.nearest_one::<SquaredEuclidean>(query);
