@@ -124,3 +124,32 @@ def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap) -> 
     reg = _register(scene, heap=heap, num_threads=1)
     assert all(len(p.voted) == 0 for p in reg.passes)
     assert all(inst.matches is not None for inst in reg.instances)
+
+
+def test_voted_poses_off_the_scan_are_left_out_before_refinement(scene, monkeypatch) -> None:
+    plain = _register(scene, heap=True, num_threads=1)
+    far = np.eye(4)
+    far[:3, 3] = scene.scan.max(0) + 10.0 * scene.diameter  # nothing of the scan near it
+    real = pc._Run.voted_poses
+
+    def with_far_ones(self: Any, rows: np.ndarray, offset: int) -> np.ndarray:
+        poses = real(self, rows, offset)
+        return np.concatenate([far[None], poses[:1], far[None], poses[1:]])
+
+    refined: list[np.ndarray] = []
+    refine = pc.RefinementContext.refine
+
+    def spy(self: Any, poses: Any, **kwargs: Any) -> Any:
+        refined.append(np.asarray(poses))
+        return refine(self, poses, **kwargs)
+
+    monkeypatch.setattr(pc._Run, "voted_poses", with_far_ones)
+    monkeypatch.setattr(pc.RefinementContext, "refine", spy)
+    reg = _register(scene, heap=True, num_threads=1)
+    assert all(np.allclose(p.voted[0], far) for p in reg.passes[1:])  # proposed...
+    assert not any(np.allclose(T, far) for batch in refined for T in batch)  # ...not refined
+    # The rows left out shift the others: the accepted poses are those of the plain run.
+    np.testing.assert_array_equal(reg.transformations, plain.transformations)
+    assert [i.matches is None for i in reg.instances] == [
+        i.matches is None for i in plain.instances
+    ]
