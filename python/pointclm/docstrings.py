@@ -200,8 +200,7 @@ PARAMETERS: dict[str, str] = _entries(
     flips="""
         flips : bool
             With `refine`: also try each accepted pose turned half a turn about each principal
-            axis of the model through its centroid (and a quarter turn both ways about an axis
-            it is close to symmetric about), and keep a turned pose the scan supports
+            axis of the model through its centroid, and keep a turned pose the scan supports
             better (:func:`pointclm.refinement.resolve_flips`): near-symmetric parts are often
             posed turned, and ICP and verification alone cannot tell. On the validation sets:
             realistic scenes F1 0.814 -> 0.871, bins precision 0.744 -> 0.754, at 1.13 and

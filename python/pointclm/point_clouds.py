@@ -326,7 +326,7 @@ class PointCloudRegistration:
     one per peeling round over what the accepted copies leave unexplained.
     ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
     pruning, clustering, poses, refinement: pass 0's; peeling: every later pass; flips: the
-    turned alternatives; total).
+    half-turned alternatives; total).
     ``viewpoint`` is the sensor position verification judged by (given, or a PCD file's
     ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
     ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
@@ -1272,7 +1272,7 @@ def _reverify(
 def _settle(
     run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]], flips: bool
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
-    """The scene's accepted poses, final: turns resolved (if asked), then, when the
+    """The scene's accepted poses, final: half turns resolved (if asked), then, when the
     sensor judged them, those that fit loosely against the others dropped
     (:func:`pointclm.refinement.loose_poses`). Why only at the end: the comparison needs every
     copy the scan shows, and peeling needs the dropped poses' scan points explained."""

@@ -94,13 +94,6 @@ MIN_FLIP_CHANGE = 0.01
 #: explained cannot tell a change of a few percent from noise (at 0.01 the realistic
 #: validation scenes without a viewpoint lost their 3 right beds of 16).
 MIN_FLIP_CHANGE_BY_FITNESS = 0.05
-#: :func:`resolve_flips` also tries quarter turns about a principal axis when at most this
-#: share of the quarter-turned model lies farther than 1.5 voxels from the model: the model
-#: is then close to symmetric under the turn (a square bed, a bottle), and a pose turned so
-#: is settled by ICP on the copy and passes verification. Half: the turned model lies on the
-#: model more than off it; a part far from such a symmetry (most, e.g. the armadillo at
-#: 0.57-0.83) is not tried, which would cost a refinement per pose for nothing.
-MAX_QUARTER_TURN_CHANGE = 0.5
 #: Without a viewpoint: poses explaining less of the model are rejected whatever the rest of
 #: the scene holds.
 MIN_FITNESS = 0.3
@@ -352,11 +345,9 @@ def _number(value: float, name: str) -> float:
 def flip_turns(
     source_points: ArrayLike, voxel_size: float, min_change: float = MIN_FLIP_CHANGE
 ) -> np.ndarray:
-    """(F, 4, 4) turns of the model about its principal axes through its centroid that
+    """(F, 4, 4) half turns of the model about its principal axes through its centroid that
     verification can tell from the model itself (at least `min_change` of the turned model
-    farther than 1.5 voxels from it, `MIN_FLIP_CHANGE`): half turns, and quarter turns both
-    ways about an axis the model is close to symmetric about (`MAX_QUARTER_TURN_CHANGE`);
-    F <= 9."""
+    farther than 1.5 voxels from it, `MIN_FLIP_CHANGE`); F <= 3."""
     from scipy.spatial import cKDTree
 
     src = pp.as_points(source_points, "source_points")
@@ -364,24 +355,15 @@ def flip_turns(
     centre = src.mean(0)
     _, axes = np.linalg.eigh(np.cov((src - centre).T))
     tree = cKDTree(src)
-
-    def change(rot: np.ndarray) -> float:
-        dist, _ = tree.query((src - centre) @ rot.T + centre)
-        return float(np.mean(dist > 1.5 * voxel))
-
-    rotations = []
+    turns = []
     for axis in axes.T:
-        half = 2.0 * np.outer(axis, axis) - np.eye(3)  # half a turn about `axis`
-        if change(half) >= min_change:
-            rotations.append(half)
-        # A quarter turn about `axis`: cos 90 = 0, so R = a a^T + [a]x.
-        quarter = np.outer(axis, axis) + np.cross(np.eye(3), axis)
-        if min_change <= change(quarter) <= MAX_QUARTER_TURN_CHANGE:
-            rotations += [quarter, quarter.T]
-    turns = np.zeros((len(rotations), 4, 4))
-    for turn, rot in zip(turns, rotations, strict=True):
-        turn[:3, :3], turn[:3, 3], turn[3, 3] = rot, centre - rot @ centre, 1.0
-    return turns
+        rot = 2.0 * np.outer(axis, axis) - np.eye(3)  # half a turn about `axis`
+        dist, _ = tree.query((src - centre) @ rot.T + centre)
+        if np.mean(dist > 1.5 * voxel) >= min_change:
+            turn = np.eye(4)
+            turn[:3, :3], turn[:3, 3] = rot, centre - rot @ centre
+            turns.append(turn)
+    return np.array(turns).reshape(-1, 4, 4)
 
 
 def resolve_flips(
@@ -395,23 +377,19 @@ def resolve_flips(
     num_threads: int | None = None,
     context: RefinementContext | None = None,
 ) -> tuple[RefinedPoses, np.ndarray]:
-    """Verified `poses` with each replaced by a turned alternative the scan supports better,
-    surest first, and the row of `poses` each came from.
+    """Verified `poses` with each replaced by a half-turned alternative the scan supports
+    better, surest first, and the row of `poses` each came from.
 
-    Why: a part close to a symmetry under a turn (a bathtub end for end, a box with a block on
-    one corner, a square bed a quarter turn about its thin axis) is often posed turned: ICP
-    settles it on the copy and it passes verification, yet its rotation is wrong. The few
-    discrete hypotheses (the pose times a half turn about each principal axis of the model,
-    and a quarter turn both ways about an axis it is close to symmetric about:
-    :func:`flip_turns`) are refined by ICP and scored like the pose. A turned pose replaces
-    it when it is surer (``confidence``) and explains at least as much of the whole model
-    (``fitness``), or is as sure (within the standard error of the difference) and explains
-    more: visible fitness alone rewards a pose that turns the unexplained part away from the
-    sensor, and two poses of a near-symmetric copy see it alike to within a point or two.
-    Turns that map the model onto itself are not tried: the scan cannot decide between them
-    (`MIN_FLIP_CHANGE`, or `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a
-    viewpoint). `context`: a :class:`RefinementContext` of the same clouds, voxel and
-    viewpoint, to reuse.
+    Why: a part close to a symmetry under a half turn (a bathtub end for end, a box with a
+    block on one corner) is often posed turned: ICP settles it on the copy and it passes
+    verification, yet its rotation is wrong. The few discrete hypotheses (the pose times a
+    half turn about each principal axis of the model, :func:`flip_turns`) are refined by ICP
+    and scored like the pose; a turned pose replaces it when it is surer (``confidence``) and
+    explains at least as much of the whole model (``fitness``): visible fitness alone rewards
+    a pose that turns the unexplained part away from the sensor. Turns that map the model onto
+    itself are not tried: the scan cannot decide between them (`MIN_FLIP_CHANGE`, or
+    `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a viewpoint). `context`: a
+    :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
     """
     src = pp.as_points(source_points, "source_points")
     # Judged by the share of the model alone, a small change is not told from noise.
@@ -441,24 +419,15 @@ def resolve_flips(
         max_shared=1.0,
         num_threads=num_threads,
     )
-    fields = _with_better_turns(poses, alt, len(turns), len(src))
+    fields = _with_better_turns(poses, alt, len(turns))
     order = np.argsort(-fields["confidence"], kind="stable")
     return poses._replace(**{f: v[order] for f, v in fields.items()}), order
 
 
-def _with_better_turns(
-    poses: RefinedPoses, alt: RefinedPoses, turns: int, model_points: int
-) -> dict[str, Any]:
+def _with_better_turns(poses: RefinedPoses, alt: RefinedPoses, turns: int) -> dict[str, Any]:
     """The fields of `poses`, each pose's row taken from its surest alternative of `alt`
-    (`turns` per pose, pose-major) that is better: surer and explaining at least as much of
-    the model, or as sure and explaining more of it. As sure: confidences within a standard
-    error of their difference, each a share of ``seen`` times `model_points` points (without
-    a viewpoint never). A candidate `alt` did not return cannot win.
-
-    Why "as sure" counts: a copy close to symmetric under a turn (a square bed) shows the
-    sensor alike either way, so both poses explain what it could see to within a point or
-    two, and which is ahead is noise; the right one then lies on more of the copy (the
-    validation bins' beds: 0.998 against 0.999 seen, 0.55 against 0.50 of the model)."""
+    (`turns` per pose, pose-major) that is surer and explains at least as much of the model.
+    A candidate `alt` did not return cannot win."""
     n = len(poses.transformations)
     fields = {f: getattr(poses, f).copy() for f in RefinedPoses._fields if f != "by_visibility"}
     if len(alt.origin) == 0:
@@ -468,30 +437,13 @@ def _with_better_turns(
     found = row_of >= 0
     conf = np.where(found, alt.confidence[row_of], -np.inf).reshape(n, turns)
     fit = np.where(found, alt.fitness[row_of], -np.inf).reshape(n, turns)
-    mine, my_fit = poses.confidence[:, None], poses.fitness[:, None]
-    seen = np.where(found, alt.seen[row_of], np.nan).reshape(n, turns)
-    as_sure = np.abs(conf - mine) <= np.hypot(
-        _standard_error(mine, poses.seen[:, None] * model_points),
-        _standard_error(conf, seen * model_points),
-    )  # NaN (no viewpoint): never
-    better = ((conf > mine) & (fit >= my_fit)) | (as_sure & (fit > my_fit))
+    better = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
     for i in np.flatnonzero(better.any(1)):
         j = row_of[i * turns + int(np.argmax(np.where(better[i], conf[i], -np.inf)))]
         for f in fields:
             if f != "origin":
                 fields[f][i] = getattr(alt, f)[j]
     return fields
-
-
-def _standard_error(share: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """The standard error of a share measured over `points` points, Agresti and Coull's
-    (two successes and two failures added; NaN where either is NaN). Why not the plain
-    binomial one: verified poses explain 0.99-1.00 of what the sensor saw, where that one
-    tends to nothing and two poses a point apart would count as told apart."""
-    with np.errstate(invalid="ignore"):
-        n = np.maximum(points, 0.0) + 4.0
-        p = (share * (n - 4.0) + 2.0) / n
-        return np.sqrt(p * (1.0 - p) / n)
 
 
 def loose_poses(
