@@ -2,6 +2,7 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 const MAX_ITERATIONS: usize = 300;
 
@@ -20,9 +21,18 @@ pub fn kmeans(
         return vec![0; n];
     }
     let k = k.min(n);
+    // The seedings draw from one stream, one restart after another as before (how much each
+    // draws depends on the data); the restarts' iterations, which draw nothing and are most
+    // of the work, then run in parallel. The same labels whatever the number of threads.
+    let seeds: Vec<Vec<f64>> = (0..restarts.max(1))
+        .map(|_| plus_plus_init(data, dim, n, k, rng))
+        .collect();
+    let runs: Vec<(f64, Vec<usize>)> = seeds
+        .into_par_iter()
+        .map(|centers| lloyd(data, dim, n, k, centers))
+        .collect();
     let mut best: Option<(f64, Vec<usize>)> = None;
-    for _ in 0..restarts.max(1) {
-        let (inertia, labels) = lloyd(data, dim, n, k, rng);
+    for (inertia, labels) in runs {
         if best.as_ref().is_none_or(|(b, _)| inertia < *b) {
             best = Some((inertia, labels));
         }
@@ -147,9 +157,8 @@ fn half_gaps(centers: &[f64], dim: usize, k: usize, out: &mut [f64]) {
 /// exactly: a skip needs the bounds apart by a margin far above their rounding, and every
 /// point not skipped is assigned by [`nearest_center`]; the inertia is summed at the end as
 /// the plain loop sums it.
-fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> (f64, Vec<usize>) {
+fn lloyd(data: &[f64], dim: usize, n: usize, k: usize, mut centers: Vec<f64>) -> (f64, Vec<usize>) {
     let row = |i: usize| &data[i * dim..(i + 1) * dim];
-    let mut centers = plus_plus_init(data, dim, n, k, rng);
     let mut labels = vec![usize::MAX; n];
     let mut inertia = f64::INFINITY;
     let (mut by_dim, mut dists) = (vec![0.0; k * dim], vec![0.0; k]);

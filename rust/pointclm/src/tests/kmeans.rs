@@ -79,7 +79,8 @@ fn bounded_lloyd_is_the_plain_loop_exactly() {
         }
         let k = k.min(n);
         let seed = 100 + case as u64;
-        let bounded = lloyd(&data, dim, n, k, &mut ChaCha8Rng::seed_from_u64(seed));
+        let seeded = plus_plus_init(&data, dim, n, k, &mut ChaCha8Rng::seed_from_u64(seed));
+        let bounded = lloyd(&data, dim, n, k, seeded);
         let plain = lloyd_plain(&data, dim, n, k, &mut ChaCha8Rng::seed_from_u64(seed));
         assert_eq!(bounded.1, plain.1, "labels, case {case}");
         assert_eq!(
@@ -87,5 +88,32 @@ fn bounded_lloyd_is_the_plain_loop_exactly() {
             plain.0.to_bits(),
             "inertia, case {case}"
         );
+    }
+}
+
+#[test]
+fn restarts_in_parallel_give_the_sequential_labels_whatever_the_threads() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (n, dim, k, restarts) = (300, 6, 7, 5);
+    let data: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>()).collect();
+    // The definition: seed and iterate one restart after another, keep the first best.
+    let mut seq = ChaCha8Rng::seed_from_u64(5);
+    let mut best: Option<(f64, Vec<usize>)> = None;
+    for _ in 0..restarts {
+        let seeded = plus_plus_init(&data, dim, n, k, &mut seq);
+        let (inertia, labels) = lloyd(&data, dim, n, k, seeded);
+        if best.as_ref().is_none_or(|(b, _)| inertia < *b) {
+            best = Some((inertia, labels));
+        }
+    }
+    let expected = relabel_by_first_appearance(&best.unwrap().1);
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let got =
+            pool.install(|| kmeans(&data, dim, k, restarts, &mut ChaCha8Rng::seed_from_u64(5)));
+        assert_eq!(got, expected, "{threads} threads");
     }
 }
