@@ -1174,11 +1174,8 @@ def _peel_round(
     )
     new = run.refiner.refine(candidates, max_shared=1.0, num_threads=run.num_threads)
     # A voted pose's origin names its row of `voted` (past len(result)), screened or not.
-    origin = np.where(new.origin < len(result), new.origin, 0)
-    is_voted = new.origin >= len(result)
-    origin[is_voted] = len(result) + reach[new.origin[is_voted] - len(result)]
-    new = new._replace(origin=origin)
-    new = _without_weak_votes(new, len(result), refined)
+    rows = np.concatenate([np.arange(len(result)), len(result) + reach])
+    new = _without_weak_votes(new._replace(origin=rows[new.origin]), len(result), refined)
     if len(new.origin) and new.by_visibility and refined.by_visibility:
         refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
     elif len(new.origin):
@@ -1211,7 +1208,7 @@ def _within_reach(
     if len(voted) == 0 or len(accepted.fitness) == 0:
         return rows
     model = run.src_d.points[:: -(-len(run.src_d.points) // _SCREEN_POINTS)]
-    floor = VOTED_MIN_RELATIVE_FITNESS * float(np.median(accepted.fitness))
+    floor = _vote_floor(accepted.fitness)
     posed = np.einsum("kij,nj->kni", voted[:, :3, :3], model) + voted[:, None, :3, 3]
     d, _ = scan_tree.query(posed.reshape(-1, 3), distance_upper_bound=3.0 * run.voxel)
     near = np.isfinite(d).reshape(len(voted), len(model)).mean(axis=1)
@@ -1226,9 +1223,14 @@ def _without_weak_votes(new: RefinedPoses, clustered: int, accepted: RefinedPose
     if not voted.any():
         return new
     peers = np.concatenate([accepted.fitness, new.fitness[~voted]])
-    reference = np.median(peers) if len(peers) else new.fitness[voted].max()
-    keep = ~voted | (new.fitness >= VOTED_MIN_RELATIVE_FITNESS * reference)
-    return _take(new, np.flatnonzero(keep))
+    floor = _vote_floor(peers if len(peers) else new.fitness[voted].max(keepdims=True))
+    return _take(new, np.flatnonzero(~voted | (new.fitness >= floor)))
+
+
+def _vote_floor(fitness: np.ndarray) -> float:
+    """The share of the model a voted pose must explain: `VOTED_MIN_RELATIVE_FITNESS` times
+    the median of the copies' `fitness`."""
+    return VOTED_MIN_RELATIVE_FITNESS * float(np.median(fitness))
 
 
 def _add_seen(

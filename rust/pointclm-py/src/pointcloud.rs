@@ -673,11 +673,6 @@ impl PyPpfModel {
         #[pyo3(from_py_with = args::max_poses)] max_poses: usize,
         #[pyo3(from_py_with = args::reference_stride)] reference_stride: usize,
     ) -> PyResult<Self> {
-        if !(diameter.is_finite() && diameter > 0.0) {
-            return Err(InputError::new_err(format!(
-                "diameter must be a positive finite number (the model's size), got {diameter}"
-            )));
-        }
         let p = rows3(&points, "points")?;
         let n = rows3(&normals, "normals")?;
         let params = pointcloud::PpfParams {

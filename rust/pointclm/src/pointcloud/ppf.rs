@@ -63,8 +63,9 @@ impl PpfParams {
     }
 
     fn check(&self) -> Result<()> {
+        // First: `for_diameter` derives the other lengths from it.
+        check_positive("max_distance (the model's diameter)", self.max_distance)?;
         check_positive("distance_step", self.distance_step)?;
-        check_positive("max_distance", self.max_distance)?;
         check_positive("cluster_distance", self.cluster_distance)?;
         check_positive("cluster_angle", self.cluster_angle)?;
         let bins_ok = (1..=180).contains(&self.angle_bins);
