@@ -94,6 +94,25 @@ MIN_FLIP_CHANGE = 0.01
 #: explained cannot tell a change of a few percent from noise (at 0.01 the realistic
 #: validation scenes without a viewpoint lost their 3 right beds of 16).
 MIN_FLIP_CHANGE_BY_FITNESS = 0.05
+#: A quarter turn of the model (either way about a principal axis) is tried by
+#: :func:`resolve_flips` only when it leaves at least half of the model in place (moves at most
+#: this share farther than 1.5 voxels from it): a near-symmetry, such as a bed or a box about
+#: its vertical axis, where ICP settles the turned pose on the copy. A turn that moves more
+#: poses the model visibly wrong, which ICP and verification handle without help.
+MAX_QUARTER_TURN_CHANGE = 0.5
+#: A turned alternative that is no surer by ``confidence`` still replaces a pose when it
+#: explains more than this many times as many of the points that tell the two apart (each
+#: one's model points that the other leaves where it has no surface), and more by
+#: `FLIP_EVIDENCE_SIGMAS` standard deviations of a fair split. Why: a pose turned about a
+#: near-symmetry turns the part that differs away from the sensor and explains all it still
+#: shows, so its visible fitness matches the right pose's; only the part that differs can
+#: choose. On the validation bins, the right turn explained 60-220 such points where the pose
+#: explained 0-25, while a right pose's wrong turn gathered a few stray points of neighbouring
+#: copies (stop 39, BENCHMARKS.md).
+FLIP_EVIDENCE_RATIO = 4.0
+#: See `FLIP_EVIDENCE_RATIO`: the alternative's count must exceed the pose's by this many
+#: times the square root of their sum (a sign test at about three sigmas).
+FLIP_EVIDENCE_SIGMAS = 3.0
 #: Without a viewpoint: poses explaining less of the model are rejected whatever the rest of
 #: the scene holds.
 MIN_FITNESS = 0.3
@@ -348,22 +367,64 @@ def flip_turns(
     """(F, 4, 4) half turns of the model about its principal axes through its centroid that
     verification can tell from the model itself (at least `min_change` of the turned model
     farther than 1.5 voxels from it, `MIN_FLIP_CHANGE`); F <= 3."""
-    from scipy.spatial import cKDTree
-
     src = pp.as_points(source_points, "source_points")
     voxel = pp.as_positive(voxel_size, "voxel_size")
-    centre = src.mean(0)
-    _, axes = np.linalg.eigh(np.cov((src - centre).T))
-    tree = cKDTree(src)
-    turns = []
-    for axis in axes.T:
-        rot = 2.0 * np.outer(axis, axis) - np.eye(3)  # half a turn about `axis`
-        dist, _ = tree.query((src - centre) @ rot.T + centre)
-        if np.mean(dist > 1.5 * voxel) >= min_change:
-            turn = np.eye(4)
-            turn[:3, :3], turn[:3, 3] = rot, centre - rot @ centre
-            turns.append(turn)
-    return np.array(turns).reshape(-1, 4, 4)
+    shape = _Shape(src, voxel)
+    return _turns(
+        [shape.turn(2.0 * np.outer(a, a) - np.eye(3)) for a in shape.axes], shape, min_change
+    )
+
+
+def quarter_turns(
+    source_points: ArrayLike,
+    voxel_size: float,
+    min_change: float = MIN_FLIP_CHANGE,
+    max_change: float = MAX_QUARTER_TURN_CHANGE,
+) -> np.ndarray:
+    """(Q, 4, 4) quarter turns of the model, either way about its principal axes through its
+    centroid, that move at least `min_change` and at most `max_change` of it farther than 1.5
+    voxels from it (near-symmetries, `MAX_QUARTER_TURN_CHANGE`); Q <= 6."""
+    src = pp.as_points(source_points, "source_points")
+    voxel = pp.as_positive(voxel_size, "voxel_size")
+    shape = _Shape(src, voxel)
+    rotations = []
+    for a in shape.axes:
+        cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        for way in (1.0, -1.0):
+            rotations.append(shape.turn(np.eye(3) + way * cross + cross @ cross))
+    return _turns(rotations, shape, min_change, max_change)
+
+
+class _Shape:
+    """A model's points, centroid, principal axes and k-d tree, to turn it and measure how
+    much a turn moves."""
+
+    def __init__(self, src: np.ndarray, voxel: float) -> None:
+        from scipy.spatial import cKDTree
+
+        self.src, self.radius = src, 1.5 * voxel
+        self.centre = src.mean(0)
+        _, axes = np.linalg.eigh(np.cov((src - self.centre).T))
+        self.axes = axes.T
+        self.tree = cKDTree(src)
+
+    def turn(self, rot: np.ndarray) -> np.ndarray:
+        """The rigid motion rotating by `rot` about the centroid."""
+        turn = np.eye(4)
+        turn[:3, :3], turn[:3, 3] = rot, self.centre - rot @ self.centre
+        return turn
+
+    def moved(self, turn: np.ndarray) -> float:
+        """The share of the model that `turn` puts farther than 1.5 voxels from it."""
+        dist, _ = self.tree.query(self.src @ turn[:3, :3].T + turn[:3, 3])
+        return float(np.mean(dist > self.radius))
+
+
+def _turns(
+    turns: list[np.ndarray], shape: _Shape, min_change: float, max_change: float = 1.0
+) -> np.ndarray:
+    kept = [t for t in turns if min_change <= shape.moved(t) <= max_change]
+    return np.array(kept).reshape(-1, 4, 4)
 
 
 def resolve_flips(
@@ -377,24 +438,33 @@ def resolve_flips(
     num_threads: int | None = None,
     context: RefinementContext | None = None,
 ) -> tuple[RefinedPoses, np.ndarray]:
-    """Verified `poses` with each replaced by a half-turned alternative the scan supports
-    better, surest first, and the row of `poses` each came from.
+    """Verified `poses` with each replaced by a turned alternative the scan supports better,
+    surest first, and the row of `poses` each came from.
 
-    Why: a part close to a symmetry under a half turn (a bathtub end for end, a box with a
-    block on one corner) is often posed turned: ICP settles it on the copy and it passes
-    verification, yet its rotation is wrong. The few discrete hypotheses (the pose times a
-    half turn about each principal axis of the model, :func:`flip_turns`) are refined by ICP
-    and scored like the pose; a turned pose replaces it when it is surer (``confidence``) and
-    explains at least as much of the whole model (``fitness``): visible fitness alone rewards
-    a pose that turns the unexplained part away from the sensor. Turns that map the model onto
-    itself are not tried: the scan cannot decide between them (`MIN_FLIP_CHANGE`, or
-    `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a viewpoint). `context`: a
-    :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
+    Why: a part close to a symmetry (a bathtub end for end, a bed or a box with a block on one
+    corner a quarter turn about its vertical axis) is often posed turned: ICP settles it on the
+    copy and it passes verification, yet its rotation is wrong. The few discrete hypotheses
+    (the pose times a half turn about each principal axis of the model, :func:`flip_turns`,
+    and a quarter turn either way about those that leave most of the model in place,
+    :func:`quarter_turns`) are refined by ICP and scored like the pose. A turned pose that
+    explains at least as much of the whole model (``fitness``; visible fitness alone rewards a
+    pose that turns the unexplained part away from the sensor) replaces it when
+
+    * it is a half turn and surer (``confidence``), or
+    * it would itself pass verification (`MIN_VISIBLE_FITNESS`, `MAX_CONTRADICTION` when
+      judged by the sensor) and explains far more of the points that tell the two apart: the
+      model points each puts where the other has no surface (`FLIP_EVIDENCE_RATIO`,
+      `FLIP_EVIDENCE_SIGMAS`).
+
+    Turns that map the model onto itself are not tried: the scan cannot decide between them
+    (`MIN_FLIP_CHANGE`, or `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a viewpoint).
+    `context`: a :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
     """
     src = pp.as_points(source_points, "source_points")
     # Judged by the share of the model alone, a small change is not told from noise.
     min_change = MIN_FLIP_CHANGE if poses.by_visibility else MIN_FLIP_CHANGE_BY_FITNESS
-    turns = flip_turns(src, voxel_size, min_change)
+    half = flip_turns(src, voxel_size, min_change)
+    turns = np.concatenate([half, quarter_turns(src, voxel_size, min_change)])
     n = len(poses.transformations)
     if n == 0 or len(turns) == 0:
         return poses, np.arange(n)
@@ -419,31 +489,131 @@ def resolve_flips(
         max_shared=1.0,
         num_threads=num_threads,
     )
-    fields = _with_better_turns(poses, alt, len(turns))
+    evidence = _TurnEvidence(src, pp.as_points(target_points, "target_points"), voxel_size)
+    fields, turned = _with_better_turns(poses, alt, len(turns), len(half), evidence)
+    _undo_turns_onto_other_copies(poses, fields, turned, evidence)
     order = np.argsort(-fields["confidence"], kind="stable")
     return poses._replace(**{f: v[order] for f, v in fields.items()}), order
 
 
-def _with_better_turns(poses: RefinedPoses, alt: RefinedPoses, turns: int) -> dict[str, Any]:
-    """The fields of `poses`, each pose's row taken from its surest alternative of `alt`
-    (`turns` per pose, pose-major) that is surer and explains at least as much of the model.
-    A candidate `alt` did not return cannot win."""
+class _TurnEvidence:
+    """Which of two poses of one copy the points that tell them apart support."""
+
+    def __init__(self, src: np.ndarray, target: np.ndarray, voxel: float) -> None:
+        from scipy.spatial import cKDTree
+
+        self.src, self.radius = src, 1.5 * float(voxel)
+        self.model, self.scan = cKDTree(src), cKDTree(target)
+
+    def explained(self, pose: np.ndarray) -> np.ndarray:
+        """The scan points within 1.5 voxels of the model at `pose` (as verification counts
+        them), distinct."""
+        dist, idx = self.scan.query(
+            self.src @ pose[:3, :3].T + pose[:3, 3], distance_upper_bound=self.radius
+        )
+        return np.unique(idx[np.isfinite(dist)])
+
+    def _near(self, tree: Any, points: np.ndarray) -> np.ndarray:
+        dist, _ = tree.query(points, distance_upper_bound=self.radius)
+        return np.isfinite(dist)
+
+    def margin(self, first: np.ndarray, second: np.ndarray) -> int:
+        """By how many of the points that tell two poses of the model apart (4 x 4,
+        T_target_source) the scan favours `second`: its count of explained model points that
+        it puts where `first` has no surface, less `first`'s count of the same; 0 unless
+        decisive (`FLIP_EVIDENCE_RATIO`, `FLIP_EVIDENCE_SIGMAS`)."""
+        rel = np.linalg.solve(first, second)  # second = first @ rel, in the model's frame
+        rot, shift = rel[:3, :3], rel[:3, 3]
+        # The first pose's own points lie off the model as the second poses it (rel^-1 p off
+        # the model); the second's, rel q off the model.
+        only_first = ~self._near(self.model, (self.src - shift) @ rot)
+        only_second = ~self._near(self.model, self.src @ rot.T + shift)
+        own, other = (
+            int(self._near(self.scan, self.src[only] @ pose[:3, :3].T + pose[:3, 3]).sum())
+            for only, pose in ((only_first, first), (only_second, second))
+        )
+        decisive = (
+            other > FLIP_EVIDENCE_RATIO * own
+            and other - own > FLIP_EVIDENCE_SIGMAS * np.sqrt(own + other)
+        )
+        return other - own if decisive else 0
+
+
+def _with_better_turns(
+    poses: RefinedPoses, alt: RefinedPoses, turns: int, half: int, evidence: _TurnEvidence
+) -> tuple[dict[str, Any], list[int]]:
+    """The fields of `poses`, each pose's row taken from its best alternative of `alt`
+    (`turns` per pose, pose-major, the first `half` of them half turns) by
+    :func:`resolve_flips`'s rule: the surest half turn that is surer, else the turn the points
+    that tell it from the pose favour most decisively, and the rows replaced. A candidate `alt`
+    did not return cannot win."""
     n = len(poses.transformations)
     fields = {f: getattr(poses, f).copy() for f in RefinedPoses._fields if f != "by_visibility"}
+    turned: list[int] = []
     if len(alt.origin) == 0:
-        return fields
+        return fields, turned
     row_of = np.full(n * turns, -1, dtype=np.int64)
     row_of[np.asarray(alt.origin, dtype=np.int64)] = np.arange(len(alt.origin))
     found = row_of >= 0
-    conf = np.where(found, alt.confidence[row_of], -np.inf).reshape(n, turns)
-    fit = np.where(found, alt.fitness[row_of], -np.inf).reshape(n, turns)
-    better = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
-    for i in np.flatnonzero(better.any(1)):
-        j = row_of[i * turns + int(np.argmax(np.where(better[i], conf[i], -np.inf)))]
+
+    def pick(values: np.ndarray) -> np.ndarray:
+        return np.where(found, values[row_of], np.nan).reshape(n, turns)
+
+    conf, fit = pick(alt.confidence), pick(alt.fitness)
+    # The alternative must explain as much of the model and pass verification itself.
+    eligible = found.reshape(n, turns) & (fit >= poses.fitness[:, None])
+    if poses.by_visibility:
+        eligible &= (pick(alt.visible_fitness) >= MIN_VISIBLE_FITNESS) & (
+            pick(alt.contradiction) <= MAX_CONTRADICTION
+        )
+    surer = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
+    surer[:, half:] = False
+    for i in range(n):
+        if surer[i].any():
+            t = int(np.argmax(np.where(surer[i], conf[i], -np.inf)))
+        else:
+            margins = [
+                evidence.margin(
+                    poses.transformations[i], alt.transformations[row_of[i * turns + t]]
+                )
+                if eligible[i, t]
+                else 0
+                for t in range(turns)
+            ]
+            if max(margins) == 0:
+                continue
+            t = int(np.argmax(margins))
+        j = row_of[i * turns + t]
         for f in fields:
             if f != "origin":
                 fields[f][i] = getattr(alt, f)[j]
-    return fields
+        turned.append(i)
+    return fields, turned
+
+
+def _undo_turns_onto_other_copies(
+    poses: RefinedPoses, fields: dict[str, Any], turned: list[int], evidence: _TurnEvidence
+) -> None:
+    """Put back, in `fields`, each turned row whose turn carried it onto another pose's copy:
+    its turned pose shares more than half of the scan points it explains with the other poses
+    (the ``max_shared`` rule of verification), and more than the pose did. Such a turn is ICP
+    settling on a neighbour, not an alternative for this copy."""
+    if not turned:
+        return
+    explained = [evidence.explained(pose) for pose in fields["transformations"]]
+    count = np.zeros(len(evidence.scan.data), dtype=np.int64)
+    for points in explained:
+        count[points] += 1
+    for i in turned:
+        count[explained[i]] -= 1  # the other poses' points alone
+        before = evidence.explained(poses.transformations[i])
+        shared = [(count[p] > 0).mean() if len(p) else 1.0 for p in (explained[i], before)]
+        if shared[0] > 0.5 and shared[0] > shared[1]:
+            for f in fields:
+                if f != "origin":
+                    fields[f][i] = getattr(poses, f)[i]
+            explained[i] = before
+        count[explained[i]] += 1
 
 
 def loose_poses(
