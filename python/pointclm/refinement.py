@@ -478,7 +478,19 @@ def resolve_flips(
             target_normals=target_normals,
             num_threads=num_threads,
         )
-    alt = context.refine(
+    alt = _scored(context, candidates, num_threads)
+    evidence = _TurnEvidence(src, pp.as_points(target_points, "target_points"), voxel_size)
+    fields, turned = _with_better_turns(poses, alt, len(turns), len(half), evidence)
+    _undo_turns_onto_other_copies(poses, fields, turned, evidence)
+    order = np.argsort(-fields["confidence"], kind="stable")
+    return poses._replace(**{f: v[order] for f, v in fields.items()}), order
+
+
+def _scored(
+    context: RefinementContext, candidates: np.ndarray, num_threads: int | None
+) -> RefinedPoses:
+    """Every candidate refined by ICP and scored, none rejected."""
+    return context.refine(
         candidates,
         min_visible_fitness=0.0,
         max_contradiction=1.0,
@@ -489,11 +501,6 @@ def resolve_flips(
         max_shared=1.0,
         num_threads=num_threads,
     )
-    evidence = _TurnEvidence(src, pp.as_points(target_points, "target_points"), voxel_size)
-    fields, turned = _with_better_turns(poses, alt, len(turns), len(half), evidence)
-    _undo_turns_onto_other_copies(poses, fields, turned, evidence)
-    order = np.argsort(-fields["confidence"], kind="stable")
-    return poses._replace(**{f: v[order] for f, v in fields.items()}), order
 
 
 class _TurnEvidence:
