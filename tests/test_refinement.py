@@ -289,6 +289,16 @@ def test_a_pose_a_quarter_turn_off_about_a_near_symmetry_is_turned_back() -> Non
     )
     kept, _ = resolve_flips(src, scan, right, voxel)
     np.testing.assert_array_equal(kept.transformations, right.transformations)
+    assert kept.confidence[0] == right.confidence[0]
+    # With the blocks out of the scan nothing tells the pose from its quarter turns: it stays,
+    # one of several hypotheses, and says so in its confidence.
+    slab = scan[_apply(np.linalg.inv(truth), scan)[:, 2] < 0.25]
+    alone = pointclm.refine_poses(
+        src, slab, truth[None], voxel, max_shared=1.0, min_fitness=0.0, min_relative_fitness=0.0
+    )
+    unsure, _ = resolve_flips(src, slab, alone, voxel)
+    np.testing.assert_array_equal(unsure.transformations, alone.transformations)
+    assert unsure.confidence[0] <= alone.confidence[0] / 2
 
 
 def test_a_turn_carried_onto_another_poses_copy_is_put_back() -> None:

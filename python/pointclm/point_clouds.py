@@ -245,20 +245,23 @@ def cloud_base_config(
 class CloudInstance:
     """One copy of the model in the scan, refined and verified on the clouds.
 
-    ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of
-    the (downsampled) model's points with a scan point within 1.5 voxels, and their RMS
-    distance. ``confidence`` in [0, 1] says how sure the pose is (instances come surest
-    first): with a trusted viewpoint, the share of what the sensor could see of the copy at
-    that pose that the scan explains, times one minus the share where the sensor saw free
-    space (``visible_fitness``, ``contradiction``); without one, ``fitness``
-    (:func:`pointclm.refinement.refine_poses`). ``visible_rmse`` is the RMS distance of the
-    explained model points the sensor could see (NaN without a trusted viewpoint): copies
-    whose visible side fits more than 1.3 times as loosely as the scene's median copy are not
-    returned (:func:`pointclm.refinement.loose_poses`). ``matches`` is the correspondence-stage
-    instance the pose was refined from (its ``inliers`` index the correspondences of the
-    pass that proposed it, ``PointCloudRegistration.passes[pass_index].correspondences``;
-    pass 0's are ``PointCloudRegistration.correspondences``), or None when the pose was
-    proposed by point pair voting in a heap (`HEAP_VOTED_POSES`; no correspondence inliers).
+    ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of the
+    (downsampled) model's points with a scan point within 1.5 voxels, and their RMS distance.
+    ``confidence`` in [0, 1] says how sure the pose is (instances come surest first): with a
+    trusted viewpoint, the share of what the sensor could see of the copy at that pose that the
+    scan explains, times one minus the share where the sensor saw free space
+    (``visible_fitness``, ``contradiction``); without one, ``fitness``
+    (:func:`pointclm.refinement.refine_poses`). With ``flips``, it is divided by one plus the
+    number of turns of the pose that the scan supports as well (a near-symmetric part whose
+    differing side the sensor did not see, :func:`pointclm.refinement.resolve_flips`).
+    ``visible_rmse`` is the RMS distance of the explained model points the sensor could see (NaN
+    without a trusted viewpoint): copies whose visible side fits more than 1.3 times as loosely
+    as the scene's median copy are not returned (:func:`pointclm.refinement.loose_poses`).
+    ``matches`` is the correspondence-stage instance the pose was refined from (its ``inliers``
+    index the correspondences of the pass that proposed it,
+    ``PointCloudRegistration.passes[pass_index].correspondences``; pass 0's are
+    ``PointCloudRegistration.correspondences``), or None when the pose was proposed by point
+    pair voting in a heap (`HEAP_VOTED_POSES`; no correspondence inliers).
     """
 
     transformation: np.ndarray

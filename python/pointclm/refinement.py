@@ -147,7 +147,8 @@ class RefinedPoses(NamedTuple):
     #: (M,) index of the input pose each one came from.
     origin: np.ndarray
     #: (M,) how sure each pose is, in [0, 1], in decreasing order: with a viewpoint
-    #: ``visible_fitness * (1 - contradiction)``, without one ``fitness``.
+    #: ``visible_fitness * (1 - contradiction)``, without one ``fitness``; from
+    #: :func:`resolve_flips`, divided by one plus the number of turns it cannot rule out.
     confidence: np.ndarray
     #: (M,) share of what the sensor could see of the model at the pose that the scan
     #: explains (NaN when the viewpoint did not judge).
@@ -456,9 +457,12 @@ def resolve_flips(
       model points each puts where the other has no surface (`FLIP_EVIDENCE_RATIO`,
       `FLIP_EVIDENCE_SIGMAS`).
 
-    Turns that map the model onto itself are not tried: the scan cannot decide between them
-    (`MIN_FLIP_CHANGE`, or `MIN_FLIP_CHANGE_BY_FITNESS` for poses judged without a viewpoint).
-    `context`: a :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
+    A pose that stays is one of several hypotheses when some of its turns pass the same
+    conditions and the points that tell them apart decide neither way (the sensor did not see
+    the part that differs): its ``confidence`` is divided by one plus their number, so poses
+    whose rotation the scan settles come first. Turns mapping the model onto itself are not
+    tried (`MIN_FLIP_CHANGE`; `MIN_FLIP_CHANGE_BY_FITNESS` without a viewpoint). `context`: a
+    :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
     """
     src = pp.as_points(source_points, "source_points")
     # Judged by the share of the model alone, a small change is not told from noise.
@@ -524,11 +528,10 @@ class _TurnEvidence:
         dist, _ = tree.query(points, distance_upper_bound=self.radius)
         return np.isfinite(dist)
 
-    def margin(self, first: np.ndarray, second: np.ndarray) -> int:
-        """By how many of the points that tell two poses of the model apart (4 x 4,
-        T_target_source) the scan favours `second`: its count of explained model points that
-        it puts where `first` has no surface, less `first`'s count of the same; 0 unless
-        decisive (`FLIP_EVIDENCE_RATIO`, `FLIP_EVIDENCE_SIGMAS`)."""
+    def hits(self, first: np.ndarray, second: np.ndarray) -> tuple[int, int]:
+        """How many of the points that tell two poses of the model apart (4 x 4,
+        T_target_source) the scan explains for each: the model points `first` puts where
+        `second` has no surface, and the other way round."""
         rel = np.linalg.solve(first, second)  # second = first @ rel, in the model's frame
         rot, shift = rel[:3, :3], rel[:3, 3]
         # The first pose's own points lie off the model as the second poses it (rel^-1 p off
@@ -539,11 +542,15 @@ class _TurnEvidence:
             int(self._near(self.scan, self.src[only] @ pose[:3, :3].T + pose[:3, 3]).sum())
             for only, pose in ((only_first, first), (only_second, second))
         )
-        decisive = (
-            other > FLIP_EVIDENCE_RATIO * own
-            and other - own > FLIP_EVIDENCE_SIGMAS * np.sqrt(own + other)
-        )
-        return other - own if decisive else 0
+        return own, other
+
+
+def _decisive(more: int, fewer: int) -> bool:
+    """Whether `more` explained points that tell two poses apart decide against `fewer`
+    (`FLIP_EVIDENCE_RATIO`, `FLIP_EVIDENCE_SIGMAS`)."""
+    return more > FLIP_EVIDENCE_RATIO * fewer and more - fewer > FLIP_EVIDENCE_SIGMAS * np.sqrt(
+        more + fewer
+    )
 
 
 def _with_better_turns(
@@ -552,8 +559,10 @@ def _with_better_turns(
     """The fields of `poses`, each pose's row taken from its best alternative of `alt`
     (`turns` per pose, pose-major, the first `half` of them half turns) by
     :func:`resolve_flips`'s rule: the surest half turn that is surer, else the turn the points
-    that tell it from the pose favour most decisively, and the rows replaced. A candidate `alt`
-    did not return cannot win."""
+    that tell it from the pose favour most decisively, and the rows replaced. A pose no turn
+    replaces has its confidence divided by one plus the number of its turns that could have
+    (eligible) and that those points do not rule out. A candidate `alt` did not return cannot
+    win."""
     n = len(poses.transformations)
     fields = {f: getattr(poses, f).copy() for f in RefinedPoses._fields if f != "by_visibility"}
     turned: list[int] = []
@@ -579,17 +588,19 @@ def _with_better_turns(
         if surer[i].any():
             t = int(np.argmax(np.where(surer[i], conf[i], -np.inf)))
         else:
-            margins = [
-                evidence.margin(
+            hits = {
+                int(t): evidence.hits(
                     poses.transformations[i], alt.transformations[row_of[i * turns + t]]
                 )
-                if eligible[i, t]
-                else 0
-                for t in range(turns)
-            ]
-            if max(margins) == 0:
+                for t in np.flatnonzero(eligible[i])
+            }
+            margins = {t: other - own for t, (own, other) in hits.items() if _decisive(other, own)}
+            if not margins:
+                # The pose is one of as many hypotheses as the turns it cannot rule out.
+                undecided = sum(not _decisive(own, other) for own, other in hits.values())
+                fields["confidence"][i] /= 1 + undecided
                 continue
-            t = int(np.argmax(margins))
+            t = max(margins, key=lambda u: margins[u])
         j = row_of[i * turns + t]
         for f in fields:
             if f != "origin":
