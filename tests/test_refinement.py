@@ -305,7 +305,7 @@ def test_a_turn_carried_onto_another_poses_copy_is_put_back() -> None:
     # Two copies of the slab; one pose on each. If ICP carried the second pose's turn onto the
     # first copy, the turned pose would duplicate the first: the second pose is put back. Poses
     # that shared their copy before the turn (duplicates given on purpose) keep their turns.
-    from pointclm.refinement import _TurnEvidence, _undo_turns_onto_other_copies
+    from pointclm.refinement import _Shape, _TurnEvidence, _undo_turns_onto_other_copies
 
     src = _slab_with_a_block()
     voxel = 0.04
@@ -313,7 +313,7 @@ def test_a_turn_carried_onto_another_poses_copy_is_put_back() -> None:
     scan = np.concatenate([_apply(first, src), _apply(second, src)])
     poses = pointclm.refine_poses(src, scan, [first, second], voxel, icp=False)
     assert len(poses.origin) == 2
-    evidence = _TurnEvidence(src, scan, voxel)
+    evidence = _TurnEvidence(_Shape(src, voxel), scan)
 
     def turned_onto_first() -> dict[str, np.ndarray]:
         fields = {f: getattr(poses, f).copy() for f in poses._fields if f != "by_visibility"}

@@ -30,11 +30,13 @@ from .embedding import Embedding, resolve
 from .errors import InputError
 from .refinement import (
     MAX_CONTRADICTION,
+    MAX_SHARED,
     MIN_FITNESS,
     MIN_SEEN,
     MIN_VISIBLE_FITNESS,
     RefinedPoses,
     RefinementContext,
+    explained_scan_points,
     loose_poses,
     resolve_flips,
 )
@@ -1315,9 +1317,8 @@ def _not_duplicates(
     the list (`refine_poses`' ``max_shared`` rule); marks the kept poses' points taken."""
     keep = []
     for i, T in enumerate(poses):
-        d, j = scan_tree.query(source @ T[:3, :3].T + T[:3, 3], distance_upper_bound=1.5 * voxel)
-        hits = np.unique(j[np.isfinite(d)])
-        if len(hits) == 0 or taken[hits].mean() > 0.5:
+        hits = explained_scan_points(scan_tree, source, T, 1.5 * voxel)
+        if len(hits) == 0 or taken[hits].mean() > MAX_SHARED:
             continue
         taken[hits] = True
         keep.append(i)

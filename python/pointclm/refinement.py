@@ -46,6 +46,7 @@ from .registration import as_threads
 __all__ = [
     "MAX_CONTRADICTION",
     "MAX_RELATIVE_VISIBLE_RMSE",
+    "MAX_SHARED",
     "MAX_SLID_FITNESS",
     "MIN_FITNESS",
     "MIN_POSES_TO_COMPARE",
@@ -94,6 +95,10 @@ MIN_FLIP_CHANGE = 0.01
 #: explained cannot tell a change of a few percent from noise (at 0.01 the realistic
 #: validation scenes without a viewpoint lost their 3 right beds of 16).
 MIN_FLIP_CHANGE_BY_FITNESS = 0.05
+#: A pose is a duplicate when more than this share of the scan points it explains are explained
+#: by a surer pose (the default of ``max_shared``; also the rule by which peeling and
+#: :func:`resolve_flips` tell a pose on another's copy).
+MAX_SHARED = 0.5
 #: A quarter turn of the model (either way about a principal axis) is tried by
 #: :func:`resolve_flips` only when it leaves at least half of the model in place (moves at most
 #: this share farther than 1.5 voxels from it): a near-symmetry, such as a bed or a box about
@@ -181,7 +186,7 @@ def refine_poses(
     min_seen: float = MIN_SEEN,
     min_fitness: float = MIN_FITNESS,
     min_relative_fitness: float = MIN_RELATIVE_FITNESS,
-    max_shared: float = 0.5,
+    max_shared: float = MAX_SHARED,
     max_slid_fitness: float = MAX_SLID_FITNESS,
     target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
@@ -275,7 +280,7 @@ class RefinementContext:
         min_seen: float = MIN_SEEN,
         min_fitness: float = MIN_FITNESS,
         min_relative_fitness: float = MIN_RELATIVE_FITNESS,
-        max_shared: float = 0.5,
+        max_shared: float = MAX_SHARED,
         max_slid_fitness: float = MAX_SLID_FITNESS,
         num_threads: int | None = None,
     ) -> RefinedPoses:
@@ -368,12 +373,7 @@ def flip_turns(
     """(F, 4, 4) half turns of the model about its principal axes through its centroid that
     verification can tell from the model itself (at least `min_change` of the turned model
     farther than 1.5 voxels from it, `MIN_FLIP_CHANGE`); F <= 3."""
-    src = pp.as_points(source_points, "source_points")
-    voxel = pp.as_positive(voxel_size, "voxel_size")
-    shape = _Shape(src, voxel)
-    return _turns(
-        [shape.turn(2.0 * np.outer(a, a) - np.eye(3)) for a in shape.axes], shape, min_change
-    )
+    return _shape(source_points, voxel_size).half_turns(min_change)
 
 
 def quarter_turns(
@@ -385,15 +385,12 @@ def quarter_turns(
     """(Q, 4, 4) quarter turns of the model, either way about its principal axes through its
     centroid, that move at least `min_change` and at most `max_change` of it farther than 1.5
     voxels from it (near-symmetries, `MAX_QUARTER_TURN_CHANGE`); Q <= 6."""
+    return _shape(source_points, voxel_size).quarter_turns(min_change, max_change)
+
+
+def _shape(source_points: ArrayLike, voxel_size: float) -> _Shape:
     src = pp.as_points(source_points, "source_points")
-    voxel = pp.as_positive(voxel_size, "voxel_size")
-    shape = _Shape(src, voxel)
-    rotations = []
-    for a in shape.axes:
-        cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-        for way in (1.0, -1.0):
-            rotations.append(shape.turn(np.eye(3) + way * cross + cross @ cross))
-    return _turns(rotations, shape, min_change, max_change)
+    return _Shape(src, pp.as_positive(voxel_size, "voxel_size"))
 
 
 class _Shape:
@@ -403,29 +400,37 @@ class _Shape:
     def __init__(self, src: np.ndarray, voxel: float) -> None:
         from scipy.spatial import cKDTree
 
-        self.src, self.radius = src, 1.5 * voxel
+        self.src, self.radius = src, 1.5 * float(voxel)
         self.centre = src.mean(0)
         _, axes = np.linalg.eigh(np.cov((src - self.centre).T))
         self.axes = axes.T
         self.tree = cKDTree(src)
 
-    def turn(self, rot: np.ndarray) -> np.ndarray:
-        """The rigid motion rotating by `rot` about the centroid."""
-        turn = np.eye(4)
-        turn[:3, :3], turn[:3, 3] = rot, self.centre - rot @ self.centre
-        return turn
+    def half_turns(self, min_change: float) -> np.ndarray:
+        """:func:`flip_turns`."""
+        return self._kept([2.0 * np.outer(a, a) - np.eye(3) for a in self.axes], min_change)
 
-    def moved(self, turn: np.ndarray) -> float:
-        """The share of the model that `turn` puts farther than 1.5 voxels from it."""
-        dist, _ = self.tree.query(self.src @ turn[:3, :3].T + turn[:3, 3])
-        return float(np.mean(dist > self.radius))
+    def quarter_turns(self, min_change: float, max_change: float) -> np.ndarray:
+        """:func:`quarter_turns`."""
+        rotations = []
+        for a in self.axes:
+            cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+            rotations += [np.eye(3) + way * cross + cross @ cross for way in (1.0, -1.0)]
+        return self._kept(rotations, min_change, max_change)
 
-
-def _turns(
-    turns: list[np.ndarray], shape: _Shape, min_change: float, max_change: float = 1.0
-) -> np.ndarray:
-    kept = [t for t in turns if min_change <= shape.moved(t) <= max_change]
-    return np.array(kept).reshape(-1, 4, 4)
+    def _kept(
+        self, rotations: list[np.ndarray], min_change: float, max_change: float = 1.0
+    ) -> np.ndarray:
+        """The rigid motions rotating by `rotations` about the centroid that move from
+        `min_change` to `max_change` of the model farther than 1.5 voxels from it."""
+        kept = []
+        for rot in rotations:
+            turn = np.eye(4)
+            turn[:3, :3], turn[:3, 3] = rot, self.centre - rot @ self.centre
+            dist, _ = self.tree.query(self.src @ rot.T + turn[:3, 3])
+            if min_change <= float(np.mean(dist > self.radius)) <= max_change:
+                kept.append(turn)
+        return np.array(kept).reshape(-1, 4, 4)
 
 
 def resolve_flips(
@@ -464,18 +469,18 @@ def resolve_flips(
     tried (`MIN_FLIP_CHANGE`; `MIN_FLIP_CHANGE_BY_FITNESS` without a viewpoint). `context`: a
     :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
     """
-    src = pp.as_points(source_points, "source_points")
+    shape = _shape(source_points, voxel_size)
     # Judged by the share of the model alone, a small change is not told from noise.
     min_change = MIN_FLIP_CHANGE if poses.by_visibility else MIN_FLIP_CHANGE_BY_FITNESS
-    half = flip_turns(src, voxel_size, min_change)
-    turns = np.concatenate([half, quarter_turns(src, voxel_size, min_change)])
+    half = shape.half_turns(min_change)
+    turns = np.concatenate([half, shape.quarter_turns(min_change, MAX_QUARTER_TURN_CHANGE)])
     n = len(poses.transformations)
     if n == 0 or len(turns) == 0:
         return poses, np.arange(n)
     candidates = np.einsum("pij,fjk->pfik", poses.transformations, turns).reshape(-1, 4, 4)
     if context is None:
         context = RefinementContext(
-            src,
+            shape.src,
             target_points,
             voxel_size,
             viewpoint=viewpoint,
@@ -483,7 +488,7 @@ def resolve_flips(
             num_threads=num_threads,
         )
     alt = _scored(context, candidates, num_threads)
-    evidence = _TurnEvidence(src, pp.as_points(target_points, "target_points"), voxel_size)
+    evidence = _TurnEvidence(shape, pp.as_points(target_points, "target_points"))
     fields, turned = _with_better_turns(poses, alt, len(turns), len(half), evidence)
     _undo_turns_onto_other_copies(poses, fields, turned, evidence)
     order = np.argsort(-fields["confidence"], kind="stable")
@@ -510,19 +515,14 @@ def _scored(
 class _TurnEvidence:
     """Which of two poses of one copy the points that tell them apart support."""
 
-    def __init__(self, src: np.ndarray, target: np.ndarray, voxel: float) -> None:
+    def __init__(self, shape: _Shape, target: np.ndarray) -> None:
         from scipy.spatial import cKDTree
 
-        self.src, self.radius = src, 1.5 * float(voxel)
-        self.model, self.scan = cKDTree(src), cKDTree(target)
+        self.src, self.radius, self.model = shape.src, shape.radius, shape.tree
+        self.scan = cKDTree(target)
 
     def explained(self, pose: np.ndarray) -> np.ndarray:
-        """The scan points within 1.5 voxels of the model at `pose` (as verification counts
-        them), distinct."""
-        dist, idx = self.scan.query(
-            self.src @ pose[:3, :3].T + pose[:3, 3], distance_upper_bound=self.radius
-        )
-        return np.unique(idx[np.isfinite(dist)])
+        return explained_scan_points(self.scan, self.src, pose, self.radius)
 
     def _near(self, tree: Any, points: np.ndarray) -> np.ndarray:
         dist, _ = tree.query(points, distance_upper_bound=self.radius)
@@ -543,6 +543,16 @@ class _TurnEvidence:
             for only, pose in ((only_first, first), (only_second, second))
         )
         return own, other
+
+
+def explained_scan_points(
+    scan_tree: Any, source: np.ndarray, pose: np.ndarray, radius: float
+) -> np.ndarray:
+    """The scan points (indices into `scan_tree`'s, distinct) within `radius` of `source` at
+    `pose` (4 x 4, T_target_source): what a pose explains, as verification counts it at 1.5
+    voxels."""
+    dist, idx = scan_tree.query(source @ pose[:3, :3].T + pose[:3, 3], distance_upper_bound=radius)
+    return np.unique(idx[np.isfinite(dist)])
 
 
 def _decisive(more: int, fewer: int) -> bool:
@@ -576,13 +586,14 @@ def _with_better_turns(
         return np.where(found, values[row_of], np.nan).reshape(n, turns)
 
     conf, fit = pick(alt.confidence), pick(alt.fitness)
+    as_much = fit >= poses.fitness[:, None]
     # The alternative must explain as much of the model and pass verification itself.
-    eligible = found.reshape(n, turns) & (fit >= poses.fitness[:, None])
+    eligible = as_much.copy()
     if poses.by_visibility:
         eligible &= (pick(alt.visible_fitness) >= MIN_VISIBLE_FITNESS) & (
             pick(alt.contradiction) <= MAX_CONTRADICTION
         )
-    surer = (conf > poses.confidence[:, None]) & (fit >= poses.fitness[:, None])
+    surer = (conf > poses.confidence[:, None]) & as_much
     surer[:, half:] = False
     for i in range(n):
         if surer[i].any():
@@ -601,10 +612,7 @@ def _with_better_turns(
                 fields["confidence"][i] /= 1 + undecided
                 continue
             t = max(margins, key=lambda u: margins[u])
-        j = row_of[i * turns + t]
-        for f in fields:
-            if f != "origin":
-                fields[f][i] = getattr(alt, f)[j]
+        _set_row(fields, i, alt, row_of[i * turns + t])
         turned.append(i)
     return fields, turned
 
@@ -626,12 +634,17 @@ def _undo_turns_onto_other_copies(
         count[explained[i]] -= 1  # the other poses' points alone
         before = evidence.explained(poses.transformations[i])
         shared = [(count[p] > 0).mean() if len(p) else 1.0 for p in (explained[i], before)]
-        if shared[0] > 0.5 and shared[0] > shared[1]:
-            for f in fields:
-                if f != "origin":
-                    fields[f][i] = getattr(poses, f)[i]
+        if shared[0] > MAX_SHARED and shared[0] > shared[1]:
+            _set_row(fields, i, poses, i)
             explained[i] = before
         count[explained[i]] += 1
+
+
+def _set_row(fields: dict[str, Any], i: int, source: RefinedPoses, j: int) -> None:
+    """Row `i` of `fields` (all but ``origin``) taken from row `j` of `source`."""
+    for f in fields:
+        if f != "origin":
+            fields[f][i] = getattr(source, f)[j]
 
 
 def loose_poses(
