@@ -425,6 +425,11 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     # A few isolated points (a clean scan's) stay: the scan is returned as it was.
     few = np.concatenate([surface, stray[: int(0.5 * MAX_STRAY_SHARE * len(surface))]])
     assert _without_strays(few, 0.01, None) is few
+    # A scan of strays alone has no surface: a clear error, not an empty array downstream.
+    with pytest.raises(ValueError, match="no surface at voxel"):
+        _without_strays(stray[:50], 0.01, None)
+    with pytest.raises(ValueError, match="no surface at voxel"):
+        pointclm.register_point_clouds(surface, [[0.5, 0.5, 0.5]])
     with pytest.raises(ValueError, match="radius"):
         _core.isolated_points(scan, 0.0)
     with pytest.raises(ValueError):

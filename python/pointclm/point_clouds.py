@@ -822,6 +822,13 @@ def _without_strays(points: np.ndarray, voxel: float, num_threads: int | None) -
     within the normals' radius, 2 voxels) when they are more than `MAX_STRAY_SHARE` of it;
     else as it is."""
     stray = _core.isolated_points(points, 2.0 * voxel, STRAY_NEIGHBOURS, num_threads=num_threads)
+    if stray.all():
+        # Nothing would be left to fit a normal to, nor to register.
+        raise InputError(
+            f"the scan shows no surface at voxel {voxel:.4g}: each of its {len(points)} "
+            f"downsampled point(s) has fewer than {STRAY_NEIGHBOURS} others within "
+            f"{2.0 * voxel:.4g} (2 voxels). Pass a denser scan, or a larger voxel_size"
+        )
     return points[~stray] if stray.mean() > MAX_STRAY_SHARE else points
 
 
