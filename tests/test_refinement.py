@@ -357,3 +357,85 @@ def test_a_context_refines_as_refine_poses_does() -> None:
         RefinementContext(model, scene, 0.0)
     with pytest.raises(ValueError, match="max_shared"):
         RefinementContext(model, scene, 0.1).refine(poses, max_shared=2.0)
+
+
+def test_the_scenes_own_alternatives_are_grouped_and_the_most_frequent_tried() -> None:
+    # resolve_flips' `rotations`: grouped within SCENE_TURN_DEG, none near the identity or a
+    # principal-axis turn already tried, the largest groups first (ties: the first found), at
+    # most MAX_SCENE_TURNS, each a turn about the centroid.
+    from pointclm.refinement import MAX_SCENE_TURNS, SCENE_TURN_DEG, _shape
+
+    src = _blob()
+    shape = _shape(src, 0.05)
+    tried = shape.half_turns(0.01)
+    assert len(tried) and MAX_SCENE_TURNS == 3
+    a, b, c, d = (
+        _rot(axis, deg)
+        for axis, deg in (
+            ([1, 1, 0], 120.0),
+            ([0, 1, 1], 100.0),
+            ([1, 0, 1], 70.0),
+            ([1, -1, 0], 140.0),
+        )
+    )
+    near_a = _rot([1, 1, 0], 120.0 + 0.5 * SCENE_TURN_DEG)
+    small = _rot([0, 0, 1], 0.5 * SCENE_TURN_DEG)
+    rotations = [np.eye(3), small, tried[0][:3, :3], b, a, near_a, a, c, c, c, d]
+    turns = shape.scene_turns(np.array(rotations), tried, 0.01)
+    assert len(turns) == 3
+    for got, want in zip(turns, (a, c, b), strict=True):
+        np.testing.assert_allclose(got[:3, :3], want, atol=1e-12)
+    centre = src.mean(0)
+    for turn in turns:
+        np.testing.assert_allclose(turn[:3, :3] @ centre + turn[:3, 3], centre, atol=1e-12)
+
+
+def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_scenes_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The slab posed a quarter turn off, with the principal-axis quarter turns withheld: the
+    # pose stays wrong, unless the turn comes in `rotations` (as a duplicate on the same copy
+    # at the right rotation would give it).
+    from pointclm import refinement
+    from pointclm.refinement import quarter_turns, resolve_flips
+
+    src = _slab_with_a_block()
+    voxel = 0.04
+    turn = quarter_turns(src, voxel)[0]
+    truth = _pose([0.2, 0.3, 1.0], 25.0, [0.4, -0.1, 0.3])
+    scan = _apply(truth, src)
+    refined = pointclm.refine_poses(
+        src,
+        scan,
+        (truth @ turn)[None],
+        voxel,
+        max_shared=1.0,
+        min_fitness=0.0,
+        min_relative_fitness=0.0,
+    )
+    monkeypatch.setattr(refinement._Shape, "quarter_turns", lambda self, *_: np.empty((0, 4, 4)))
+    stays, _ = resolve_flips(src, scan, refined, voxel)
+    assert rotation_error_deg(stays.transformations[:, :3, :3], truth[:3, :3])[0] > 80.0
+    back = np.linalg.inv(turn)[None, :3, :3]
+    fixed, _ = resolve_flips(src, scan, refined, voxel, rotations=back)
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(scan).query(_apply(fixed.transformations[0], src))
+    assert fixed.fitness[0] == 1.0 and dist.max() < 0.25 * voxel
+
+
+def test_resolve_flips_rotations_are_checked() -> None:
+    from pointclm.refinement import resolve_flips
+
+    src = _blob()
+    truth = _pose([0.3, 1.0, 0.2], 40.0, [0.2, 0.1, -0.3])
+    scan = _apply(truth, src)
+    refined = pointclm.refine_poses(src, scan, truth[None], 0.05)
+    with pytest.raises(ValueError, match=r"shape \(K, 3, 3\)"):
+        resolve_flips(src, scan, refined, 0.05, rotations=np.eye(4)[None])
+    with pytest.raises(ValueError, match="non-finite"):
+        resolve_flips(src, scan, refined, 0.05, rotations=np.full((1, 3, 3), np.nan))
+    # A near-rotation is made one; the identity is no alternative: the same result.
+    base, _ = resolve_flips(src, scan, refined, 0.05)
+    same, _ = resolve_flips(src, scan, refined, 0.05, rotations=[np.eye(3) * (1 + 1e-7)])
+    np.testing.assert_array_equal(same.transformations, base.transformations)

@@ -311,11 +311,16 @@ class Pass:
     #: `HEAP_VOTED_POSES`; empty otherwise), judged beside ``result``'s: an accepted pose's
     #: ``CloudInstance.matches`` is None when it came from here.
     voted: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
+    #: (D, 4, 4) poses of this pass that passed verification on a copy already accepted
+    #: (peeling's duplicate check); their rotations relative to that copy's pose are the
+    #: scene's own alternatives for :func:`pointclm.refinement.resolve_flips`.
+    duplicates: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
 
     def __repr__(self) -> str:
         return (
             f"Pass(correspondences={len(self.correspondences)}, candidates={len(self.result)}, "
-            f"voted={len(self.voted)}, scan_points={len(self.scan_points)}, added={self.added})"
+            f"voted={len(self.voted)}, scan_points={len(self.scan_points)}, added={self.added}, "
+            f"duplicates={len(self.duplicates)})"
         )
 
 
@@ -895,7 +900,7 @@ def _register(
     if refine and peel and len(tags):
         refined, tags = _peel(run, refined, tags, passes, cfg)
     t6 = time.perf_counter()
-    refined, tags = _settle(run, refined, tags, refine and flips)
+    refined, tags = _settle(run, refined, tags, refine and flips, passes)
     t7 = time.perf_counter()
     stage = dict(result.timings)
     timings = {
@@ -1188,14 +1193,17 @@ def _peel_round(
     # A voted pose's origin names its row of `voted` (past len(result)), screened or not.
     rows = np.concatenate([np.arange(len(result)), len(result) + reach])
     new = _without_weak_votes(new._replace(origin=rows[new.origin]), len(result), refined)
+    duplicates = np.empty((0, 4, 4))
     if len(new.origin) and new.by_visibility and refined.by_visibility:
-        refined, tags = _add_seen(run, scan_tree, refined, tags, new, round_, unexplained)
+        refined, tags, duplicates = _add_seen(
+            run, scan_tree, refined, tags, new, round_, unexplained
+        )
     elif len(new.origin):
         refined, tags = _reverify(run, refined, tags, new, round_)
         # Re-verification may also drop accepted poses: recompute what is explained.
         unexplained = _unexplained(run, refined.transformations)
     added = sum(t[0] == round_ for t in tags)  # the copies this round added
-    return refined, tags, unexplained, Pass(corr, result, free, added, voted)
+    return refined, tags, unexplained, Pass(corr, result, free, added, voted, duplicates)
 
 
 #: Model points (evenly strided) the screen of voted poses counts (:func:`_within_reach`),
@@ -1253,19 +1261,21 @@ def _add_seen(
     new: RefinedPoses,
     round_: int,
     unexplained: np.ndarray,
-) -> tuple[RefinedPoses, list[tuple[int, int]]]:
+) -> tuple[RefinedPoses, list[tuple[int, int]], np.ndarray]:
     """A round's poses judged by visibility joined to the accepted ones: such a verdict does
     not depend on the other poses, so only duplicates of accepted copies are dropped, then
-    the lists are merged. The new copies' points leave `unexplained` (in place)."""
+    the lists are merged; and the dropped duplicates' poses. The new copies' points leave
+    `unexplained` (in place)."""
     taken = ~unexplained
     keep = _not_duplicates(scan_tree, run.src_d.points, new.transformations, run.voxel, taken)
+    duplicates = np.delete(new.transformations, keep, axis=0)
     if not keep:
-        return refined, tags
+        return refined, tags, duplicates
     kept = _take(new, keep)
     refined, tags = _merge(refined, tags, kept, [(round_, int(new.origin[i])) for i in keep])
     # The accepted set only grew: the new copies' points join the explained ones.
     unexplained &= _unexplained(run, kept.transformations)
-    return refined, tags
+    return refined, tags, duplicates
 
 
 def _reverify(
@@ -1284,22 +1294,44 @@ def _reverify(
 
 
 def _settle(
-    run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]], flips: bool
+    run: _Run,
+    refined: RefinedPoses,
+    tags: list[tuple[int, int]],
+    flips: bool,
+    passes: list[Pass],
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """The scene's accepted poses, final: half turns resolved (if asked), then, when the
     sensor judged them, those that fit loosely against the others dropped
     (:func:`pointclm.refinement.loose_poses`). Why only at the end: the comparison needs every
     copy the scan shows, and peeling needs the dropped poses' scan points explained."""
     if flips and len(tags):
-        refined, tags = _resolve_flips(run, refined, tags)
+        refined, tags = _resolve_flips(run, refined, tags, _duplicate_turns(run, refined, passes))
     if not refined.by_visibility:
         return refined, tags
     keep = np.flatnonzero(~loose_poses(refined.visible_rmse))
     return _take(refined, keep), [tags[int(i)] for i in keep]
 
 
+def _duplicate_turns(run: _Run, refined: RefinedPoses, passes: list[Pass]) -> np.ndarray:
+    """(D, 3, 3) each duplicate the passes dropped (``Pass.duplicates``), as a rotation of the
+    model relative to the accepted pose whose copy it lies on (the nearest by the posed
+    model's centroid)."""
+    duplicates = np.concatenate([p.duplicates for p in passes]).reshape(-1, 4, 4)
+    accepted = refined.transformations
+    if len(duplicates) == 0 or len(accepted) == 0:
+        return np.empty((0, 3, 3))
+    centre = run.src_d.points.mean(0)
+    centres = accepted[:, :3, :3] @ centre + accepted[:, :3, 3]
+    turns = []
+    for pose in duplicates:
+        gap = np.linalg.norm(centres - (pose[:3, :3] @ centre + pose[:3, 3]), axis=1)
+        home = accepted[int(np.argmin(gap))]
+        turns.append(home[:3, :3].T @ pose[:3, :3])
+    return np.array(turns)
+
+
 def _resolve_flips(
-    run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]]
+    run: _Run, refined: RefinedPoses, tags: list[tuple[int, int]], rotations: np.ndarray
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """The accepted poses with half-turned alternatives the scan supports better
     (:func:`pointclm.refinement.resolve_flips`), surest first."""
@@ -1312,6 +1344,7 @@ def _resolve_flips(
         target_normals=run.tgt_d.normals,
         num_threads=run.num_threads,
         context=run.refiner,
+        rotations=rotations,
     )
     return flipped, [tags[int(i)] for i in order]
 

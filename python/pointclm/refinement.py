@@ -118,6 +118,18 @@ FLIP_EVIDENCE_RATIO = 4.0
 #: See `FLIP_EVIDENCE_RATIO`: the alternative's count must exceed the pose's by this many
 #: times the square root of their sum (a sign test at about three sigmas).
 FLIP_EVIDENCE_SIGMAS = 3.0
+#: :func:`resolve_flips` also tries the scene's own alternatives (``rotations``: in
+#: ``register_point_clouds``, the rotations of the poses that peeling dropped as duplicates of
+#: an accepted copy, relative to that copy's pose), grouped when within this many degrees of
+#: each other: the registration benchmarks' rotation bound, within which two poses of a copy
+#: count as the same. Why: the wrong poses left among the validation bins' first five were
+#: turned about axes 8-41 degrees off every principal axis, which no principal-axis turn
+#: reaches, while for 3 of those 5 poses a candidate of a peeling round had settled on the
+#: same copy at the right rotation (BENCHMARKS.md, bins, stop 40).
+SCENE_TURN_DEG = 15.0
+#: At most this many of the scene's alternatives are tried, the most frequent first: as many
+#: as the principal-axis half turns (each costs one ICP per pose).
+MAX_SCENE_TURNS = 3
 #: Without a viewpoint: poses explaining less of the model are rejected whatever the rest of
 #: the scene holds.
 MIN_FITNESS = 0.3
@@ -406,6 +418,16 @@ class _Shape:
         self.axes = axes.T
         self.tree = cKDTree(src)
 
+    def turns(self, by_visibility: bool, rotations: np.ndarray) -> tuple[np.ndarray, int]:
+        """:func:`resolve_flips`' turns (half turns first, then quarter turns, then the
+        scene's own from `rotations`) and how many are half turns."""
+        # Judged by the share of the model alone, a small change is not told from noise.
+        min_change = MIN_FLIP_CHANGE if by_visibility else MIN_FLIP_CHANGE_BY_FITNESS
+        half = self.half_turns(min_change)
+        turns = np.concatenate([half, self.quarter_turns(min_change, MAX_QUARTER_TURN_CHANGE)])
+        scene = self.scene_turns(rotations, turns, min_change)
+        return np.concatenate([turns, scene]), len(half)
+
     def half_turns(self, min_change: float) -> np.ndarray:
         """:func:`flip_turns`."""
         return self._kept([2.0 * np.outer(a, a) - np.eye(3) for a in self.axes], min_change)
@@ -417,6 +439,28 @@ class _Shape:
             cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
             rotations += [np.eye(3) + way * cross + cross @ cross for way in (1.0, -1.0)]
         return self._kept(rotations, min_change, max_change)
+
+    def scene_turns(
+        self, rotations: np.ndarray, tried: np.ndarray, min_change: float
+    ) -> np.ndarray:
+        """:func:`resolve_flips`' turns from `rotations` (3 x 3 each): grouped within
+        `SCENE_TURN_DEG` degrees (each joins the first group whose first rotation is that near),
+        groups within it of the identity or of a turn already `tried` left out, the
+        `MAX_SCENE_TURNS` largest kept (ties: the first found), each moving at least
+        `min_change` of the model."""
+        groups: list[list[np.ndarray]] = []
+        for rot in rotations:
+            if _degrees(rot, np.eye(3)) < SCENE_TURN_DEG:
+                continue
+            if any(_degrees(rot, t[:3, :3]) < SCENE_TURN_DEG for t in tried):
+                continue
+            home = next((g for g in groups if _degrees(g[0], rot) < SCENE_TURN_DEG), None)
+            if home is None:
+                groups.append([rot])
+            else:
+                home.append(rot)
+        groups.sort(key=len, reverse=True)  # stable: ties keep the order found
+        return self._kept([g[0] for g in groups[:MAX_SCENE_TURNS]], min_change)
 
     def _kept(
         self, rotations: list[np.ndarray], min_change: float, max_change: float = 1.0
@@ -433,6 +477,27 @@ class _Shape:
         return np.array(kept).reshape(-1, 4, 4)
 
 
+def _degrees(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between two rotations (3 x 3), in degrees."""
+    cos = (np.trace(a.T @ b) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
+    """(K, 3, 3) finite rotations, each made exactly orthonormal (the nearest rotation)."""
+    if rotations is None:
+        return np.empty((0, 3, 3))
+    rot = np.asarray(rotations, dtype=np.float64)
+    if rot.ndim != 3 or rot.shape[1:] != (3, 3):
+        raise ValueError(f"rotations must have shape (K, 3, 3), got {rot.shape}")
+    if not np.isfinite(rot).all():
+        raise ValueError("rotations has a non-finite value (NaN or inf)")
+    u, _, vt = np.linalg.svd(rot)
+    sign = np.sign(np.linalg.det(u @ vt))
+    u[:, :, 2] *= sign[:, None]
+    return u @ vt
+
+
 def resolve_flips(
     source_points: ArrayLike,
     target_points: ArrayLike,
@@ -443,6 +508,7 @@ def resolve_flips(
     target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
     context: RefinementContext | None = None,
+    rotations: ArrayLike | None = None,
 ) -> tuple[RefinedPoses, np.ndarray]:
     """Verified `poses` with each replaced by a turned alternative the scan supports better,
     surest first, and the row of `poses` each came from.
@@ -467,13 +533,11 @@ def resolve_flips(
     the part that differs): its ``confidence`` is divided by one plus their number, so poses
     whose rotation the scan settles come first. Turns mapping the model onto itself are not
     tried (`MIN_FLIP_CHANGE`; `MIN_FLIP_CHANGE_BY_FITNESS` without a viewpoint). `context`: a
-    :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse.
+    :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse. `rotations`
+    (K x 3 x 3): the scene's own alternatives, tried like the quarter turns (`SCENE_TURN_DEG`).
     """
     shape = _shape(source_points, voxel_size)
-    # Judged by the share of the model alone, a small change is not told from noise.
-    min_change = MIN_FLIP_CHANGE if poses.by_visibility else MIN_FLIP_CHANGE_BY_FITNESS
-    half = shape.half_turns(min_change)
-    turns = np.concatenate([half, shape.quarter_turns(min_change, MAX_QUARTER_TURN_CHANGE)])
+    turns, half = shape.turns(poses.by_visibility, _as_rotations(rotations))
     n = len(poses.transformations)
     if n == 0 or len(turns) == 0:
         return poses, np.arange(n)
@@ -489,7 +553,7 @@ def resolve_flips(
         )
     alt = _scored(context, candidates, num_threads)
     evidence = _TurnEvidence(shape, pp.as_points(target_points, "target_points"))
-    fields, turned = _with_better_turns(poses, alt, len(turns), len(half), evidence)
+    fields, turned = _with_better_turns(poses, alt, len(turns), half, evidence)
     _undo_turns_onto_other_copies(poses, fields, turned, evidence)
     order = np.argsort(-fields["confidence"], kind="stable")
     return poses._replace(**{f: v[order] for f, v in fields.items()}), order
