@@ -439,3 +439,5 @@ def test_resolve_flips_rotations_are_checked() -> None:
     base, _ = resolve_flips(src, scan, refined, 0.05)
     same, _ = resolve_flips(src, scan, refined, 0.05, rotations=[np.eye(3) * (1 + 1e-7)])
     np.testing.assert_array_equal(same.transformations, base.transformations)
+    none, _ = resolve_flips(src, scan, refined, 0.05, rotations=[])
+    np.testing.assert_array_equal(none.transformations, base.transformations)

@@ -488,6 +488,8 @@ def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
     if rotations is None:
         return np.empty((0, 3, 3))
     rot = np.asarray(rotations, dtype=np.float64)
+    if rot.size == 0:
+        return np.empty((0, 3, 3))
     if rot.ndim != 3 or rot.shape[1:] != (3, 3):
         raise ValueError(f"rotations must have shape (K, 3, 3), got {rot.shape}")
     if not np.isfinite(rot).all():
