@@ -29,6 +29,7 @@ from .docstrings import fill
 from .embedding import Embedding, resolve
 from .errors import InputError
 from .refinement import (
+    _KEEP_ALL,
     MAX_CONTRADICTION,
     MAX_SHARED,
     MIN_FITNESS,
@@ -860,18 +861,6 @@ def _median_distance(reference: np.ndarray, queries: np.ndarray, num_threads: in
     return float(np.median(np.sqrt(np.maximum(dist2, 0.0))))
 
 
-#: Scores only: `refine_poses` with these rejects nothing but duplicates (and keeps those
-#: with ``max_shared=1``).
-_KEEP_ALL: dict[str, Any] = {
-    "min_fitness": 0.0,
-    "min_relative_fitness": 0.0,
-    "min_visible_fitness": 0.0,
-    "max_contradiction": 1.0,
-    "min_seen": 0.0,
-    "max_slid_fitness": 1.0,
-}
-
-
 def _register(
     run: _Run, config: Config | dict[str, Any] | None, refine: bool, peel: bool, flips: bool = False
 ) -> PointCloudRegistration:
@@ -1321,13 +1310,11 @@ def _duplicate_turns(run: _Run, refined: RefinedPoses, passes: list[Pass]) -> np
     if len(duplicates) == 0 or len(accepted) == 0:
         return np.empty((0, 3, 3))
     centre = run.src_d.points.mean(0)
-    centres = accepted[:, :3, :3] @ centre + accepted[:, :3, 3]
-    turns = []
-    for pose in duplicates:
-        gap = np.linalg.norm(centres - (pose[:3, :3] @ centre + pose[:3, 3]), axis=1)
-        home = accepted[int(np.argmin(gap))]
-        turns.append(home[:3, :3].T @ pose[:3, :3])
-    return np.array(turns)
+    homes = accepted[:, :3, :3] @ centre + accepted[:, :3, 3]
+    posed = duplicates[:, :3, :3] @ centre + duplicates[:, :3, 3]
+    home = np.argmin(np.linalg.norm(posed[:, None] - homes[None], axis=2), axis=1)
+    # R_home^T R_duplicate: the duplicate's rotation in the home pose's model frame.
+    return accepted[home, :3, :3].transpose(0, 2, 1) @ duplicates[:, :3, :3]
 
 
 def _resolve_flips(

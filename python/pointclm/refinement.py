@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
+from .metrics import rotation_error_deg
 from .registration import as_threads
 
 __all__ = [
@@ -150,6 +151,17 @@ MAX_RELATIVE_VISIBLE_RMSE = 1.3
 #: `MAX_RELATIVE_VISIBLE_RMSE` compares a pose with the scene's median only among this many
 #: poses or more: with two, the median is their mean and says nothing about which is loose.
 MIN_POSES_TO_COMPARE = 3
+
+#: Scores only: `refine_poses` with these rejects nothing but duplicates (and keeps those
+#: with ``max_shared=1``).
+_KEEP_ALL: dict[str, Any] = {
+    "min_fitness": 0.0,
+    "min_relative_fitness": 0.0,
+    "min_visible_fitness": 0.0,
+    "max_contradiction": 1.0,
+    "min_seen": 0.0,
+    "max_slid_fitness": 1.0,
+}
 
 
 class RefinedPoses(NamedTuple):
@@ -448,13 +460,12 @@ class _Shape:
         groups within it of the identity or of a turn already `tried` left out, the
         `MAX_SCENE_TURNS` largest kept (ties: the first found), each moving at least
         `min_change` of the model."""
+        known = np.concatenate([np.eye(3)[None], tried[:, :3, :3]])
         groups: list[list[np.ndarray]] = []
         for rot in rotations:
-            if _degrees(rot, np.eye(3)) < SCENE_TURN_DEG:
+            if (rotation_error_deg(known, rot) < SCENE_TURN_DEG).any():
                 continue
-            if any(_degrees(rot, t[:3, :3]) < SCENE_TURN_DEG for t in tried):
-                continue
-            home = next((g for g in groups if _degrees(g[0], rot) < SCENE_TURN_DEG), None)
+            home = next((g for g in groups if rotation_error_deg(g[0], rot) < SCENE_TURN_DEG), None)
             if home is None:
                 groups.append([rot])
             else:
@@ -475,12 +486,6 @@ class _Shape:
             if min_change <= float(np.mean(dist > self.radius)) <= max_change:
                 kept.append(turn)
         return np.array(kept).reshape(-1, 4, 4)
-
-
-def _degrees(a: np.ndarray, b: np.ndarray) -> float:
-    """The angle between two rotations (3 x 3), in degrees."""
-    cos = (np.trace(a.T @ b) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
@@ -565,17 +570,7 @@ def _scored(
     context: RefinementContext, candidates: np.ndarray, num_threads: int | None
 ) -> RefinedPoses:
     """Every candidate refined by ICP and scored, none rejected."""
-    return context.refine(
-        candidates,
-        min_visible_fitness=0.0,
-        max_contradiction=1.0,
-        min_seen=0.0,
-        min_fitness=0.0,
-        max_slid_fitness=1.0,
-        min_relative_fitness=0.0,
-        max_shared=1.0,
-        num_threads=num_threads,
-    )
+    return context.refine(candidates, **_KEEP_ALL, max_shared=1.0, num_threads=num_threads)
 
 
 class _TurnEvidence:
