@@ -153,3 +153,23 @@ fn bad_input_is_an_error_and_an_empty_scene_no_pose() {
     assert!(model.poses(&mp, &mn, &[], 0).unwrap().is_empty());
     assert!(model.poses(&mp, &mn, &[4], 0).unwrap().is_empty());
 }
+
+#[test]
+fn turns_between_angles_wrap_around_the_circle() {
+    let bins = 30u64;
+    let bin = |a: f64, b: f64| {
+        PpfParams::bin_of(
+            PpfParams::in_turns(a).wrapping_sub(PpfParams::in_turns(b)),
+            bins,
+        )
+    };
+    let step = TAU / bins as f64;
+    // Across zero either way, and angles given outside [0, 2 pi).
+    assert_eq!(bin(0.01, TAU - 0.01), 0);
+    assert_eq!(bin(TAU - 0.01, 0.01), 29);
+    assert_eq!(bin(-0.5 * step, 0.0), 29);
+    assert_eq!(bin(2.5 * step + TAU, 0.0), 2);
+    for k in 0..30 {
+        assert_eq!(bin((k as f64 + 0.5) * step + 1.0, 1.0), k);
+    }
+}
