@@ -484,3 +484,21 @@ def test_only_a_scan_reaching_past_one_model_decides_its_side_by_sight() -> None
     floor = np.c_[rng.uniform(-3, 3, size=(2000, 2)) * SCENE_EXTENT * 2, np.zeros(2000)]
     assert not _spans_a_scene(alone, model)
     assert _spans_a_scene(np.vstack([alone - 5.0, floor]), model)
+
+
+def test_unexplained_points_are_those_no_posed_copy_reaches() -> None:
+    from pointclm.point_clouds import unexplained_points
+
+    rng = np.random.default_rng(3)
+    model = rng.uniform(-1.0, 1.0, (300, 3))
+    moved = np.eye(4)
+    moved[:3, 3] = [5.0, 0.0, 0.0]
+    far = rng.uniform(20.0, 21.0, (50, 3))
+    scan = np.concatenate([model + [5.0, 0.0, 0.0], far])
+    expected = np.r_[np.zeros(300, bool), np.ones(50, bool)]
+    for threads in (None, 1, 2):
+        mask = unexplained_points(scan, model, moved[None], 0.05, num_threads=threads)
+        np.testing.assert_array_equal(mask, expected)
+    assert unexplained_points(scan, model, np.empty((0, 4, 4)), 0.05).all()
+    with pytest.raises(ValueError, match="num_threads"):
+        unexplained_points(scan, model, moved[None], 0.05, num_threads=0)

@@ -1084,15 +1084,22 @@ def _match(
 
 
 def unexplained_points(
-    target_points: np.ndarray, source_points: np.ndarray, transformations: np.ndarray, radius: float
+    target_points: np.ndarray,
+    source_points: np.ndarray,
+    transformations: np.ndarray,
+    radius: float,
+    *,
+    num_threads: int | None = None,
 ) -> np.ndarray:
-    """Mask of the target points farther than `radius` from every posed source point."""
+    """Mask of the target points farther than `radius` from every posed source point, searched
+    on `num_threads` threads (None: every core)."""
     from scipy.spatial import cKDTree
 
     if len(transformations) == 0:
         return np.ones(len(target_points), dtype=bool)
     posed = np.concatenate([source_points @ T[:3, :3].T + T[:3, 3] for T in transformations])
-    d, _ = cKDTree(posed).query(target_points, k=1, distance_upper_bound=radius)
+    tree = cKDTree(posed)
+    d, _ = tree.query(target_points, distance_upper_bound=radius, workers=_workers(num_threads))
     return ~np.isfinite(d)
 
 
@@ -1100,7 +1107,15 @@ def _unexplained(run: _Run, transformations: np.ndarray) -> np.ndarray:
     """Mask of the scan points no copy at `transformations` explains (within
     `PEEL_RADIUS_VOXELS`)."""
     radius = PEEL_RADIUS_VOXELS * run.voxel
-    return unexplained_points(run.tgt_d.points, run.src_d.points, transformations, radius)
+    return unexplained_points(
+        run.tgt_d.points, run.src_d.points, transformations, radius, num_threads=run.num_threads
+    )
+
+
+def _workers(num_threads: int | None) -> int:
+    """scipy's ``workers`` for `num_threads` (None: every core, as the core's pool)."""
+    threads = as_threads(num_threads)
+    return -1 if threads is None else threads
 
 
 def _peel(
@@ -1219,7 +1234,11 @@ def _within_reach(
     model = run.src_d.points[:: -(-len(run.src_d.points) // _SCREEN_POINTS)]
     floor = _vote_floor(accepted.fitness)
     posed = np.einsum("kij,nj->kni", voted[:, :3, :3], model) + voted[:, None, :3, 3]
-    d, _ = scan_tree.query(posed.reshape(-1, 3), distance_upper_bound=3.0 * run.voxel)
+    d, _ = scan_tree.query(
+        posed.reshape(-1, 3),
+        distance_upper_bound=3.0 * run.voxel,
+        workers=_workers(run.num_threads),
+    )
     near = np.isfinite(d).reshape(len(voted), len(model)).mean(axis=1)
     return rows[near >= floor]
 
