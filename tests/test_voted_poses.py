@@ -3,6 +3,7 @@ the heap passes of `register_point_clouds` propose beside their descriptor clust
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -111,6 +112,32 @@ def test_heap_passes_judge_voted_poses_beside_the_clusters(scene) -> None:
             assert inst.pass_index >= 1 and len(inst) == 0 and inst.inliers.size == 0
     again = _register(scene, heap=True, num_threads=2)
     np.testing.assert_array_equal(again.transformations, reg.transformations)
+
+
+def test_a_round_votes_beside_its_clustering(scene, monkeypatch) -> None:
+    # Voting runs on a second thread while the round's correspondences are clustered; its
+    # result is the same, and its errors reach the caller.
+    threads: list[int] = []
+    original = pc._Run.voted_poses
+
+    def recording(self: Any, rows: np.ndarray, offset: int) -> np.ndarray:
+        threads.append(threading.get_ident())
+        return original(self, rows, offset)
+
+    monkeypatch.setattr(pc._Run, "voted_poses", recording)
+    reg = _register(scene, heap=True, num_threads=2)
+    assert threads and threading.get_ident() not in threads
+    monkeypatch.setattr(pc._Run, "voted_poses", original)
+    np.testing.assert_array_equal(
+        _register(scene, heap=True, num_threads=2).transformations, reg.transformations
+    )
+
+    def failing(*_: Any, **__: Any) -> None:
+        raise RuntimeError("voting failed")
+
+    monkeypatch.setattr(pc._Run, "voted_poses", failing)
+    with pytest.raises(RuntimeError, match="voting failed"):
+        _register(scene, heap=True, num_threads=2)
 
 
 @pytest.mark.parametrize("heap", [False, None])

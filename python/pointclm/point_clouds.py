@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import cache, cached_property
 from typing import Any
@@ -1180,15 +1181,10 @@ def _peel_round(
     """One peeling round over the scan points `free`, matched with `matching`: the accepted
     poses, tags and unexplained mask after it, and its pass; None when matching leaves fewer
     than 3 correspondences."""
-    seed = run.seed + round_
-    corr, pair_normals, sims = _match(run, free, seed, matching)
-    if len(corr) < 3:
+    stage = _clustered_and_voted(run, cfg, round_, free, matching)
+    if stage is None:
         return None
-    features = run.features(corr, cfg, pair_normals, sims)
-    result = register(corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals)
-    # Voted poses follow the clusters' (tags past len(result) name them).
-    heap_round = run.heap and matching is run.heap_matching
-    voted = run.voted_poses(free, round_) if heap_round else np.empty((0, 4, 4))
+    corr, result, voted = stage
     reach = _within_reach(run, scan_tree, voted, refined)
     candidates = np.concatenate(
         [np.asarray(result.transformations).reshape(-1, 4, 4), voted[reach]]
@@ -1208,6 +1204,34 @@ def _peel_round(
         unexplained = _unexplained(run, refined.transformations)
     added = sum(t[0] == round_ for t in tags)  # the copies this round added
     return refined, tags, unexplained, Pass(corr, result, free, added, voted, duplicates)
+
+
+def _clustered_and_voted(
+    run: _Run, cfg: Config, round_: int, free: np.ndarray, matching: dict[str, Any] | None
+) -> tuple[np.ndarray, RegistrationResult, np.ndarray] | None:
+    """A peeling round's candidates over the scan points `free`: its correspondences and
+    their registration, and the poses voted by point pairs when the round matches as in a
+    heap (else none); None when matching leaves fewer than 3 correspondences.
+
+    Why voting runs on a second Python thread: it does not depend on the round's clusters,
+    and their spectral clustering (the eigenvectors, the k-means seedings) runs on one
+    thread, so voting keeps the pool's other threads busy meanwhile. Both calls share the
+    core's pool for `run.num_threads`, and each gives the same result however its work is
+    scheduled."""
+    seed = run.seed + round_
+    heap_round = run.heap and matching is run.heap_matching
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        votes = beside.submit(run.voted_poses, free, round_) if heap_round else None
+        corr, pair_normals, sims = _match(run, free, seed, matching)
+        if len(corr) < 3:
+            return None
+        features = run.features(corr, cfg, pair_normals, sims)
+        result = register(
+            corr, features, cfg, seed, num_threads=run.num_threads, normals=pair_normals
+        )
+        # Voted poses follow the clusters' (tags past len(result) name them).
+        voted = np.empty((0, 4, 4)) if votes is None else votes.result()
+    return corr, result, voted
 
 
 #: Model points (evenly strided) the screen of voted poses counts (:func:`_within_reach`),
