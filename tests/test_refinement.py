@@ -441,3 +441,7 @@ def test_resolve_flips_rotations_are_checked() -> None:
     np.testing.assert_array_equal(same.transformations, base.transformations)
     none, _ = resolve_flips(src, scan, refined, 0.05, rotations=[])
     np.testing.assert_array_equal(none.transformations, base.transformations)
+    # A scaled matrix or a reflection is no rotation, whatever its nearest rotation would be.
+    for wrong in (np.eye(3) * 1.01, np.diag([1.0, 1.0, -1.0])):
+        with pytest.raises(ValueError, match=r"rotations\[1\] is not a rotation"):
+            resolve_flips(src, scan, refined, 0.05, rotations=[np.eye(3), wrong])

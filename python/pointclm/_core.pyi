@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 __all__ = [
     "__version__",
+    "MAX_ROTATION_DEVIATION",
     "Instance",
     "Network",
     "PpfModel",
@@ -43,6 +44,9 @@ __all__ = [
 ]
 
 __version__: str
+#: How far from a rotation a 3x3 block may be (``||R^T R - I||_F``) and still be taken for one
+#: (and replaced by the nearest rotation): rounding of poses written with 6-8 digits.
+MAX_ROTATION_DEVIATION: float
 
 @final
 class Instance:

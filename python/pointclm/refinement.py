@@ -489,7 +489,10 @@ class _Shape:
 
 
 def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
-    """(K, 3, 3) finite rotations, each made exactly orthonormal (the nearest rotation)."""
+    """(K, 3, 3) finite rotations, each made exactly orthonormal (the nearest rotation), as
+    the core takes the rotation block of a pose: within `MAX_ROTATION_DEVIATION` of
+    orthonormal (``||R^T R - I||_F``) with a positive determinant, so that a scaled matrix or
+    a reflection is an error, not silently made a rotation."""
     if rotations is None:
         return np.empty((0, 3, 3))
     rot = np.asarray(rotations, dtype=np.float64)
@@ -499,6 +502,15 @@ def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
         raise ValueError(f"rotations must have shape (K, 3, 3), got {rot.shape}")
     if not np.isfinite(rot).all():
         raise ValueError("rotations has a non-finite value (NaN or inf)")
+    deviation = np.linalg.norm(rot.transpose(0, 2, 1) @ rot - np.eye(3), axis=(1, 2))
+    bad = np.flatnonzero((deviation > _core.MAX_ROTATION_DEVIATION) | (np.linalg.det(rot) <= 0))
+    if len(bad):
+        k = int(bad[0])
+        raise ValueError(
+            f"rotations[{k}] is not a rotation (||R^T R - I|| = {deviation[k]:.2e}, at most "
+            f"{_core.MAX_ROTATION_DEVIATION:.0e} is taken for rounding; determinant must be "
+            "positive)"
+        )
     u, _, vt = np.linalg.svd(rot)
     sign = np.sign(np.linalg.det(u @ vt))
     u[:, :, 2] *= sign[:, None]

@@ -267,6 +267,10 @@ fn config_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add(
+        "MAX_ROTATION_DEVIATION",
+        pointclm::pointcloud::MAX_ROTATION_DEVIATION,
+    )?;
     m.add_class::<PyInstance>()?;
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyNetwork>()?;
