@@ -60,7 +60,9 @@ fn plus_plus_init(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha
     let row = |i: usize| &data[i * dim..(i + 1) * dim];
     let mut centers = Vec::with_capacity(k * dim);
     centers.extend_from_slice(row(rng.random_range(0..n)));
-    let mut d2: Vec<f64> = (0..n).map(|i| dist_sq(row(i), &centers[..dim])).collect();
+    // `f64::min` with NaN is the other value: the first update sets every distance.
+    let mut d2 = vec![f64::NAN; n];
+    nearer(&mut d2, data, dim, &centers[..dim]);
     for _ in 1..k {
         let total: f64 = d2.iter().sum();
         let pick = if total > 0.0 {
@@ -79,11 +81,33 @@ fn plus_plus_init(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha
         };
         let start = centers.len();
         centers.extend_from_slice(row(pick));
-        for (i, d) in d2.iter_mut().enumerate() {
-            *d = d.min(dist_sq(row(i), &centers[start..start + dim]));
-        }
+        nearer(&mut d2, data, dim, &centers[start..start + dim]);
     }
     centers
+}
+
+/// Rows per parallel task of [`nearer`], and the values (rows x dim) below which it stays on
+/// one thread: a task must outweigh its scheduling (a few microseconds).
+const NEARER_ROWS: usize = 256;
+const NEARER_SERIAL_VALUES: usize = 1 << 14;
+
+/// Lowers each row's squared distance in `d2` to that to `center`. Why in parallel: the
+/// seedings draw from one stream one after another (so that labels do not depend on the
+/// thread count), which leaves these updates, most of a seeding's work, as the only part
+/// that can spread; each row's value is the same however the rows are split.
+fn nearer(d2: &mut [f64], data: &[f64], dim: usize, center: &[f64]) {
+    let update = |(chunk, rows): (&mut [f64], &[f64])| {
+        for (d, x) in chunk.iter_mut().zip(rows.chunks_exact(dim)) {
+            *d = d.min(dist_sq(x, center));
+        }
+    };
+    if d2.len() * dim < NEARER_SERIAL_VALUES {
+        update((d2, data));
+    } else {
+        d2.par_chunks_mut(NEARER_ROWS)
+            .zip(data.par_chunks(NEARER_ROWS * dim))
+            .for_each(update);
+    }
 }
 
 /// `centers` (`k` rows of `dim`) as `dim` rows of `k`: one value of every centre side by side.
