@@ -94,7 +94,8 @@ fn bounded_lloyd_is_the_plain_loop_exactly() {
 #[test]
 fn restarts_in_parallel_give_the_sequential_labels_whatever_the_threads() {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let (n, dim, k, restarts) = (300, 6, 7, 5);
+    // 18,000 values: the seedings' distance updates run in parallel.
+    let (n, dim, k, restarts) = (3000, 6, 7, 5);
     let data: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>()).collect();
     // The definition: seed and iterate one restart after another, keep the first best.
     let mut seq = ChaCha8Rng::seed_from_u64(5);
@@ -118,60 +119,33 @@ fn restarts_in_parallel_give_the_sequential_labels_whatever_the_threads() {
     }
 }
 
-/// k-means++ seeding as first written: every distance update in one loop.
-fn plus_plus_plain(data: &[f64], dim: usize, n: usize, k: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
-    let row = |i: usize| &data[i * dim..(i + 1) * dim];
-    let mut centers = Vec::with_capacity(k * dim);
-    centers.extend_from_slice(row(rng.random_range(0..n)));
-    let mut d2: Vec<f64> = (0..n).map(|i| dist_sq(row(i), &centers[..dim])).collect();
-    for _ in 1..k {
-        let total: f64 = d2.iter().sum();
-        let pick = if total > 0.0 {
-            let mut target = rng.random::<f64>() * total;
-            let mut chosen = n - 1;
-            for (i, &w) in d2.iter().enumerate() {
-                if target < w {
-                    chosen = i;
-                    break;
-                }
-                target -= w;
-            }
-            chosen
-        } else {
-            rng.random_range(0..n)
-        };
-        let start = centers.len();
-        centers.extend_from_slice(row(pick));
-        for (i, d) in d2.iter_mut().enumerate() {
-            *d = d.min(dist_sq(row(i), &centers[start..start + dim]));
-        }
-    }
-    centers
-}
-
 #[test]
-fn seeding_is_the_plain_loop_whatever_the_threads() {
+fn seeding_updates_are_the_plain_loop_whatever_the_threads() {
     let mut rng = ChaCha8Rng::seed_from_u64(17);
-    // Below and above the size from which the distance updates run in parallel, with
-    // repeated rows (zero distances) and a ragged last task.
-    for (n, dim, k) in [(40, 3, 5), (3001, 12, 9), (2000, 40, 40)] {
+    // Below and above the size from which the updates run in parallel, with repeated rows
+    // (zero distances) and a ragged last task; from the NaN start (the first centre) and
+    // from distances already lowered.
+    for (n, dim) in [(40, 3), (3001, 12), (2000, 40)] {
         let mut data: Vec<f64> = (0..n * dim).map(|_| rng.random::<f64>() - 0.5).collect();
         data.copy_within(0..dim * 10, dim * 20);
-        let mut plain_rng = ChaCha8Rng::seed_from_u64(n as u64);
-        let expected = plus_plus_plain(&data, dim, n, k, &mut plain_rng);
-        for threads in [1, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let mut seeded_rng = ChaCha8Rng::seed_from_u64(n as u64);
-            let got = pool.install(|| plus_plus_init(&data, dim, n, k, &mut seeded_rng));
-            assert_eq!(got, expected, "n = {n}, dim = {dim}, {threads} threads");
-            // The stream is left where the plain loop leaves it.
-            assert_eq!(
-                seeded_rng.random::<u64>(),
-                plain_rng.clone().random::<u64>()
-            );
+        let center: Vec<f64> = data[dim * 5..dim * 6].to_vec();
+        let lowered: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * 0.5).collect();
+        for start in [vec![f64::NAN; n], lowered] {
+            let expected: Vec<f64> = start
+                .iter()
+                .zip(data.chunks_exact(dim))
+                .map(|(d, x)| d.min(dist_sq(x, &center)))
+                .collect();
+            assert!(expected.iter().all(|d| d.is_finite()));
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let mut got = start.clone();
+                pool.install(|| nearer(&mut got, &data, dim, &center));
+                assert_eq!(got, expected, "n = {n}, dim = {dim}, {threads} threads");
+            }
         }
     }
 }
