@@ -201,6 +201,11 @@ def _write_truth(path: Path, content: object) -> None:
         ("t.npy", np.zeros((2, 3, 3)), ["--ground-truth", "(G, 4, 4)", "(2, 3, 3)"]),
         ("t.npy", np.full((1, 4, 4), np.nan), ["--ground-truth", "non-finite"]),
         ("t.npy", 2 * np.eye(4)[None], ["--ground-truth", "pose 0 is not a rigid transform"]),
+        (
+            "t.npy",
+            np.diag([1.0, 1.0, -1.0, 1.0])[None],
+            ["--ground-truth", "pose 0 is not a rigid transform"],
+        ),
         ("t.json", "[[1, 2], [3]]", ["--ground-truth", "could not be read as poses"]),
         ("t.json", "{not json", ["--ground-truth", "could not be read"]),
         ("t.txt", "1 0 0 0", ["--ground-truth", "expected a .npy or .json file"]),

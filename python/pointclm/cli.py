@@ -357,6 +357,7 @@ def _json_poses(raw: bytes) -> Any:
 
 
 def _checked_poses(poses: np.ndarray, what: str) -> np.ndarray:
+    from . import _core
     from .errors import InputError
 
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
@@ -364,8 +365,9 @@ def _checked_poses(poses: np.ndarray, what: str) -> np.ndarray:
     if not np.isfinite(poses).all():
         raise InputError(f"{what}: a pose has a non-finite value (NaN or inf)")
     R = poses[:, :3, :3]
-    # Loose tolerances: poses written with a few decimals are still rigid transforms.
-    rigid = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2)) < 1e-3
+    # The core's tolerance: poses written with a few decimals are still rigid transforms.
+    deviation = np.linalg.norm(R.transpose(0, 2, 1) @ R - np.eye(3), axis=(1, 2))
+    rigid = deviation <= _core.MAX_ROTATION_DEVIATION
     rigid &= np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) < 1e-9
     rigid &= np.linalg.det(R) > 0
     if not rigid.all():
