@@ -357,19 +357,16 @@ def _json_poses(raw: bytes) -> Any:
 
 
 def _checked_poses(poses: np.ndarray, what: str) -> np.ndarray:
-    from . import _core
     from .errors import InputError
+    from .preprocessing import are_rotations
 
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise InputError(f"{what}: expected (G, 4, 4) T_target_source poses, got {poses.shape}")
     if not np.isfinite(poses).all():
         raise InputError(f"{what}: a pose has a non-finite value (NaN or inf)")
-    R = poses[:, :3, :3]
     # The core's tolerance: poses written with a few decimals are still rigid transforms.
-    deviation = np.linalg.norm(R.transpose(0, 2, 1) @ R - np.eye(3), axis=(1, 2))
-    rigid = deviation <= _core.MAX_ROTATION_DEVIATION
+    rigid = are_rotations(poses[:, :3, :3])
     rigid &= np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) < 1e-9
-    rigid &= np.linalg.det(R) > 0
     if not rigid.all():
         k = int(np.flatnonzero(~rigid)[0])
         raise InputError(

@@ -98,6 +98,19 @@ def as_points(x: ArrayLike, name: str) -> np.ndarray:
     return a
 
 
+def rotation_deviation(rotations: np.ndarray) -> np.ndarray:
+    """``||R^T R - I||_F`` of each of (K, 3, 3) finite `rotations`."""
+    return np.linalg.norm(rotations.transpose(0, 2, 1) @ rotations - np.eye(3), axis=(1, 2))
+
+
+def are_rotations(rotations: np.ndarray) -> np.ndarray:
+    """Which of (K, 3, 3) finite `rotations` the core takes for rotations up to rounding (and
+    replaces by the nearest one): within `_core.MAX_ROTATION_DEVIATION` of orthonormal
+    (:func:`rotation_deviation`), with a positive determinant."""
+    within = rotation_deviation(rotations) <= _core.MAX_ROTATION_DEVIATION
+    return within & (np.linalg.det(rotations) > 0)
+
+
 def voxel_downsample(points: ArrayLike, voxel_size: float) -> np.ndarray:
     """The centroid of the points in each occupied voxel (M, 3), ordered by voxel index."""
     return _core.voxel_downsample(

@@ -502,12 +502,12 @@ def _as_rotations(rotations: ArrayLike | None) -> np.ndarray:
         raise ValueError(f"rotations must have shape (K, 3, 3), got {rot.shape}")
     if not np.isfinite(rot).all():
         raise ValueError("rotations has a non-finite value (NaN or inf)")
-    deviation = np.linalg.norm(rot.transpose(0, 2, 1) @ rot - np.eye(3), axis=(1, 2))
-    bad = np.flatnonzero((deviation > _core.MAX_ROTATION_DEVIATION) | (np.linalg.det(rot) <= 0))
+    bad = np.flatnonzero(~pp.are_rotations(rot))
     if len(bad):
         k = int(bad[0])
+        deviation = pp.rotation_deviation(rot[k : k + 1])[0]
         raise ValueError(
-            f"rotations[{k}] is not a rotation (||R^T R - I|| = {deviation[k]:.2e}, at most "
+            f"rotations[{k}] is not a rotation (||R^T R - I|| = {deviation:.2e}, at most "
             f"{_core.MAX_ROTATION_DEVIATION:.0e} is taken for rounding; determinant must be "
             "positive)"
         )
