@@ -359,6 +359,38 @@ def test_a_context_refines_as_refine_poses_does() -> None:
         RefinementContext(model, scene, 0.1).refine(poses, max_shared=2.0)
 
 
+def test_a_context_counts_what_each_pose_holds_before_icp() -> None:
+    from pointclm.refinement import RefinementContext
+    from scipy.spatial import cKDTree
+
+    model = _blob()
+    truth = _pose([0.2, 1, 0.4], 35, [4.0, 1.0, -2.0])
+    scene = np.vstack([_apply(truth, model), np.random.default_rng(1).uniform(-8, 8, (300, 3))])
+    poses = np.stack(
+        [truth, _pose([0, 0, 1], 90, [30.0, -5.0, 5.0]), truth @ _pose([1, 0, 0], 9, [0, 0, 0])]
+    )
+    context = RefinementContext(model, scene, 0.1)
+    sample = model[::3]
+    before = (poses.copy(), sample.copy())
+    for radius in (0.05, 0.2, 1.0):
+        shares = context.near_shares(poses, sample, radius, num_threads=1)
+        d, _ = cKDTree(scene).query(
+            np.einsum("kij,nj->kni", poses[:, :3, :3], sample) + poses[:, None, :3, 3]
+        )
+        np.testing.assert_array_equal(shares, (d < radius).mean(axis=1))
+        np.testing.assert_array_equal(shares, context.near_shares(poses, sample, radius))
+    assert shares[0] == 1.0 and shares[1] == 0.0
+    np.testing.assert_array_equal(before[0], poses)
+    np.testing.assert_array_equal(before[1], sample)
+    assert context.near_shares(np.empty((0, 4, 4)), sample, 0.2).shape == (0,)
+    with pytest.raises(ValueError, match="radius"):
+        context.near_shares(poses, sample, 0.0)
+    with pytest.raises(ValueError, match="points"):
+        context.near_shares(poses, sample[:, :2], 0.2)
+    with pytest.raises(ValueError, match="transformations"):
+        context.near_shares(poses[:, :3], sample, 0.2)
+
+
 def test_the_scenes_own_alternatives_are_grouped_and_the_most_frequent_tried() -> None:
     # resolve_flips' `rotations`: grouped within SCENE_TURN_DEG, none near the identity or a
     # principal-axis turn already tried, the largest groups first (ties: the first found), at

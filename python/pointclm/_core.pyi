@@ -115,6 +115,13 @@ class RefineContext:
         npt.NDArray[np.int64],
         bool,
     ]: ...
+    def near_shares(
+        self,
+        transformations: npt.NDArray[np.float64],
+        points: npt.NDArray[np.float64],
+        radius: float,
+        num_threads: int | None = None,
+    ) -> npt.NDArray[np.float64]: ...
 
 @final
 class PpfModel:

@@ -1185,7 +1185,7 @@ def _peel_round(
     if stage is None:
         return None
     corr, result, voted = stage
-    reach = _within_reach(run, scan_tree, voted, refined)
+    reach = _within_reach(run, voted, refined)
     candidates = np.concatenate(
         [np.asarray(result.transformations).reshape(-1, 4, 4), voted[reach]]
     )
@@ -1239,9 +1239,7 @@ def _clustered_and_voted(
 _SCREEN_POINTS = 500
 
 
-def _within_reach(
-    run: _Run, scan_tree: Any, voted: np.ndarray, accepted: RefinedPoses
-) -> np.ndarray:
+def _within_reach(run: _Run, voted: np.ndarray, accepted: RefinedPoses) -> np.ndarray:
     """Rows of `voted` worth refining: those that, as voted, already bring
     `VOTED_MIN_RELATIVE_FITNESS` times the median accepted copy's share of the model within
     ICP's first radius (3 voxels) of the scan; every row while no copy is accepted.
@@ -1256,15 +1254,8 @@ def _within_reach(
     if len(voted) == 0 or len(accepted.fitness) == 0:
         return rows
     model = run.src_d.points[:: -(-len(run.src_d.points) // _SCREEN_POINTS)]
-    floor = _vote_floor(accepted.fitness)
-    posed = np.einsum("kij,nj->kni", voted[:, :3, :3], model) + voted[:, None, :3, 3]
-    d, _ = scan_tree.query(
-        posed.reshape(-1, 3),
-        distance_upper_bound=3.0 * run.voxel,
-        workers=_workers(run.num_threads),
-    )
-    near = np.isfinite(d).reshape(len(voted), len(model)).mean(axis=1)
-    return rows[near >= floor]
+    near = run.refiner.near_shares(voted, model, 3.0 * run.voxel, num_threads=run.num_threads)
+    return rows[near >= _vote_floor(accepted.fitness)]
 
 
 def _without_weak_votes(new: RefinedPoses, clustered: int, accepted: RefinedPoses) -> RefinedPoses:

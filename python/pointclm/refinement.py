@@ -294,6 +294,24 @@ class RefinementContext:
             num_threads=as_threads(num_threads),
         )
 
+    def near_shares(
+        self,
+        transformations: ArrayLike,
+        points: ArrayLike,
+        radius: float,
+        *,
+        num_threads: int | None = None,
+    ) -> np.ndarray:
+        """(K,) the share of `points` (N x 3, in the source's frame) that each of
+        `transformations` (K x 4 x 4, T_target_source) puts strictly within `radius` of a
+        target point: what a pose already holds before ICP."""
+        return self._core.near_shares(
+            _as_poses(transformations),
+            pp.as_points(points, "points"),
+            pp.as_positive(radius, "radius"),
+            num_threads=as_threads(num_threads),
+        )
+
     def refine(
         self,
         transformations: ArrayLike,

@@ -526,6 +526,25 @@ impl PyRefineContext {
         let out = guarded(py, threads, move || inner.refine(&poses, &params))?;
         Ok(refined_arrays(py, &out))
     }
+
+    /// The share of `points` (source frame) each of `transformations` puts strictly within
+    /// `radius` of a scan point.
+    #[pyo3(signature = (transformations, points, radius, num_threads=None))]
+    fn near_shares<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let poses = rigid_poses(&transformations)?;
+        let pts = rows3(&points, "points")?;
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let shares = guarded(py, threads, move || inner.near_shares(&poses, &pts, radius))?;
+        Ok(shares.into_pyarray(py))
+    }
 }
 
 /// `refine_poses`' result as arrays (see its documentation).

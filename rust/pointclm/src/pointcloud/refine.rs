@@ -338,6 +338,31 @@ impl RefineContext {
             by_visibility: self.depth.is_some(),
         })
     }
+
+    /// The share of `points` (in the source's frame) that each of `poses` puts strictly
+    /// within `radius` of a scan point, in parallel on the current rayon pool. Why here:
+    /// peeling screens about a hundred voted poses a round by what they already hold before
+    /// ICP, and the context's scan grid answers each point with the first neighbour found.
+    pub fn near_shares(
+        &self,
+        poses: &[RigidTransform],
+        points: &[[f64; 3]],
+        radius: f64,
+    ) -> Result<Vec<f64>> {
+        check_points(points, "points", 1)?;
+        check_positive("radius", radius)?;
+        let n = points.len() as f64;
+        Ok(poses
+            .par_iter()
+            .map(|pose| {
+                let near = points
+                    .iter()
+                    .filter(|&&p| self.index.any_within(&pose.apply(p), radius))
+                    .count();
+                near as f64 / n
+            })
+            .collect())
+    }
 }
 
 /// Whether `scan` looks like one view from `viewpoint`: at most `max_hidden_scan` of it lies

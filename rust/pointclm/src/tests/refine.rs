@@ -486,6 +486,54 @@ fn a_context_refines_as_each_call_would() {
     }
 }
 
+#[test]
+fn near_shares_count_what_each_pose_holds_before_icp() {
+    let (model, a, b, scene) = hidden_copy_scene();
+    let far = motion([0.0, 0.0, 1.0], 90.0, [9.0, 9.0, 0.0]);
+    let poses = [a, far, b];
+    let context = RefineContext::new(
+        &model,
+        &scene,
+        None,
+        Some(EYE),
+        &RefineParams::for_voxel(0.1),
+    )
+    .unwrap();
+    for radius in [0.05, 0.3, 2.0] {
+        let shares = context.near_shares(&poses, &model, radius).unwrap();
+        // The definition, by brute force over the scan.
+        for (pose, share) in poses.iter().zip(&shares) {
+            let near = moved(&model, pose)
+                .iter()
+                .filter(|q| {
+                    scene
+                        .iter()
+                        .any(|p| crate::grid::dist_sq(p, q) < radius * radius)
+                })
+                .count();
+            assert_eq!(*share, near as f64 / model.len() as f64);
+        }
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| context.near_shares(&poses, &model, radius).unwrap());
+        assert_eq!(one, shares);
+    }
+    // The seen copy's pose holds its visible side, the hidden copy's less, a pose over empty
+    // space nothing.
+    let shares = context.near_shares(&poses, &model, 0.3).unwrap();
+    assert!(shares[0] > 0.3 && shares[0] > shares[2] && shares[1] == 0.0);
+    assert!(context.near_shares(&[], &model, 0.3).unwrap().is_empty());
+    for bad in [0.0, -1.0, f64::NAN] {
+        assert!(matches!(
+            context.near_shares(&poses, &model, bad),
+            Err(Error::InvalidParameter { .. })
+        ));
+    }
+    assert!(context.near_shares(&poses, &[], 0.3).is_err());
+}
+
 /// A part made of two square plates at a right angle (one in the plane z = 0, one in x = 0
 /// reaching behind it), lying with its first plate on a large table seen from [`EYE`]: the
 /// second plate is hidden behind the table, the first is explained wherever it lies on it.
