@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pointclm
 import pytest
@@ -210,6 +212,51 @@ def test_loose_poses_compares_with_the_median_of_known_values() -> None:
     assert not loose_poses([1.0, 5.0]).any()
     assert not loose_poses([1.0, np.nan, 5.0]).any()
     assert loose_poses([]).shape == (0,)
+
+
+def test_fit_tightness_ranks_loose_poses_below_the_median_and_leaves_the_rest() -> None:
+    from pointclm.refinement import fit_tightness
+
+    rmse = np.array([1.0, np.nan, 1.0, 0.8, 1.25, 2.0])  # median of the known values 1.0
+    before = rmse.copy()
+    np.testing.assert_allclose(fit_tightness(rmse), [1.0, 1.0, 1.0, 1.0, 0.8, 0.5])
+    np.testing.assert_array_equal(rmse, before)  # the input is not modified
+    # Fewer than three known values, or none: nothing to compare with, nobody is less sure.
+    np.testing.assert_array_equal(fit_tightness([1.0, np.nan, 5.0]), [1.0, 1.0, 1.0])
+    assert fit_tightness([]).shape == (0,)
+    # A scan whose median copy fits exactly: the others are as unsure as can be, no warning.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(fit_tightness([0.0, 0.0, 0.0, 1.0]), [1.0, 1.0, 1.0, 0.0])
+        np.testing.assert_array_equal(fit_tightness([0.0, 1.0, 1.0, 1.0]), [1.0, 1.0, 1.0, 1.0])
+
+
+def test_register_point_clouds_makes_loosely_fitting_copies_less_sure() -> None:
+    # Validation model (dragon), judged from the sensor, no turned alternatives: each copy's
+    # confidence is its visible fitness, less what contradicts it, times its fit's tightness
+    # against the scene's median copy; the instances come surest first by that.
+    from pointclm.refinement import fit_tightness
+
+    scene = make_realistic_scene(1, SceneParams(model="stanford/dragon"))
+    if scene.viewpoint is None:
+        pytest.skip("scene without a sensor position")
+    reg = pointclm.register_point_clouds(
+        scene.source_points,
+        scene.target_points,
+        voxel_size=scene.voxel_size,
+        viewpoint=scene.viewpoint,
+        flips=False,
+    )
+    inst = reg.instances
+    assert len(inst) >= 3
+    vrmse = np.array([i.visible_rmse for i in inst])
+    assert np.isfinite(vrmse).all()
+    tight = fit_tightness(vrmse)
+    assert tight.min() < 1.0  # some copy fits looser than the median: the rule is exercised
+    plain = np.array([i.visible_fitness * (1.0 - i.contradiction) for i in inst])
+    np.testing.assert_allclose([i.confidence for i in inst], plain * tight, rtol=1e-12)
+    sure = [i.confidence for i in inst]
+    assert sure == sorted(sure, reverse=True)
 
 
 def test_a_pose_turned_about_a_near_symmetry_is_turned_back() -> None:

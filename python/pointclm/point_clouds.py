@@ -39,6 +39,7 @@ from .refinement import (
     RefinedPoses,
     RefinementContext,
     explained_scan_points,
+    fit_tightness,
     loose_poses,
     resolve_flips,
 )
@@ -260,7 +261,9 @@ class CloudInstance:
     differing side the sensor did not see, :func:`pointclm.refinement.resolve_flips`).
     ``visible_rmse`` is the RMS distance of the explained model points the sensor could see (NaN
     without a trusted viewpoint): copies whose visible side fits more than 1.3 times as loosely
-    as the scene's median copy are not returned (:func:`pointclm.refinement.loose_poses`).
+    as the scene's median copy are not returned (:func:`pointclm.refinement.loose_poses`), and
+    among three or more, ``confidence`` is multiplied by ``min(1, median / visible_rmse)``
+    (:func:`pointclm.refinement.fit_tightness`).
     ``matches`` is the correspondence-stage instance the pose was refined from (its ``inliers``
     index the correspondences of the pass that proposed it,
     ``PointCloudRegistration.passes[pass_index].correspondences``; pass 0's are
@@ -1325,14 +1328,19 @@ def _settle(
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """The scene's accepted poses, final: half turns resolved (if asked), then, when the
     sensor judged them, those that fit loosely against the others dropped
-    (:func:`pointclm.refinement.loose_poses`). Why only at the end: the comparison needs every
-    copy the scan shows, and peeling needs the dropped poses' scan points explained."""
+    (:func:`pointclm.refinement.loose_poses`) and the rest made less sure the looser they fit
+    than the median (:func:`pointclm.refinement.fit_tightness`), surest first. Why only at the
+    end: the comparison needs every copy the scan shows, and peeling needs the dropped poses'
+    scan points explained."""
     if flips and len(tags):
         refined, tags = _resolve_flips(run, refined, tags, _duplicate_turns(run, refined, passes))
     if not refined.by_visibility:
         return refined, tags
     keep = np.flatnonzero(~loose_poses(refined.visible_rmse))
-    return _take(refined, keep), [tags[int(i)] for i in keep]
+    refined, tags = _take(refined, keep), [tags[int(i)] for i in keep]
+    refined = refined._replace(confidence=refined.confidence * fit_tightness(refined.visible_rmse))
+    order = np.argsort(-refined.confidence, kind="stable")
+    return _take(refined, order), [tags[int(i)] for i in order]
 
 
 def _duplicate_turns(run: _Run, refined: RefinedPoses, passes: list[Pass]) -> np.ndarray:
