@@ -25,7 +25,7 @@ directions) keeps more than `max_slid_fitness` of what it explains in place: a p
 larger surface of its shape (a face of a part on a table or a wall) fits anywhere on it, so
 the fit does not say where the object is.
 
-Across a scene's poses, after every pass: `register_point_clouds` drops, among three or more
+Across a scene's poses, once peeling is done: `register_point_clouds` drops, among three or more
 poses judged by the sensor, those whose visible side lies on the scan more loosely than
 `MAX_RELATIVE_VISIBLE_RMSE` times the median pose's (:func:`loose_poses` over
 ``RefinedPoses.visible_rmse``), and makes the rest less sure the looser they fit than the
