@@ -231,11 +231,14 @@ def test_fit_tightness_ranks_loose_poses_below_the_median_and_leaves_the_rest() 
         np.testing.assert_array_equal(fit_tightness([0.0, 1.0, 1.0, 1.0]), [1.0, 1.0, 1.0, 1.0])
 
 
-def test_register_point_clouds_makes_loosely_fitting_copies_less_sure() -> None:
+def test_register_point_clouds_makes_loose_and_loosely_pinned_copies_less_sure() -> None:
     # Validation model (dragon), judged from the sensor, no turned alternatives: each copy's
     # confidence is its visible fitness, less what contradicts it, times its fit's tightness
-    # against the scene's median copy; the instances come surest first by that.
-    from pointclm.refinement import fit_tightness
+    # and how firmly the scan pins it, both against the scene's median copy; the instances
+    # come surest first by that.
+    from pointclm import preprocessing as pp
+    from pointclm.refinement import fit_tightness, pose_stability, stability_factor
+    from scipy.spatial import cKDTree
 
     scene = make_realistic_scene(1, SceneParams(model="stanford/dragon"))
     if scene.viewpoint is None:
@@ -252,11 +255,63 @@ def test_register_point_clouds_makes_loosely_fitting_copies_less_sure() -> None:
     vrmse = np.array([i.visible_rmse for i in inst])
     assert np.isfinite(vrmse).all()
     tight = fit_tightness(vrmse)
-    assert tight.min() < 1.0  # some copy fits looser than the median: the rule is exercised
+    src = scene.source_points
+    model = pp.describe(src, scene.voxel_size, away_from=src.mean(0))
+    np.testing.assert_array_equal(model.points, reg.source_points)
+    poses = np.array([i.transformation for i in inst])
+    stable = stability_factor(
+        pose_stability(
+            model.points,
+            model.normals,
+            cKDTree(reg.target_points),
+            poses,
+            1.5 * scene.voxel_size,
+        )
+    )
+    # Both rules are exercised: some copy fits looser, some is pinned less, than the median.
+    assert tight.min() < 1.0 and stable.min() < 1.0
     plain = np.array([i.visible_fitness * (1.0 - i.contradiction) for i in inst])
-    np.testing.assert_allclose([i.confidence for i in inst], plain * tight, rtol=1e-12)
+    np.testing.assert_allclose([i.confidence for i in inst], plain * tight * stable, rtol=1e-12)
     sure = [i.confidence for i in inst]
     assert sure == sorted(sure, reverse=True)
+
+
+def test_stability_is_low_for_a_pose_that_only_a_plane_explains() -> None:
+    # Three faces of a cube (its top and two sides, the sides' rows stopping a step below the
+    # top edge). Posed flush in a large flat scan, only its top is explained: sliding and
+    # spinning in that plane are free, so the smallest eigenvalue is zero. In a scan of the
+    # three faces it is pinned in every direction.
+    from pointclm.refinement import pose_stability, stability_factor
+    from scipy.spatial import cKDTree
+
+    g = np.linspace(-0.5, 0.5, 21)
+    u, v = np.meshgrid(g, g)
+    top = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 0.5)])
+    a, z = np.meshgrid(g, g[:-1])  # z from -0.5 to 0.45
+    side_y = np.column_stack([a.ravel(), np.full(a.size, 0.5), z.ravel()])
+    side_x = np.column_stack([np.full(a.size, 0.5), a.ravel(), z.ravel()])
+    cube = np.concatenate([top, side_y, side_x])
+    normals = np.repeat(np.eye(3)[[2, 1, 0]], [len(top), len(side_y), len(side_x)], axis=0)
+    gg = np.linspace(-3.0, 3.0, 121)
+    uu, vv = np.meshgrid(gg, gg)
+    floor = np.column_stack([uu.ravel(), vv.ravel(), np.full(uu.size, 0.5)])
+    eye = np.eye(4)[None]
+    before = cube.copy()
+    flat = pose_stability(cube, normals, cKDTree(floor), eye, 0.03)
+    corner = pose_stability(cube, normals, cKDTree(cube), eye, 0.03)
+    np.testing.assert_array_equal(cube, before)
+    assert flat[0] < 1e-12 and 0.05 < corner[0] <= 1.0
+    # Turned a quarter about the vertical, the pose is as firm: no axis is preferred.
+    turn = np.eye(4)
+    turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    turned_scan = cKDTree(cube @ turn[:3, :3].T)
+    np.testing.assert_allclose(
+        pose_stability(cube, normals, turned_scan, turn[None], 0.03), corner, rtol=1e-9
+    )
+    # Nothing explained: 0; as a factor against firmer copies it ranks last.
+    assert pose_stability(cube, normals, cKDTree(floor + 10.0), eye, 0.03).tolist() == [0.0]
+    np.testing.assert_allclose(stability_factor([0.2, 0.2, 0.1, 0.4]), [1.0, 1.0, 0.5, 1.0])
+    np.testing.assert_array_equal(stability_factor([0.1, np.nan, 0.4]), [1.0, 1.0, 1.0])
 
 
 def test_a_pose_turned_about_a_near_symmetry_is_turned_back() -> None:

@@ -41,7 +41,9 @@ from .refinement import (
     explained_scan_points,
     fit_tightness,
     loose_poses,
+    pose_stability,
     resolve_flips,
+    stability_factor,
 )
 from .registration import as_config, as_threads, register
 
@@ -263,7 +265,9 @@ class CloudInstance:
     without a trusted viewpoint): copies whose visible side fits more than 1.3 times as loosely
     as the scene's median copy are not returned (:func:`pointclm.refinement.loose_poses`), and
     among three or more, ``confidence`` is multiplied by ``min(1, median / visible_rmse)``
-    (:func:`pointclm.refinement.fit_tightness`).
+    (:func:`pointclm.refinement.fit_tightness`) and by how firmly the scan pins the pose down
+    against the median copy (:func:`pointclm.refinement.stability_factor` of
+    :func:`pointclm.refinement.pose_stability`).
     ``matches`` is the correspondence-stage instance the pose was refined from (its ``inliers``
     index the correspondences of the pass that proposed it,
     ``PointCloudRegistration.passes[pass_index].correspondences``; pass 0's are
@@ -1329,16 +1333,28 @@ def _settle(
     """The scene's accepted poses, final: half turns resolved (if asked), then, when the
     sensor judged them, those that fit loosely against the others dropped
     (:func:`pointclm.refinement.loose_poses`) and the rest made less sure the looser they fit
-    than the median (:func:`pointclm.refinement.fit_tightness`), surest first. Why only at the
-    end: the comparison needs every copy the scan shows, and peeling needs the dropped poses'
+    (:func:`pointclm.refinement.fit_tightness`) and the less firmly the scan pins them down
+    (:func:`pointclm.refinement.stability_factor`) than the median, surest first. Why only at
+    the end: the comparison needs every copy the scan shows, and peeling needs the dropped poses'
     scan points explained."""
     if flips and len(tags):
         refined, tags = _resolve_flips(run, refined, tags, _duplicate_turns(run, refined, passes))
     if not refined.by_visibility:
         return refined, tags
     keep = np.flatnonzero(~loose_poses(refined.visible_rmse))
+    from scipy.spatial import cKDTree
+
     refined, tags = _take(refined, keep), [tags[int(i)] for i in keep]
-    refined = refined._replace(confidence=refined.confidence * fit_tightness(refined.visible_rmse))
+    stability = pose_stability(
+        run.src_d.points,
+        run.src_d.normals,
+        cKDTree(run.tgt_d.points),
+        refined.transformations,
+        1.5 * run.voxel,
+        workers=_workers(run.num_threads),
+    )
+    sureness = fit_tightness(refined.visible_rmse) * stability_factor(stability)
+    refined = refined._replace(confidence=refined.confidence * sureness)
     order = np.argsort(-refined.confidence, kind="stable")
     return _take(refined, order), [tags[int(i)] for i in order]
 
