@@ -633,6 +633,13 @@ class _Run:
         )
 
     @cached_property
+    def scan_tree(self) -> Any:
+        """A scipy k-d tree of the scan, built once for peeling and the final ranking."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.tgt_d.points)
+
+    @cached_property
     def voter(self) -> _core.PpfModel:
         """The model's point pair features tabled for voting, built once for every pass; its
         diameter is the model's bounding-box diagonal."""
@@ -1144,9 +1151,7 @@ def _peel(
     mutual best matches and fill the sample. Each round's poses are verified on the whole scan,
     so a pose that slides onto an accepted copy is a duplicate and is dropped.
     """
-    from scipy.spatial import cKDTree
-
-    scan_tree = cKDTree(run.tgt_d.points)
+    scan_tree = run.scan_tree
     unexplained = _unexplained(run, refined.transformations)
     empty = 0  # rounds in a row that added no copy
     for round_ in range(1, MAX_PEEL_ROUNDS + 1):
@@ -1342,13 +1347,11 @@ def _settle(
     if not refined.by_visibility:
         return refined, tags
     keep = np.flatnonzero(~loose_poses(refined.visible_rmse))
-    from scipy.spatial import cKDTree
-
     refined, tags = _take(refined, keep), [tags[int(i)] for i in keep]
     stability = pose_stability(
         run.src_d.points,
         run.src_d.normals,
-        cKDTree(run.tgt_d.points),
+        run.scan_tree,
         refined.transformations,
         1.5 * run.voxel,
         workers=_workers(run.num_threads),

@@ -750,8 +750,7 @@ def loose_poses(
     (`RefinedPoses.visible_rmse`) above `max_relative` times its median over the poses where
     it is known. None among fewer than `MIN_POSES_TO_COMPARE` known values (see
     `MAX_RELATIVE_VISIBLE_RMSE` for why)."""
-    relative = _relative_to_median(visible_rmse)
-    return ~np.isnan(relative) & (relative > float(max_relative))
+    return _relative_to_median(visible_rmse) > float(max_relative)  # NaN: False
 
 
 def fit_tightness(visible_rmse: ArrayLike) -> np.ndarray:
@@ -767,11 +766,8 @@ def fit_tightness(visible_rmse: ArrayLike) -> np.ndarray:
     alike). On the 72 validation bins, wrong poses sat at a median 1.15 times the scene's
     median and right ones at 1.0; the first five were all right in 71 scenes with the factor
     at any power from 0.5 to 4 against 69 without it (BENCHMARKS.md, stop 44)."""
-    relative = _relative_to_median(visible_rmse)
-    tightness = np.ones(len(relative))
-    looser = ~np.isnan(relative) & (relative > 1.0)
-    tightness[looser] = 1.0 / relative[looser]
-    return tightness
+    with np.errstate(divide="ignore"):  # exactly 0 against a positive median: 1
+        return _at_most_one(1.0 / _relative_to_median(visible_rmse))
 
 
 def pose_stability(
@@ -827,11 +823,12 @@ def stability_factor(stability: ArrayLike) -> np.ndarray:
     71 as before (box 10's pose on a sixth of a copy mended, a turn of box 8 that ADD-S
     forgives broken); on 36 scenes of procedural parts, re-ranked offline, 36 against 35
     (BENCHMARKS.md, stop 44)."""
-    relative = _relative_to_median(stability)
-    factor = np.ones(len(relative))
-    weaker = ~np.isnan(relative) & (relative < 1.0)
-    factor[weaker] = relative[weaker]
-    return factor
+    return _at_most_one(_relative_to_median(stability))
+
+
+def _at_most_one(ratio: np.ndarray) -> np.ndarray:
+    """``min(1, ratio)``, and 1 where `ratio` is NaN (nothing to compare with)."""
+    return np.where(np.isnan(ratio), 1.0, np.minimum(1.0, ratio))
 
 
 def _relative_to_median(values: ArrayLike) -> np.ndarray:
