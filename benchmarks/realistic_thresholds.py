@@ -45,7 +45,7 @@ from pointclm.evaluation import scene_cues
 from pointclm.metrics import score_scene, summarize
 from pointclm.point_clouds import REFINED_THRESHOLDS, scaled_config
 from pointclm.training.realistic import SceneBank, bank_cues, score_bank
-from realistic_models import load_scenes, scene_params, threshold_seeds
+from realistic_models import data_folder, load_scenes, scene_params, threshold_seeds
 
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)
@@ -53,6 +53,28 @@ MIN_CLUSTER = (3, 4, 5, 7, 10)
 #: Seed of ``--procedural``'s shapes; training draws its own with ``TrainConfig.seed`` (0), and
 #: a network is scored only on the shapes its config did not draw.
 PROCEDURAL_VALIDATION_SEED = 7
+
+
+def validation_jobs(
+    models: list[str],
+    scenes_per_model: int,
+    procedural: int,
+    scenes_per_shape: int,
+    n: int,
+    data_dir: str,
+    procedural_seed: int = PROCEDURAL_VALIDATION_SEED,
+) -> list[tuple[str, int, Any]]:
+    """The `load_scenes` jobs of the threshold sweep: `scenes_per_model` scenes of each of
+    `models`, and `scenes_per_shape` of each of `procedural` random procedural shapes."""
+    return [
+        (m, s, scene_params(m, n, data_dir))
+        for m in models
+        for s in threshold_seeds(m, scenes_per_model)
+    ] + [
+        (m, s, scene_params(m, n, data_dir))
+        for m in procedural_family_names(procedural, procedural_seed)
+        for s in threshold_seeds(m, scenes_per_shape)
+    ]
 
 
 def bank_sweep(bank: SceneBank, emb: Embedding | None, grid: list[dict]) -> list[tuple[dict, dict]]:
@@ -135,7 +157,7 @@ def features(scene: Any, emb: Embedding | None) -> tuple[np.ndarray | None, np.n
     return f, emb.pipeline_normals(normals)
 
 
-def _trained_on(model: str, fallback: tuple[str, ...]) -> set[str]:
+def trained_on(model: str, fallback: tuple[str, ...]) -> set[str]:
     """The models a network saw in training, from the config its weights carry: its
     realistic models, and its synthetic shapes unless it trained on realistic scenes alone
     (`fallback` for weights without one)."""
@@ -194,7 +216,7 @@ def _report(res: list[tuple[dict, dict]], refine: bool) -> list[tuple[dict, dict
 
 
 def main() -> None:
-    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS, default_data_dir
+    from pointclm.datasets.scenes import HELDOUT_MODELS, VALIDATION_MODELS
     from pointclm.training.config import REALISTIC_MODELS, TRAIN_SHAPES
 
     ap = argparse.ArgumentParser()
@@ -245,22 +267,21 @@ def main() -> None:
                 f"not validation models: {', '.join(bad)} (held-out models never pick "
                 f"thresholds); choose from {', '.join(VALIDATION_MODELS)}"
             )
-        data_dir = args.data_dir or str(default_data_dir())
-        jobs = [
-            (m, s, scene_params(m, args.n, data_dir))
-            for m in models
-            for s in threshold_seeds(m, args.scenes_per_model)
-        ] + [
-            (m, s, scene_params(m, args.n, data_dir))
-            for m in procedural_family_names(args.procedural, args.procedural_seed)
-            for s in threshold_seeds(m, args.scenes_per_shape)
-        ]
+        jobs = validation_jobs(
+            models,
+            args.scenes_per_model,
+            args.procedural,
+            args.scenes_per_shape,
+            args.n,
+            data_folder(args.data_dir),
+            args.procedural_seed,
+        )
         scenes = load_scenes(jobs, Path(args.cache), args.workers)
         scorer = Scorer(scenes)
         every = list(range(len(scenes)))
         runs = [("training-free", None, every)]
         for m in args.model:
-            trained = _trained_on(m, (*TRAIN_SHAPES, *REALISTIC_MODELS))
+            trained = trained_on(m, (*TRAIN_SHAPES, *REALISTIC_MODELS))
             runs.append((m, m, [i for i, sc in enumerate(scenes) if sc.model not in trained]))
         for name, model, idx in runs:
             names = sorted({scenes[i].model for i in idx})

@@ -216,3 +216,41 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
         want = score_scene(poses, scene.poses, 15.0, scene.max_translation)
         ((_, got),) = scorer.sweep(None, [params], [0], refine)
         assert got["mean_recall"] == want.recall and got["mean_precision"] == want.precision
+
+
+def _load_ceilings() -> types.ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "realistic_ceilings", ROOT / "benchmarks" / "realistic_ceilings.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ceilings_refuse_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    rc = _load_ceilings()
+    monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/armadillo,stanford/bunny"])
+    with pytest.raises(SystemExit, match="not validation models: stanford/bunny"):
+        rc.main()
+
+
+def test_ceiling_row_features_rank_true_inliers_first() -> None:
+    rc = _load_ceilings()
+    scene = make_realistic_scene(3, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
+    before = scene.correspondences.copy()
+    x = rc.row_features(scene)
+    np.testing.assert_array_equal(scene.correspondences, before)
+    assert x.shape == (len(scene.labels), 2 + 3 * len(rc.TOLERANCES)) and np.isfinite(x).all()
+    assert (x[:, 1:] >= 0).all() and (x[:, 1:] <= 1).all()
+    inlier = scene.labels >= 0
+    # the consistency degrees are what the learned score starts from: inliers agree with more
+    for col in range(2, x.shape[1]):
+        assert x[inlier, col].mean() > x[~inlier, col].mean(), col
+
+
+def test_ceiling_keeps_the_highest_scores_and_at_least_three() -> None:
+    rc = _load_ceilings()
+    score = np.array([0.1, 0.9, 0.5, 0.7, 0.2])
+    np.testing.assert_array_equal(rc._kept(score, 0.4), [1, 2, 3])
+    np.testing.assert_array_equal(rc._kept(score, 0.8), [1, 2, 3, 4])
