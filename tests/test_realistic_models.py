@@ -26,15 +26,15 @@ DATA = ROOT.parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 
 
-def _load() -> types.ModuleType:
-    # The module imports its siblings (peers.py, realistic.py) by name, as a script does.
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location(
-        "realistic_models", ROOT / "benchmarks" / "realistic_models.py"
-    )
+def _load(name: str = "realistic_models") -> types.ModuleType:
+    """A benchmark script as a module. The scripts import their siblings (peers.py,
+    realistic.py, realistic_models.py) by name, as a script does."""
+    if str(ROOT / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    sys.modules["realistic_models"] = module
+    sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
 
@@ -181,18 +181,8 @@ def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
     assert r["seconds"] > 0 and r["peak_mb"] >= r["baseline_mb"] > 0
 
 
-def _load_thresholds() -> types.ModuleType:
-    spec = importlib.util.spec_from_file_location(
-        "realistic_thresholds", ROOT / "benchmarks" / "realistic_thresholds.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_threshold_sweep_refuses_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
-    rt = _load_thresholds()
+    rt = _load("realistic_thresholds")
     monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/dragon,common3d/spot"])
     with pytest.raises(SystemExit, match="not validation models: common3d/spot"):
         rt.main()
@@ -203,7 +193,7 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
     from pointclm.metrics import score_scene
     from pointclm.point_clouds import scaled_config
 
-    rt = _load_thresholds()
+    rt = _load("realistic_thresholds")
     scene = make_realistic_scene(2, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
     params = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
     cfg = scaled_config(scene.voxel_size, pointclm.Config(**params))
@@ -218,25 +208,15 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
         assert got["mean_recall"] == want.recall and got["mean_precision"] == want.precision
 
 
-def _load_ceilings() -> types.ModuleType:
-    spec = importlib.util.spec_from_file_location(
-        "realistic_ceilings", ROOT / "benchmarks" / "realistic_ceilings.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_ceilings_refuse_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
-    rc = _load_ceilings()
+    rc = _load("realistic_ceilings")
     monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/armadillo,stanford/bunny"])
     with pytest.raises(SystemExit, match="not validation models: stanford/bunny"):
         rc.main()
 
 
 def test_ceiling_row_features_rank_true_inliers_first() -> None:
-    rc = _load_ceilings()
+    rc = _load("realistic_ceilings")
     scene = make_realistic_scene(3, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
     before = scene.correspondences.copy()
     x = rc.row_features(scene)
@@ -250,7 +230,7 @@ def test_ceiling_row_features_rank_true_inliers_first() -> None:
 
 
 def test_ceiling_keeps_the_highest_scores_and_at_least_three() -> None:
-    rc = _load_ceilings()
+    rc = _load("realistic_ceilings")
     score = np.array([0.1, 0.9, 0.5, 0.7, 0.2])
     np.testing.assert_array_equal(rc._kept(score, 0.4), [1, 2, 3])
     np.testing.assert_array_equal(rc._kept(score, 0.8), [1, 2, 3, 4])
