@@ -181,11 +181,20 @@ def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
     assert r["seconds"] > 0 and r["peak_mb"] >= r["baseline_mb"] > 0
 
 
-def test_threshold_sweep_refuses_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
-    rt = _load("realistic_thresholds")
-    monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/dragon,common3d/spot"])
-    with pytest.raises(SystemExit, match="not validation models: common3d/spot"):
-        rt.main()
+@pytest.mark.parametrize(
+    ("script", "models", "refused"),
+    [
+        ("realistic_thresholds", "stanford/dragon,common3d/spot", "common3d/spot"),
+        ("realistic_ceilings", "stanford/armadillo,stanford/bunny", "stanford/bunny"),
+    ],
+)
+def test_validation_scripts_refuse_held_out_models(
+    monkeypatch: pytest.MonkeyPatch, script: str, models: str, refused: str
+) -> None:
+    module = _load(script)
+    monkeypatch.setattr(sys, "argv", ["x", "--models", models])
+    with pytest.raises(SystemExit, match=f"not validation models: {refused}"):
+        module.main()
 
 
 def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
@@ -206,13 +215,6 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
         want = score_scene(poses, scene.poses, 15.0, scene.max_translation)
         ((_, got),) = scorer.sweep(None, [params], [0], refine)
         assert got["mean_recall"] == want.recall and got["mean_precision"] == want.precision
-
-
-def test_ceilings_refuse_held_out_models(monkeypatch: pytest.MonkeyPatch) -> None:
-    rc = _load("realistic_ceilings")
-    monkeypatch.setattr(sys, "argv", ["x", "--models", "stanford/armadillo,stanford/bunny"])
-    with pytest.raises(SystemExit, match="not validation models: stanford/bunny"):
-        rc.main()
 
 
 def test_ceiling_row_features_rank_true_inliers_first() -> None:
