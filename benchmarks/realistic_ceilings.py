@@ -41,9 +41,7 @@ import pointclm
 from pointclm.datasets.procedural import is_procedural
 from pointclm.evaluation import register_scaled, scene_cues
 from pointclm.metrics import SceneScore, score_scene, summarize
-from pointclm.point_clouds import scaled_config
-from realistic import ORACLE_CONFIG, oracle_features
-from realistic_models import data_folder, load_scenes
+from realistic_models import data_folder, load_scenes, oracle
 from realistic_thresholds import validation_jobs
 
 #: Thresholds an oracle or a learned score may pick from (the sweep's counts).
@@ -55,6 +53,10 @@ GRID = [
 KEEP = (0.1, 0.2, 0.3, 0.5, 1.0)
 #: Consistency tolerances of the row features, in voxels.
 TOLERANCES = (1.0, 2.0, 3.0)
+#: The column of `row_features` the pipeline's own pruning comes closest to: the share of rows
+#: length- and normal-consistent within the first tolerance (after similarity and its rank,
+#: each tolerance adds length, length and normal, second order).
+DEGREE_COLUMN = 3
 
 
 def row_features(scene: Any) -> np.ndarray:
@@ -190,7 +192,7 @@ def network_rows(
     ]
     for share in (1.0, 0.5, 0.3):
         rows = [everything[i] if share == 1 else _kept(held[i], share) for i in idx]
-        cells = [_mf(_best_config(mine, rows, net)[1]) for net in (None, net)]
+        cells = [_mf(_best_config(mine, rows, embedding)[1]) for embedding in (None, net)]
         label = "all" if share == 1 else f"the learned score's first {share:.0%}"
         out.append(f"| {label} | {cells[0]:.1f} | {cells[1]:.1f} |")
     return [*out, ""]
@@ -260,24 +262,12 @@ def main() -> None:
     learned, held, choices, auc = learned_rows(scenes, feats, labels)
     rows["learned inlier score (2 folds), kept share and thresholds picked per fold"] = learned
     rows["oracle embedding (true instances), ORACLE_CONFIG"] = [
-        _score(
-            s,
-            np.asarray(
-                pointclm.register(
-                    s.correspondences,
-                    oracle_features(s.labels, s.seed % 2**32),
-                    scaled_config(s.voxel_size, pointclm.Config(**ORACLE_CONFIG)),
-                    0,
-                    num_threads=1,
-                ).transformations
-            ).reshape(-1, 4, 4),
-        )
-        for s in scenes
+        _score(s, oracle(False)(s)) for s in scenes
     ]
     from sklearn.metrics import roc_auc_score
 
     y_all = np.concatenate(labels)
-    degree = np.concatenate([f[:, 3] for f in feats])  # length- and normal-consistent, 1 voxel
+    degree = np.concatenate([f[:, DEGREE_COLUMN] for f in feats])
     groups = sorted({_group(s) for s in scenes}, key=lambda g: (g == "procedural", g))
     head = ["row", *groups, "pooled"]
     lines = [

@@ -336,7 +336,9 @@ def _pointclm(
     return run
 
 
-def _oracle(refine: bool) -> Callable[[Any], np.ndarray]:
+def oracle(refine: bool) -> Callable[[Any], np.ndarray]:
+    """The poses of the oracle embedding (the true labels), refined on the clouds if `refine`:
+    an upper bound, not a method."""
     import pointclm
     from pointclm.point_clouds import scaled_config
     from realistic import ORACLE_CONFIG, oracle_features
@@ -417,13 +419,13 @@ def make_methods(
             )
         )
     out.append(
-        Method("oracle", "upper bound: oracle embedding from the true labels", _oracle(False))
+        Method("oracle", "upper bound: oracle embedding from the true labels", oracle(False))
     )
     out.append(
         Method(
             "oracle+refine",
             "upper bound: oracle embedding + refinement on the clouds",
-            _oracle(True),
+            oracle(True),
         )
     )
     kiss_version = _available("kiss_matcher") if kiss else None
