@@ -208,9 +208,7 @@ def test_the_public_api_raises_the_core_classes() -> None:
         (
             InputError,
             r"transformations must have shape",
-            lambda: _core.refine_poses(
-                PTS, PTS, np.zeros((1, 3, 3)), 0.1, False, None, 0, 1, 0, 0, 0, 1, 1
-            ),
+            lambda: _core.refine_poses(PTS, PTS, np.zeros((1, 3, 3)), 0.1, False, None),
         ),
         (
             InputError,

@@ -12,14 +12,21 @@ import pointclm
 import pointclm.point_clouds as pc
 import pointclm.preprocessing as pp
 import pytest
+from pointclm import scene_params
 from pointclm.datasets.bins import make_bin_scene
 from pointclm.errors import InputError
+from pointclm.scene_params import SceneParams
 from test_bins import SMALL  # a small bin of procedural boxes: about a second per registration
 
 
 @pytest.fixture(scope="module")
 def scene():
     return make_bin_scene(0, SMALL)
+
+
+def _defaults(monkeypatch: pytest.MonkeyPatch, **fields: Any) -> None:
+    """The scene-wide rules' defaults with `fields` changed, for every call in the test."""
+    monkeypatch.setattr(scene_params, "SCENE_DEFAULTS", SceneParams(**fields))
 
 
 def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:
@@ -55,7 +62,7 @@ def test_the_scene_wide_check_is_the_default() -> None:
 
 def test_below_the_count_auto_is_the_scene_wide_check(scene, monkeypatch) -> None:
     # A count no scene reaches: every pass matches as with mutual_window=None.
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 10_000)
+    _defaults(monkeypatch, heap_min_copies=10_000)
     calls = _spy_on_matching(monkeypatch)
     auto = _register(scene)
     assert all("window" not in c for c in calls)
@@ -66,7 +73,7 @@ def test_below_the_count_auto_is_the_scene_wide_check(scene, monkeypatch) -> Non
 
 def test_once_the_count_is_reached_later_passes_match_in_windows(scene, monkeypatch) -> None:
     # This small bin's first pass finds one box: a count of 1 makes the later passes switch.
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    _defaults(monkeypatch, heap_min_copies=1)
     calls = _spy_on_matching(monkeypatch)
     reg = _register(scene)
     assert len(reg.passes) == len(calls) >= 2
@@ -89,7 +96,7 @@ def test_once_the_count_is_reached_later_passes_match_in_windows(scene, monkeypa
 def test_auto_leaves_matching_it_cannot_make_local_alone(scene, monkeypatch) -> None:
     # Without the mutual check (or with k > 1) there is nothing to make local: "auto" is a
     # no-op there, not an error, so that it can be passed with any matching.
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    _defaults(monkeypatch, heap_min_copies=1)
     calls = _spy_on_matching(monkeypatch)
     reg = _register(scene, mutual=False)
     assert len(reg.passes) >= 1 and all("window" not in c for c in calls)
@@ -104,7 +111,7 @@ def test_other_strings_are_rejected(scene, bad: str) -> None:
 def test_by_default_a_heap_relaxes_the_check_by_rank(scene, monkeypatch) -> None:
     default = inspect.signature(pointclm.register_point_clouds).parameters["heap_rank"]
     assert default.default == pc.HEAP_RANK == 64
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    _defaults(monkeypatch, heap_min_copies=1)
     calls = _spy_on_matching(monkeypatch)
     reg = _register(scene, mutual_window=None)
     accepted = np.cumsum([p.added for p in reg.passes])
@@ -120,7 +127,7 @@ def test_below_the_count_or_without_a_rank_every_pass_is_the_mutual_check(scene,
     calls = _spy_on_matching(monkeypatch)
     plain = _register(scene, mutual_window=None, heap_rank=None)
     assert all("mutual_rank" not in c for c in calls)
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 10_000)
+    _defaults(monkeypatch, heap_min_copies=10_000)
     ranked = _register(scene, mutual_window=None)
     np.testing.assert_array_equal(ranked.transformations, plain.transformations)
     assert all("mutual_rank" not in c for c in calls)
@@ -138,7 +145,7 @@ def test_a_scan_said_to_be_a_heap_relaxes_the_check_in_every_pass(scene, monkeyp
     assert len(calls) == len(reg.passes) >= 1
     assert all(c.get("mutual_rank") == pc.HEAP_RANK for c in calls)
     calls.clear()
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)  # heap=False wins over any count
+    _defaults(monkeypatch, heap_min_copies=1)  # heap=False wins over any count
     never = _register(scene, mutual_window=None, heap=False)
     assert all("mutual_rank" not in c for c in calls)
     plain = _register(scene, mutual_window=None, heap_rank=None)
@@ -163,7 +170,7 @@ def _empty_tail(reg: pointclm.PointCloudRegistration) -> int:
 
 @pytest.mark.parametrize("rounds", [1, 2, 3])
 def test_in_a_heap_peeling_stops_after_its_count_of_empty_rounds(scene, monkeypatch, rounds):
-    monkeypatch.setattr(pc, "HEAP_EMPTY_ROUNDS", rounds)
+    _defaults(monkeypatch, heap_empty_rounds=rounds)
     reg = _register(scene, mutual_window=None, heap=True)
     if len(reg.passes) <= pc.MAX_PEEL_ROUNDS:  # not cut by the round limit
         assert _empty_tail(reg) == rounds

@@ -407,7 +407,7 @@ def test_a_turn_carried_onto_another_poses_copy_is_put_back() -> None:
     # Two copies of the slab; one pose on each. If ICP carried the second pose's turn onto the
     # first copy, the turned pose would duplicate the first: the second pose is put back. Poses
     # that shared their copy before the turn (duplicates given on purpose) keep their turns.
-    from pointclm.refinement import _Shape, _TurnEvidence, _undo_turns_onto_other_copies
+    from pointclm.flips import _Shape, _TurnEvidence, _undo_turns_onto_other_copies
 
     src = _slab_with_a_block()
     voxel = 0.04
@@ -497,7 +497,8 @@ def test_the_scenes_own_alternatives_are_grouped_and_the_most_frequent_tried() -
     # resolve_flips' `rotations`: grouped within SCENE_TURN_DEG, none near the identity or a
     # principal-axis turn already tried, the largest groups first (ties: the first found), at
     # most MAX_SCENE_TURNS, each a turn about the centroid.
-    from pointclm.refinement import MAX_SCENE_TURNS, SCENE_TURN_DEG, _shape
+    from pointclm.flips import _shape
+    from pointclm.refinement import MAX_SCENE_TURNS, SCENE_TURN_DEG
 
     src = _blob()
     shape = _shape(src, 0.05)
@@ -530,7 +531,7 @@ def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_sce
     # The slab posed a quarter turn off, with the principal-axis quarter turns withheld: the
     # pose stays wrong, unless the turn comes in `rotations` (as a duplicate on the same copy
     # at the right rotation would give it).
-    from pointclm import refinement
+    from pointclm import flips
     from pointclm.refinement import quarter_turns, resolve_flips
 
     src = _slab_with_a_block()
@@ -547,7 +548,7 @@ def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_sce
         min_fitness=0.0,
         min_relative_fitness=0.0,
     )
-    monkeypatch.setattr(refinement._Shape, "quarter_turns", lambda self, *_: np.empty((0, 4, 4)))
+    monkeypatch.setattr(flips._Shape, "quarter_turns", lambda self, *_: np.empty((0, 4, 4)))
     stays, _ = resolve_flips(src, scan, refined, voxel)
     assert rotation_error_deg(stays.transformations[:, :3, :3], truth[:3, :3])[0] > 80.0
     back = np.linalg.inv(turn)[None, :3, :3]

@@ -11,9 +11,10 @@ import pointclm
 import pointclm.point_clouds as pc
 import pointclm.preprocessing as pp
 import pytest
-from pointclm import _core
+from pointclm import _core, scene_params
 from pointclm.datasets.bins import make_bin_scene
 from pointclm.errors import InputError
+from pointclm.scene_params import SceneParams
 from scipy.spatial import cKDTree
 from test_bins import SMALL
 
@@ -29,6 +30,11 @@ def described(scene):
     model = pp.describe(scene.model_points, scene.voxel_size, away_from=scene.model_points.mean(0))
     scan = pp.describe(scene.scan, scene.voxel_size, towards=scene.sensor)
     return model, scan
+
+
+def _defaults(monkeypatch: pytest.MonkeyPatch, **fields: Any) -> None:
+    """The scene-wide rules' defaults with `fields` changed, for every call in the test."""
+    monkeypatch.setattr(scene_params, "SCENE_DEFAULTS", SceneParams(**fields))
 
 
 def _voter(model: Any, **kwargs: Any) -> _core.PpfModel:
@@ -147,7 +153,7 @@ def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap) -> 
 
     monkeypatch.setattr(pc._Run, "voted_poses", refuse)
     # Counted as a heap from the first copy on: the matching relaxes, but nothing is voted.
-    monkeypatch.setattr(pc, "HEAP_MIN_COPIES", 1)
+    _defaults(monkeypatch, heap_min_copies=1)
     reg = _register(scene, heap=heap, num_threads=1)
     assert all(len(p.voted) == 0 for p in reg.passes)
     assert all(inst.matches is not None for inst in reg.instances)

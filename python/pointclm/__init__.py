@@ -16,6 +16,7 @@ from .config import Config
 from .point_clouds import CloudInstance, register_point_clouds
 from .refinement import RefinementContext, refine_poses
 from .registration import register, register_batch
+from .scene_params import SceneParams
 
 if TYPE_CHECKING:
     from . import io
@@ -28,6 +29,7 @@ __all__ = [
     "Network",
     "RefinementContext",
     "RegistrationResult",
+    "SceneParams",
     "__version__",
     "errors",
     "io",

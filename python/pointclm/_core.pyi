@@ -29,6 +29,14 @@ __all__ = [
     "spatial_consistency",
     "spectral_clustering",
     "validate_config",
+    "scene_params_schema",
+    "refine_params_schema",
+    "validate_scene_params",
+    "unexplained_points",
+    "loose_poses",
+    "fit_tightness",
+    "stability_factor",
+    "register_scan",
     "voxel_downsample",
     "isolated_points",
     "estimate_normals",
@@ -101,13 +109,7 @@ class RefineContext:
         self,
         transformations: npt.NDArray[np.float64],
         icp: bool,
-        min_visible_fitness: float,
-        max_contradiction: float,
-        min_seen: float,
-        min_fitness: float,
-        min_relative_fitness: float,
-        max_shared: float,
-        max_slid_fitness: float,
+        rules: dict[str, Any] | None = None,
         num_threads: int | None = None,
     ) -> tuple[
         npt.NDArray[np.float64],
@@ -122,6 +124,27 @@ class RefineContext:
         radius: float,
         num_threads: int | None = None,
     ) -> npt.NDArray[np.float64]: ...
+    def pose_stability(
+        self,
+        transformations: npt.NDArray[np.float64],
+        source_normals: npt.NDArray[np.float64],
+        radius: float,
+        num_threads: int | None = None,
+    ) -> npt.NDArray[np.float64]: ...
+    def near_mask(
+        self, points: npt.NDArray[np.float64], radius: float, num_threads: int | None = None
+    ) -> npt.NDArray[np.bool_]: ...
+    def explained_scan_points(
+        self, transformation: npt.NDArray[np.float64], radius: float
+    ) -> npt.NDArray[np.int64]: ...
+    def not_duplicates(
+        self,
+        transformations: npt.NDArray[np.float64],
+        radius: float,
+        max_shared: float,
+        taken: npt.NDArray[np.bool_],
+        num_threads: int | None = None,
+    ) -> tuple[list[int], npt.NDArray[np.bool_]]: ...
 
 @final
 class PpfModel:
@@ -223,6 +246,35 @@ def kabsch(
 def config_schema() -> list[dict[str, Any]]: ...
 def default_config() -> dict[str, Any]: ...
 def validate_config(config: dict[str, Any]) -> None: ...
+def scene_params_schema() -> list[dict[str, Any]]: ...
+def refine_params_schema() -> list[dict[str, Any]]: ...
+def validate_scene_params(params: dict[str, Any]) -> None: ...
+def unexplained_points(
+    target: npt.NDArray[np.float64],
+    source: npt.NDArray[np.float64],
+    transformations: npt.NDArray[np.float64],
+    radius: float,
+    num_threads: int | None = None,
+) -> npt.NDArray[np.bool_]: ...
+def loose_poses(
+    visible_rmse: npt.NDArray[np.float64], max_relative: float, min_poses: int
+) -> npt.NDArray[np.bool_]: ...
+def fit_tightness(
+    visible_rmse: npt.NDArray[np.float64], min_poses: int
+) -> npt.NDArray[np.float64]: ...
+def register_scan(
+    model: npt.NDArray[np.float64],
+    scan: npt.NDArray[np.float64],
+    voxel_size: float | None = None,
+    viewpoint: tuple[float, float, float] | None = None,
+    seed: int = 0,
+    peel: bool = True,
+    scene: dict[str, Any] | None = None,
+    num_threads: int | None = None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], list[int], int, float, bool]: ...
+def stability_factor(
+    stability: npt.NDArray[np.float64], min_poses: int
+) -> npt.NDArray[np.float64]: ...
 def voxel_downsample(
     points: npt.NDArray[np.float64], voxel_size: float
 ) -> npt.NDArray[np.float64]: ...
@@ -309,13 +361,7 @@ def refine_poses(
     voxel_size: float,
     icp: bool,
     viewpoint: tuple[float, float, float] | None,
-    min_visible_fitness: float,
-    max_contradiction: float,
-    min_seen: float,
-    min_fitness: float,
-    min_relative_fitness: float,
-    max_shared: float,
-    max_slid_fitness: float,
+    rules: dict[str, Any] | None = None,
     target_normals: npt.NDArray[np.float64] | None = None,
     num_threads: int | None = None,
 ) -> tuple[

@@ -90,6 +90,40 @@ def _viewpoint(text: str) -> tuple[float, float, float] | str:
     return (values[0], values[1], values[2])
 
 
+def _window(text: str) -> float | str:
+    """``--mutual-window``: "auto" or a positive number of model diagonals."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    side = _finite_float(text)
+    if side <= 0:
+        raise argparse.ArgumentTypeError(f"must be auto or a number > 0, got {text!r}")
+    return side
+
+
+def _rank(text: str) -> int | None:
+    """``--heap-rank``: "none" or a count >= 1."""
+    if text.strip().lower() == "none":
+        return None
+    rank: int = _int_at_least(1)(text)
+    return rank
+
+
+def _scene_param(text: str) -> tuple[str, Any]:
+    """``--scene NAME=VALUE``: a field of `SceneParams` and its value, typed by the core's
+    schema (checked against its range when the run starts)."""
+    from .scene_params import _SCHEMA
+
+    name, sep, value = text.partition("=")
+    name = name.strip()
+    if not sep or name not in _SCHEMA:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME=VALUE with NAME one of {', '.join(_SCHEMA)}, got {text!r}"
+        )
+    if _SCHEMA[name]["kind"] == "count":
+        return name, _int_at_least(0)(value)
+    return name, _finite_float(value)
+
+
 def _write_json(path: str, payload: dict[str, Any]) -> None:
     """Written to a temporary file and renamed: never a half-written JSON."""
     with atomic_path(path) as tmp:
@@ -459,6 +493,13 @@ def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -
         "peel": not args.no_peel,
         "heap": True if args.heap else None,
         "num_threads": args.num_threads,
+        "top_k": args.top_k,
+        "k": args.k,
+        "mutual_window": args.mutual_window,
+        "heap_rank": args.heap_rank,
+        "normals": args.normals,
+        "flips": not args.no_flips,
+        "scene": dict(args.scene or ()),
     }
 
 
@@ -747,7 +788,52 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
         help="the scan is a heap of identical parts (bin picking): every pass ranks its mutual "
         "matches as in a heap (default: once 10 copies are found)",
     )
+    _add_matching_flags(p)
+    p.add_argument(
+        "--no-flips",
+        action="store_true",
+        help="keep the verified poses as they are (no turned alternatives tried)",
+    )
+    p.add_argument(
+        "--scene",
+        action="append",
+        type=_scene_param,
+        metavar="NAME=VALUE",
+        help="a scene-wide rule (repeatable), e.g. --scene max_peel_rounds=5; the names, "
+        "defaults and reasons: help(pointclm.SceneParams)",
+    )
     _add_config_flags(p)
+
+
+def _add_matching_flags(p: argparse.ArgumentParser) -> None:
+    """`register_point_clouds`' matching options beyond the sample size and mutual check."""
+    p.add_argument(
+        "--top-k", type=_int_at_least(1), default=10_000, help="matches kept (default 10000)"
+    )
+    p.add_argument(
+        "--k", type=_int_at_least(1), default=1, help="model matches per scan point (default 1)"
+    )
+    p.add_argument(
+        "--mutual-window",
+        type=_window,
+        default=None,
+        metavar="SIDE|auto",
+        help="the mutual check within cubes of SIDE model diagonals, or auto: in windows once "
+        "a heap is recognised (default: scene-wide)",
+    )
+    p.add_argument(
+        "--heap-rank",
+        type=_rank,
+        default=64,
+        metavar="N|none",
+        help="in a heap, keep a match among the model point's N most similar scan points "
+        "(default 64; none: the plain mutual check)",
+    )
+    p.add_argument(
+        "--normals",
+        action="store_true",
+        help="give the correspondence stage the normals at both ends of each match",
+    )
 
 
 def _add_batch_parser(sub: Any) -> None:

@@ -46,41 +46,45 @@ def _default(name: str) -> Any:
     return _SCHEMA[name]["default"]
 
 
-def _checked(name: str, value: Any) -> Any:
-    """`value` of field `name` as the plain Python type the core and repr expect (numpy
-    scalars and ints as float or int), or ConfigError for a value of the wrong kind. Ranges
-    and choices are the core's to check."""
-    field = _SCHEMA[name]
+def _checked(
+    name: str,
+    value: Any,
+    schema: Mapping[str, Mapping[str, Any]] = _SCHEMA,
+    what: str = "config field",
+) -> Any:
+    """`value` of field `name` of `schema` (default `Config`'s) as the plain Python type the
+    core and repr expect (numpy scalars and ints as float or int), or ConfigError (its message
+    starting with `what` and the name) for a value of the wrong kind. Ranges and choices are
+    the core's to check."""
+    field = schema[name]
     kind, optional = field["kind"], field["optional"]
     if optional and value is None:
         return None
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(f"config field {name}: expected True or False")
+            raise ConfigError(f"{what} {name}: expected True or False")
         return value
     if kind == "float":
         number = not isinstance(value, bool) and isinstance(value, _REAL)
         if optional and not number:
-            raise ConfigError(f"config field {name}: expected None or a number, got {value!r}")
+            raise ConfigError(f"{what} {name}: expected None or a number, got {value!r}")
         if isinstance(value, bool):
-            raise ConfigError(f"config field {name}: expected a number, got {value!r}")
+            raise ConfigError(f"{what} {name}: expected a number, got {value!r}")
         if not number:
             return value  # the core names the type it wanted
         try:
             return float(value)
         except OverflowError:
-            raise ConfigError(f"config field {name}: {value!r} is too large") from None
+            raise ConfigError(f"{what} {name}: {value!r} is too large") from None
     if kind == "count":
         integer = not isinstance(value, bool) and isinstance(value, int | np.integer)
         if optional:
             if not integer or value < 1:
-                raise ConfigError(
-                    f"config field {name}: expected None or an int >= 1, got {value!r}"
-                )
+                raise ConfigError(f"{what} {name}: expected None or an int >= 1, got {value!r}")
         elif not integer:
-            raise ConfigError(f"config field {name}: expected an int, got {value!r}")
+            raise ConfigError(f"{what} {name}: expected an int, got {value!r}")
         elif value < 0:
-            raise ConfigError(f"config field {name}: must be >= 0, got {value}")
+            raise ConfigError(f"{what} {name}: must be >= 0, got {value}")
         return int(value)
     return value  # a choice: the core checks the name
 
@@ -198,10 +202,11 @@ class Config:
         return replace(self, **{name: getattr(self, name) * factor for name in _LENGTHS})
 
 
-def _attributes() -> str:
-    """The numpydoc "Attributes" section of `Config`, from the Rust fields' docs."""
+def _attributes(schema: Mapping[str, Mapping[str, Any]] = _SCHEMA) -> str:
+    """The numpydoc "Attributes" section of `Config` (or of another struct the core declares,
+    from its `schema`), from the Rust fields' docs."""
     lines = ["", "", "    Attributes", "    ----------"]
-    for name, field in _SCHEMA.items():
+    for name, field in schema.items():
         if field["kind"] == "choice":
             kind = "{" + ", ".join(f'"{c}"' for c in field["choices"]) + "}"
         else:

@@ -14,6 +14,7 @@ from .. import preprocessing as pp
 from ..config import Config
 from ..errors import InputError
 from ..registration import as_config, as_seed, as_threads
+from ..scene_params import SceneParams
 
 __all__ = [
     "NO_VIEWPOINT",
@@ -44,6 +45,10 @@ OPTION_NAMES = (
     "peel",
     "heap",
     "num_threads",
+    "mutual_window",
+    "heap_rank",
+    "flips",
+    "scene",
 )
 
 
@@ -84,7 +89,7 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
     out = dict(options)
     as_threads(out.get("num_threads"))
     as_seed(out.get("seed", 0))
-    for flag in ("mutual", "normals", "refine", "peel"):
+    for flag in ("mutual", "normals", "refine", "peel", "flips"):
         if flag in out:
             pp.as_flag(out[flag], flag)
     if out.get("heap") is not None:
@@ -98,6 +103,8 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
     view = out.get("viewpoint")
     if view is not None and not (isinstance(view, str) and view.strip().lower() == NO_VIEWPOINT):
         out["viewpoint"] = pp.as_point(np.asarray(view, dtype=np.float64), "viewpoint")
+    if "scene" in out:
+        out["scene"] = SceneParams.resolve(out["scene"])
     out["model"] = _model_spec(out.get("model"))
     return out
 
@@ -119,6 +126,7 @@ def recorded_options(options: dict[str, Any]) -> dict[str, Any]:
         out["config"] = out["config"].to_dict()
     if isinstance(out["viewpoint"], tuple):
         out["viewpoint"] = list(out["viewpoint"])
+    out["scene"] = SceneParams.resolve(out["scene"]).to_dict()
     return out
 
 

@@ -170,9 +170,6 @@ converters! {
     max_poses -> usize = |o| usize_in(o, "max_poses", 1, 1_000_000);
     reference_stride -> usize = |o| usize_in(o, "reference_stride", 1, 1_000_000);
     diameter -> f64 = |o| real(o, "diameter");
-    min_visible_fitness -> f64 = |o| real(o, "min_visible_fitness");
-    max_contradiction -> f64 = |o| real(o, "max_contradiction");
-    min_seen -> f64 = |o| real(o, "min_seen");
     viewpoint -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "viewpoint"));
     n_samples -> Option<usize> = |o| optional(o, |o| usize_in(o, "n_samples", 0, usize::MAX));
     n_clusters -> Option<usize> = |o| optional(o, |o| usize_in(o, "n_clusters", 1, usize::MAX));
@@ -182,10 +179,6 @@ converters! {
     sigma_d -> f64 = |o| real(o, "sigma_d");
     radius -> f64 = |o| real(o, "radius");
     voxel_size -> f64 = |o| real(o, "voxel_size");
-    min_fitness -> f64 = |o| real(o, "min_fitness");
-    min_relative_fitness -> f64 = |o| real(o, "min_relative_fitness");
-    max_shared -> f64 = |o| real(o, "max_shared");
-    max_slid_fitness -> f64 = |o| real(o, "max_slid_fitness");
     icp -> bool = |o| flag(o, "icp");
     mutual -> bool = |o| flag(o, "mutual");
     assignment -> String = |o| text(o, "assignment");

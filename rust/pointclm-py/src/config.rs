@@ -2,7 +2,7 @@
 //! core's [`Config::FIELDS`], so that a field is declared once (in the core) and this module
 //! never names one.
 
-use pointclm::config::{Field, Kind, Unit, Value};
+use pointclm::config::{Declared, Field, Kind, Unit, Value};
 use pointclm::{Assignment, Config};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -83,6 +83,42 @@ fn to_py<'py>(py: Python<'py>, v: Value) -> PyResult<Bound<'py, PyAny>> {
     })
 }
 
+/// `base` with the fields `d` names set (by name, checked by kind); `what` names the struct
+/// in errors. Ranges are the caller's to check.
+pub fn declared_from_dict<T: Declared>(
+    mut base: T,
+    d: Option<&Bound<'_, PyDict>>,
+    what: &str,
+) -> PyResult<T> {
+    let Some(d) = d else {
+        return Ok(base);
+    };
+    for (k, v) in d.iter() {
+        let key: String = k
+            .extract()
+            .map_err(|_| ConfigError::new_err(format!("{what} keys must be str, got {k}")))?;
+        let field = T::FIELDS.iter().find(|f| f.name == key).ok_or_else(|| {
+            let names: Vec<&str> = T::FIELDS.iter().map(|f| f.name).collect();
+            ConfigError::new_err(format!(
+                "unknown {what} field {key:?}; valid fields are {}",
+                names.join(", ")
+            ))
+        })?;
+        let value =
+            extract(field, &v).map_err(|e| ConfigError::new_err(format!("{what} {key}: {e}")))?;
+        let set = base.set(field.name, value);
+        debug_assert!(set, "extract gives a value of the field's kind");
+    }
+    if let Some((field, value)) = base.out_of_range() {
+        let (lo, hi) = field.range.unwrap_or((f64::NAN, f64::NAN));
+        return Err(ConfigError::new_err(format!(
+            "{what} {}: {value} is out of range, must lie in [{lo}, {hi}]",
+            field.name
+        )));
+    }
+    Ok(base)
+}
+
 /// The defaults, as a dict.
 pub fn defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
     to_dict(py, &Config::default())
@@ -98,10 +134,18 @@ pub fn to_dict<'py>(py: Python<'py>, c: &Config) -> PyResult<Bound<'py, PyDict>>
 
 /// [`Config::FIELDS`] as a list of dicts, in declaration order: name, kind ("float", "count",
 /// "bool" or "choice"), choices (the names, or None), optional, default, length (whether
-/// `scaled` multiplies it) and doc.
+/// `scaled` multiplies it), unit ("length" or "unitless"), range (`(lo, hi)` or None) and doc.
 pub fn schema<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+    declared_schema(py, &Config::default())
+}
+
+/// [`schema`] of any declared struct, with `defaults` as the defaults.
+pub fn declared_schema<'py, T: Declared>(
+    py: Python<'py>,
+    defaults: &T,
+) -> PyResult<Bound<'py, PyList>> {
     let list = PyList::empty(py);
-    for (f, default) in Config::default().values() {
+    for (f, default) in defaults.values() {
         let d = PyDict::new(py);
         d.set_item("name", f.name)?;
         let (kind, choices) = match f.kind {
@@ -115,6 +159,12 @@ pub fn schema<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         d.set_item("optional", f.optional)?;
         d.set_item("default", to_py(py, default)?)?;
         d.set_item("length", f.unit == Unit::Length)?;
+        let unit = match f.unit {
+            Unit::Length => "length",
+            Unit::Unitless => "unitless",
+        };
+        d.set_item("unit", unit)?;
+        d.set_item("range", f.range)?;
         d.set_item("doc", f.doc)?;
         list.append(d)?;
     }

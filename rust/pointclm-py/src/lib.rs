@@ -9,6 +9,7 @@ mod network;
 mod pointcloud;
 mod pools;
 mod result;
+mod scene;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::{Correspondences, Scene};
@@ -286,6 +287,14 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(kabsch, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::scene_params_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::refine_params_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::validate_scene_params, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::unexplained_points, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::loose_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::fit_tightness, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::isolated_points, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::estimate_normals, m)?)?;

@@ -4,10 +4,12 @@
 use nalgebra::{Matrix3, Vector3};
 use numpy::ndarray::Array2;
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3,
 };
 use pointclm::kabsch::RigidTransform;
 use pointclm::pointcloud::{self, FpfhVariant, Orientation, PointIndex, RefineParams};
+use pointclm::scene;
 use pointclm::{Features, MatchingConfig, NearestSources};
 use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
@@ -16,6 +18,7 @@ use rayon::prelude::*;
 use std::sync::Arc;
 
 use crate::args;
+use crate::config::declared_from_dict;
 use crate::convert::{indices, matrices4, points as rows3};
 use crate::errors::{to_py_err_at, InputError};
 use crate::pools::{guarded, pool};
@@ -298,7 +301,7 @@ type RefinedArrays<'py> = (
 /// Rigid poses from (M, 4, 4) `T_target_source` matrices: the rotation block must be a
 /// rotation up to rounding (`||R^T R - I||_F <= 1e-3`, det > 0; it is replaced by the nearest
 /// rotation) and the last row (0, 0, 0, 1) to 1e-6.
-fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
+pub(crate) fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
     let v = a.as_array();
     if v.shape()[1..] != [4, 4] {
         return Err(InputError::new_err(format!(
@@ -344,7 +347,7 @@ fn rigid_poses(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<RigidTransform>> {
 /// per pose [confidence, fitness, visible fitness, contradiction, seen share, inlier RMSE]; the
 /// index of the input pose each came from; and whether the viewpoint judged them.
 #[pyfunction]
-#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness, target_normals=None, num_threads=None))]
+#[pyo3(signature = (source, target, transformations, voxel_size, icp, viewpoint, rules=None, target_normals=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn refine_poses<'py>(
     py: Python<'py>,
@@ -354,13 +357,7 @@ pub fn refine_poses<'py>(
     #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
     #[pyo3(from_py_with = args::icp)] icp: bool,
     #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
-    #[pyo3(from_py_with = args::min_visible_fitness)] min_visible_fitness: f64,
-    #[pyo3(from_py_with = args::max_contradiction)] max_contradiction: f64,
-    #[pyo3(from_py_with = args::min_seen)] min_seen: f64,
-    #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
-    #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
-    #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
-    #[pyo3(from_py_with = args::max_slid_fitness)] max_slid_fitness: f64,
+    rules: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::optional_target_normals)] target_normals: Option<
         PyReadonlyArray2<'py, f64>,
     >,
@@ -372,16 +369,7 @@ pub fn refine_poses<'py>(
         .map(|a| rows3(&a, "target_normals"))
         .transpose()?;
     let poses = rigid_poses(&transformations)?;
-    let rules = [
-        min_visible_fitness,
-        max_contradiction,
-        min_seen,
-        min_fitness,
-        min_relative_fitness,
-        max_shared,
-        max_slid_fitness,
-    ];
-    let params = refine_params(voxel_size, icp, rules);
+    let params = refine_params(voxel_size, icp, rules.as_ref())?;
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, threads, move || {
         pointcloud::refine_poses(&s, &t, n.as_deref(), &poses, viewpoint, &params)
@@ -444,22 +432,16 @@ pub struct PyRefineContext {
     voxel_size: f64,
 }
 
-/// `RefineParams::for_voxel` with the caller's ICP choice and rules.
-fn refine_params(voxel_size: f64, icp: bool, rules: [f64; 7]) -> RefineParams {
-    let defaults = RefineParams::for_voxel(voxel_size);
-    let [min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness] =
-        rules;
-    RefineParams {
-        radii: if icp { defaults.radii.clone() } else { vec![] },
-        min_visible_fitness,
-        max_contradiction,
-        min_seen,
-        min_fitness,
-        min_relative_fitness,
-        max_shared,
-        max_slid_fitness,
-        ..defaults
-    }
+/// `RefineParams::for_voxel` with the caller's ICP choice and `rules` (fields of
+/// `RefineParams` by name, in the clouds' units); the core checks the ranges.
+fn refine_params(
+    voxel_size: f64,
+    icp: bool,
+    rules: Option<&Bound<'_, PyDict>>,
+) -> PyResult<RefineParams> {
+    let mut params = declared_from_dict(RefineParams::for_voxel(voxel_size), rules, "refine rule")?;
+    params.icp = icp;
+    Ok(params)
 }
 
 #[pymethods]
@@ -494,33 +476,17 @@ impl PyRefineContext {
     }
 
     /// `refine_poses` of `transformations` against the context's clouds (same returns).
-    #[pyo3(signature = (transformations, icp, min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness, max_shared, max_slid_fitness, num_threads=None))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (transformations, icp, rules=None, num_threads=None))]
     fn refine<'py>(
         &self,
         py: Python<'py>,
         #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
         #[pyo3(from_py_with = args::icp)] icp: bool,
-        #[pyo3(from_py_with = args::min_visible_fitness)] min_visible_fitness: f64,
-        #[pyo3(from_py_with = args::max_contradiction)] max_contradiction: f64,
-        #[pyo3(from_py_with = args::min_seen)] min_seen: f64,
-        #[pyo3(from_py_with = args::min_fitness)] min_fitness: f64,
-        #[pyo3(from_py_with = args::min_relative_fitness)] min_relative_fitness: f64,
-        #[pyo3(from_py_with = args::max_shared)] max_shared: f64,
-        #[pyo3(from_py_with = args::max_slid_fitness)] max_slid_fitness: f64,
+        rules: Option<Bound<'py, PyDict>>,
         #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
     ) -> PyResult<RefinedArrays<'py>> {
         let poses = rigid_poses(&transformations)?;
-        let rules = [
-            min_visible_fitness,
-            max_contradiction,
-            min_seen,
-            min_fitness,
-            min_relative_fitness,
-            max_shared,
-            max_slid_fitness,
-        ];
-        let params = refine_params(self.voxel_size, icp, rules);
+        let params = refine_params(self.voxel_size, icp, rules.as_ref())?;
         let threads = num_threads.map(pool).transpose()?;
         let inner = Arc::clone(&self.inner);
         let out = guarded(py, threads, move || inner.refine(&poses, &params))?;
@@ -544,6 +510,103 @@ impl PyRefineContext {
         let inner = Arc::clone(&self.inner);
         let shares = guarded(py, threads, move || inner.near_shares(&poses, &pts, radius))?;
         Ok(shares.into_pyarray(py))
+    }
+
+    /// How firmly the scan pins each of `transformations` down (`pointclm::scene::ranking::
+    /// pose_stability`), with the model's `source_normals`, counting model points within
+    /// `radius` of the scan.
+    #[pyo3(signature = (transformations, source_normals, radius, num_threads=None))]
+    fn pose_stability<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::points)] source_normals: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let poses = rigid_poses(&transformations)?;
+        let normals = rows3(&source_normals, "source_normals")?;
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let out = guarded(py, threads, move || {
+            scene::ranking::pose_stability(inner.source(), &normals, inner.index(), &poses, radius)
+        })?;
+        Ok(out.into_pyarray(py))
+    }
+
+    /// Per row of `points`, whether a scan point lies strictly within `radius` of it.
+    #[pyo3(signature = (points, radius, num_threads=None))]
+    fn near_mask<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let pts = rows3(&points, "points")?;
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let mask = guarded(py, threads, move || inner.near_mask(&pts, radius))?;
+        Ok(mask.into_pyarray(py))
+    }
+
+    /// The scan points (ascending) nearest, within `radius`, to a model point at
+    /// `transformation`: what a pose explains.
+    #[pyo3(signature = (transformation, radius))]
+    fn explained_scan_points<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformation: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+    ) -> PyResult<Bound<'py, PyArray1<i64>>> {
+        let poses = rigid_poses(&transformation)?;
+        let [pose] = poses[..] else {
+            return Err(InputError::new_err(
+                "transformation must hold exactly one pose",
+            ));
+        };
+        let hits = scene::peeling::explained_scan_points(
+            self.inner.index(),
+            self.inner.source(),
+            &pose,
+            radius,
+        );
+        Ok(hits
+            .into_iter()
+            .map(|i| i as i64)
+            .collect::<Vec<_>>()
+            .into_pyarray(py))
+    }
+
+    /// The rows of `transformations` (surest first) that are not duplicates of `taken` scan
+    /// points or of a surer kept row (`pointclm::scene::peeling::not_duplicates`), and
+    /// `taken` with the kept rows' points added (a new array).
+    #[pyo3(signature = (transformations, radius, max_shared, taken, num_threads=None))]
+    fn not_duplicates<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+        max_shared: f64,
+        taken: PyReadonlyArray1<'py, bool>,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<(Vec<usize>, Bound<'py, PyArray1<bool>>)> {
+        let poses = rigid_poses(&transformations)?;
+        let mut marks = taken.as_array().to_vec();
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let (keep, marks) = guarded(py, threads, move || {
+            let keep = scene::peeling::not_duplicates(
+                inner.index(),
+                inner.source(),
+                &poses,
+                radius,
+                max_shared,
+                &mut marks,
+            )?;
+            Ok::<_, pointclm::Error>((keep, marks))
+        })?;
+        Ok((keep, marks.into_pyarray(py)))
     }
 }
 

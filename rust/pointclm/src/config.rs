@@ -115,6 +115,23 @@ pub struct Field {
     pub optional: bool,
     /// Length or unitless.
     pub unit: Unit,
+    /// The closed range `[lo, hi]` its value must lie in (a count's as whole numbers), or
+    /// `None` where the struct's own checks say what is valid.
+    pub range: Option<(f64, f64)>,
+}
+
+impl Field {
+    /// Whether `value` lies in the field's range (an unset optional field always does).
+    pub fn admits(&self, value: Value) -> bool {
+        let Some((lo, hi)) = self.range else {
+            return true;
+        };
+        match value {
+            Value::Float(v) => v >= lo && v <= hi,
+            Value::Count(n) => (n as f64) >= lo && (n as f64) <= hi,
+            _ => true,
+        }
+    }
 }
 
 /// The value of one field of [`Config`], read or written by name ([`Config::get`],
@@ -131,6 +148,18 @@ pub enum Value {
     Bool(bool),
     /// A [`Kind::Choice`] value, by name.
     Choice(&'static str),
+}
+
+impl std::fmt::Display for Value {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Value::None => write!(f, "None"),
+            Value::Float(v) => write!(f, "{v}"),
+            Value::Count(n) => write!(f, "{n}"),
+            Value::Bool(b) => write!(f, "{b}"),
+            Value::Choice(s) => write!(f, "{s:?}"),
+        }
+    }
 }
 
 /// A type a field of [`Config`] may have, with its [`Kind`] and its conversion to and from a
@@ -207,84 +236,117 @@ impl<T: FieldType> FieldType for Option<T> {
     }
 }
 
-/// Declares [`Config`] from one list, each field written once with its doc, type, default and
-/// unit, and derives from it `Default`, the table [`Config::FIELDS`] and access by name
-/// ([`Config::get`], [`Config::set`]), which the Python binding and `scaled` use.
+/// A struct of parameters declared with [`config!`]: its fields described one by one
+/// ([`Declared::FIELDS`]) and read or written by name, which is what code that works by field
+/// name (the Python binding, the CLI, a file format) builds on, so that a field is declared in
+/// one place.
+pub trait Declared: Default + Clone {
+    /// Every field, in declaration order, with its doc, kind, unit and range.
+    const FIELDS: &'static [Field];
+    /// Every field with its value, in declaration order.
+    fn values(&self) -> Vec<(&'static Field, Value)>;
+    /// The value of the field called `name`, if there is one.
+    fn get(&self, name: &str) -> Option<Value>;
+    /// Sets the field called `name` to `value`; `false` (and nothing set) if there is no such
+    /// field or `value` is of another kind. No range is checked here.
+    #[must_use]
+    fn set(&mut self, name: &str, value: Value) -> bool;
+
+    /// The first field whose value lies outside its declared range ([`Field::range`]), with
+    /// that value; `None` when every field is within its range.
+    fn out_of_range(&self) -> Option<(&'static Field, Value)> {
+        self.values().into_iter().find(|(f, v)| !f.admits(*v))
+    }
+
+    /// The same settings with every [`Unit::Length`] field multiplied by `factor`.
+    fn scaled(&self, factor: f64) -> Self {
+        let mut scaled = self.clone();
+        for (field, value) in self.values() {
+            if let (Unit::Length, Value::Float(v)) = (field.unit, value) {
+                let set = scaled.set(field.name, Value::Float(v * factor));
+                debug_assert!(set, "{} is a float field", field.name);
+            }
+        }
+        scaled
+    }
+}
+
+/// Declares a struct of parameters from one list, each field written once with its doc, type,
+/// default, unit and (optionally) its closed range `[lo, hi]`, and derives from it `Default`
+/// and [`Declared`]: the table of fields and access by name, which the Python binding,
+/// `scaled` and the range checks use.
 macro_rules! config {
+    (@range) => { None };
+    (@range $lo:expr, $hi:expr) => { Some(($lo as f64, $hi as f64)) };
     (
         $(#[$meta:meta])*
-        pub struct Config {
+        pub struct $name:ident {
             $(
                 $(#[doc = $doc:literal])*
-                pub $name:ident: $ty:ty = $default:expr => $unit:expr,
+                pub $field:ident: $ty:ty = $default:expr => $unit:expr $(, [$lo:expr, $hi:expr])?;
             )+
         }
     ) => {
         $(#[$meta])*
-        pub struct Config {
+        pub struct $name {
             $(
                 $(#[doc = $doc])*
-                pub $name: $ty,
+                pub $field: $ty,
             )+
         }
 
-        impl Default for Config {
+        impl Default for $name {
             fn default() -> Self {
                 Self {
-                    $($name: $default,)+
+                    $($field: $default,)+
                 }
             }
         }
 
-        impl Config {
-            /// Every field, in declaration order, with its doc, kind and unit: what code that
-            /// reads or writes configs by name (the Python binding) works from, so that a field
-            /// is declared in one place.
-            pub const FIELDS: &'static [Field] = &[$(
-                Field {
-                    name: stringify!($name),
+        impl $crate::config::Declared for $name {
+            const FIELDS: &'static [$crate::config::Field] = &[$(
+                $crate::config::Field {
+                    name: stringify!($field),
                     doc: concat!($($doc, "\n"),*),
-                    kind: <$ty as FieldType>::KIND,
-                    optional: <$ty as FieldType>::OPTIONAL,
+                    kind: <$ty as $crate::config::FieldType>::KIND,
+                    optional: <$ty as $crate::config::FieldType>::OPTIONAL,
                     unit: $unit,
+                    range: $crate::config::config!(@range $($lo, $hi)?),
                 },
             )+];
 
-            /// Every field with its value, in declaration order ([`Config::FIELDS`]).
-            pub fn values(&self) -> Vec<(&'static Field, Value)> {
+            fn values(&self) -> Vec<(&'static $crate::config::Field, $crate::config::Value)> {
                 Self::FIELDS
                     .iter()
-                    .zip([$(self.$name.to_value()),+])
+                    .zip([$($crate::config::FieldType::to_value(&self.$field)),+])
                     .collect()
             }
 
-            /// The value of the field called `name`, if there is one.
-            pub fn get(&self, name: &str) -> Option<Value> {
+            fn get(&self, name: &str) -> Option<$crate::config::Value> {
                 match name {
-                    $(stringify!($name) => Some(self.$name.to_value()),)+
+                    $(stringify!($field) => Some($crate::config::FieldType::to_value(&self.$field)),)+
                     _ => None,
                 }
             }
 
-            /// Sets the field called `name` to `value`; `false` (and nothing set) if there is
-            /// no such field or `value` is of another kind. No range is checked here: see
-            /// [`Config::validate`].
-            #[must_use]
-            pub fn set(&mut self, name: &str, value: Value) -> bool {
+            fn set(&mut self, name: &str, value: $crate::config::Value) -> bool {
                 match name {
-                    $(stringify!($name) => match <$ty as FieldType>::from_value(value) {
-                        Some(v) => {
-                            self.$name = v;
-                            true
+                    $(stringify!($field) => {
+                        match <$ty as $crate::config::FieldType>::from_value(value) {
+                            Some(v) => {
+                                self.$field = v;
+                                true
+                            }
+                            None => false,
                         }
-                        None => false,
-                    },)+
+                    })+
                     _ => false,
                 }
             }
         }
     };
 }
+pub(crate) use config;
 
 config! {
     /// Parameters of the whole pipeline.
@@ -297,72 +359,72 @@ config! {
     #[derive(Debug, Clone, PartialEq)]
     pub struct Config {
         /// Length tolerance of spatial consistency `beta_ij = [1 - d_ij^2 / sigma_d^2]_+`.
-        pub sigma_d: f64 = 0.05 => Unit::Length,
+        pub sigma_d: f64 = 0.05 => Unit::Length;
         /// Pruning rule; see [`Pruning`]. "paper": binarise `S` at `tau_s`, keep rows whose
         /// sum exceeds `tau_n`. "authors": the authors' code, `beta > beta_threshold` (and
         /// feature similarity `> feature_threshold`), keep rows whose count exceeds
         /// `min_count`. "none": no pruning (ablation).
-        pub pruning: Pruning = Pruning::Paper => Unit::Unitless,
+        pub pruning: Pruning = Pruning::Paper => Unit::Unitless;
         /// Paper rule: binarisation threshold on `S`.
-        pub tau_s: f64 = 0.85 => Unit::Unitless,
+        pub tau_s: f64 = 0.85 => Unit::Unitless;
         /// Paper rule: a row must have more than this many entries above `tau_s`.
-        pub tau_n: usize = 10 => Unit::Unitless,
+        pub tau_n: usize = 10 => Unit::Unitless;
         /// Authors'-code rule: threshold on `beta`.
-        pub beta_threshold: f64 = 0.9 => Unit::Unitless,
+        pub beta_threshold: f64 = 0.9 => Unit::Unitless;
         /// Authors'-code rule: threshold on the feature similarity `S^F` (ignored without
         /// features).
-        pub feature_threshold: f64 = 0.8 => Unit::Unitless,
+        pub feature_threshold: f64 = 0.8 => Unit::Unitless;
         /// Authors'-code rule: a row must count more than this many consistent
         /// correspondences.
-        pub min_count: usize = 9 => Unit::Unitless,
+        pub min_count: usize = 9 => Unit::Unitless;
         /// Upper bound on the kept set handed to the dense eigensolver: when pruning keeps
         /// more, the densest `max_kept` rows are clustered (memory and time grow as its
         /// square and cube).
-        pub max_kept: usize = 2000 => Unit::Unitless,
+        pub max_kept: usize = 2000 => Unit::Unitless;
         /// Length scale of the clustering affinity `[1 - d_ij^2 / affinity_sigma^2]_+`.
-        pub affinity_sigma: f64 = 0.1 => Unit::Length,
+        pub affinity_sigma: f64 = 0.1 => Unit::Length;
         /// Optional cap on the number of clusters the eigengap may choose.
-        pub max_instances: Option<usize> = None => Unit::Unitless,
+        pub max_instances: Option<usize> = None => Unit::Unitless;
         /// When set, the cluster count is the larger of the eigengap's and the number of
         /// normalised-Laplacian eigenvalues below this level (in (0, 2)). Why: with dozens of
         /// similar copies the spectrum rises smoothly and its largest gap comes early, while
         /// every copy still contributes an eigenvalue well below 1 (a group with more affinity
         /// inside than across has a small Rayleigh quotient). `None`: the eigengap alone (the
         /// paper's rule).
-        pub cluster_level: Option<f64> = None => Unit::Unitless,
+        pub cluster_level: Option<f64> = None => Unit::Unitless;
         /// Clustering rounds: after each, the correspondences explained by validated instances
         /// leave the kept set and the rest is clustered again, which finds copies the eigengap
         /// merged or missed (bins of dozens of parts). Needs `max_nfa` (without validation one
         /// round runs, as in the paper).
-        pub max_rounds: usize = 1 => Unit::Unitless,
+        pub max_rounds: usize = 1 => Unit::Unitless;
         /// Label assignment on the spectral embedding: "kmeans", k-means++ on the
         /// row-normalised embedding, or "discretize", Yu and Shi's discretisation; see
         /// [`Assignment`].
-        pub assignment: Assignment = Assignment::KMeans => Unit::Unitless,
+        pub assignment: Assignment = Assignment::KMeans => Unit::Unitless;
         /// Restarts of k-means (best inertia wins) or of the discretisation.
-        pub kmeans_restarts: usize = 10 => Unit::Unitless,
+        pub kmeans_restarts: usize = 10 => Unit::Unitless;
         /// Instances with fewer inliers are dropped (checked after the labelling and again
         /// after the final refit). Clusters only seed poses: any cluster of 3 or more rows is
         /// fitted (`clustering::MIN_SEED_ROWS`), since its pose may explain more rows.
-        pub min_cluster_size: usize = 10 => Unit::Unitless,
+        pub min_cluster_size: usize = 10 => Unit::Unitless;
         /// At most this many RANSAC hypotheses (3-point Kabsch) per cluster.
-        pub ransac_iterations: usize = 1000 => Unit::Unitless,
+        pub ransac_iterations: usize = 1000 => Unit::Unitless;
         /// RANSAC stops once an all-inlier sample would have been drawn with this probability
         /// at the best inlier share found so far (1 runs all `ransac_iterations`). 0.9999:
         /// on the validation sets no worse than running every hypothesis (synthetic scores
         /// identical), the correspondence stage in about half the time (BENCHMARKS.md).
-        pub ransac_confidence: f64 = 0.9999 => Unit::Unitless,
+        pub ransac_confidence: f64 = 0.9999 => Unit::Unitless;
         /// A-contrario validation: an instance is kept only if its number of false alarms (how
         /// many poses as well supported would arise from unrelated matches) is at most this
         /// ([`crate::validation`]). `None` keeps every instance.
-        pub max_nfa: Option<f64> = Some(1e-3) => Unit::Unitless,
+        pub max_nfa: Option<f64> = Some(1e-3) => Unit::Unitless;
         /// A correspondence is an inlier of a pose if `||R x + t - y||` is below this.
-        pub inlier_threshold: f64 = 0.1 => Unit::Length,
+        pub inlier_threshold: f64 = 0.1 => Unit::Length;
         /// Refit each pose by least squares on its inliers (the authors' code does not).
-        pub refine: bool = true => Unit::Unitless,
+        pub refine: bool = true => Unit::Unitless;
         /// Merge instances whose poses place the object at the same spot (the authors' code
         /// returns such duplicates).
-        pub merge_duplicates: bool = true => Unit::Unitless,
+        pub merge_duplicates: bool = true => Unit::Unitless;
     }
 }
 
@@ -447,14 +509,28 @@ impl Config {
     /// object size are `factor` times the synthetic benchmark's).
     /// The lengths are the fields of [`Unit::Length`] in [`Config::FIELDS`].
     pub fn scaled(&self, factor: f64) -> Self {
-        let mut scaled = self.clone();
-        for (field, value) in self.values() {
-            if let (Unit::Length, Value::Float(v)) = (field.unit, value) {
-                let set = scaled.set(field.name, Value::Float(v * factor));
-                debug_assert!(set, "{} is a float field", field.name);
-            }
-        }
-        scaled
+        Declared::scaled(self, factor)
+    }
+
+    /// Every field, in declaration order ([`Declared::FIELDS`]).
+    pub const FIELDS: &'static [Field] = <Self as Declared>::FIELDS;
+
+    /// Every field with its value, in declaration order ([`Config::FIELDS`]).
+    pub fn values(&self) -> Vec<(&'static Field, Value)> {
+        Declared::values(self)
+    }
+
+    /// The value of the field called `name`, if there is one.
+    pub fn get(&self, name: &str) -> Option<Value> {
+        Declared::get(self, name)
+    }
+
+    /// Sets the field called `name` to `value`; `false` (and nothing set) if there is no such
+    /// field or `value` is of another kind. No range is checked here: see
+    /// [`Config::validate`].
+    #[must_use]
+    pub fn set(&mut self, name: &str, value: Value) -> bool {
+        Declared::set(self, name, value)
     }
 
     /// Checks every field; the pipeline calls this before touching any data.

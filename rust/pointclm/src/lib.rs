@@ -55,6 +55,7 @@ pub mod pipeline;
 pub mod pointcloud;
 pub mod pruning;
 pub mod ransac;
+pub mod scene;
 mod seeds;
 pub mod spectral;
 #[cfg(test)]

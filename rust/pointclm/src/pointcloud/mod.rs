@@ -65,6 +65,19 @@ pub(crate) fn check_normals(
     check_points(normals, what, 0)
 }
 
+/// Rejects a per-point array whose length is not the cloud's (`what` names it and the rule).
+pub(crate) fn check_len(got: usize, expected: usize, what: &'static str) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(Error::LengthMismatch {
+            what,
+            expected,
+            got,
+        })
+    }
+}
+
 /// Rejects an index built on another cloud than `points`.
 pub(crate) fn check_index(index: &PointIndex, points: &[[f64; 3]]) -> Result<()> {
     if index.len() != points.len() {

@@ -18,131 +18,124 @@ use super::icp::{icp_paired, previous_pair};
 use super::normals::{estimate_normals, Orientation};
 use super::visibility::{DepthMap, Sight};
 use super::{check_normals, check_points, check_positive, PointIndex};
+use crate::config::{Declared, Unit};
 use crate::error::{Error, Result};
 use crate::kabsch::RigidTransform;
 
 /// Neighbours a scan normal is fitted to, as `describe`'s default.
 const NORMAL_MAX_NN: usize = 30;
 
-/// Lengths (in the clouds' units) and acceptance rules of [`refine_poses`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct RefineParams {
-    /// ICP stages, coarse to fine: model points farther than this from the scan are left out
-    /// of the fit. Empty: no ICP, verification only.
-    pub radii: Vec<f64>,
-    /// At most this many ICP iterations per stage (a stage ends early once the pose stops
-    /// moving).
-    pub iterations: usize,
-    /// The scan's normals for point-to-plane ICP are fitted to its points within this
-    /// distance (at most 30 of them).
-    pub normal_radius: f64,
-    /// A model point is explained when a scan point lies within this distance.
-    pub fit_radius: f64,
-    /// With a viewpoint: poses explaining a smaller share of what the sensor could see of
-    /// the model at that pose are rejected.
-    pub min_visible_fitness: f64,
-    /// With a viewpoint: poses putting more than this share of their visible points where
-    /// the sensor saw free space are rejected.
-    pub max_contradiction: f64,
-    /// With a viewpoint: a model point the scan does not explain is judged (seen or
-    /// contradicted) only where its surface faces the sensor within this angle, in degrees
-    /// (90: everywhere). A range sensor rarely returns from surfaces seen nearly edge-on, so
-    /// unexplained points there say nothing about the pose; flat-faced parts have many.
-    pub max_incidence_deg: f64,
-    /// With a viewpoint: poses of which the sensor could see less than this share of the
-    /// model are rejected (too little to judge).
-    pub min_seen: f64,
-    /// Width of a depth-map cell at the scan's median range.
-    pub depth_cell: f64,
-    /// Ranges closer than this along a ray are one surface.
-    pub depth_tolerance: f64,
-    /// The viewpoint is trusted when at most `max_hidden_scan` of the scan lies more than
-    /// `trust_tolerance` behind another scan point in a cell `trust_cell` wide (a single view
-    /// has almost none: slanted surfaces and edges); else the rules without a viewpoint.
-    pub trust_cell: f64,
-    pub trust_tolerance: f64,
-    pub max_hidden_scan: f64,
-    /// Without a viewpoint: poses explaining a smaller share of the model are rejected.
-    pub min_fitness: f64,
-    /// Without a viewpoint: poses explaining less than this share of the best pose's
-    /// fitness are rejected (copies seen alike by one sensor, which heaps break).
-    pub min_relative_fitness: f64,
-    /// A pose is a duplicate when more than this share of the scan points it explains are
-    /// already explained by a surer pose.
-    pub max_shared: f64,
-    /// Poses are rejected when the model slid along the surface it explains (by that
-    /// surface's spread, either way along its two main directions) still explains more than
-    /// this share of what it explains in place (1: never). A patch lying on a larger
-    /// surface of its shape (a flat face on a table or a wall) fits anywhere on it: the fit
-    /// says nothing about where the object is, however well it explains the scan.
-    pub max_slid_fitness: f64,
+crate::config::config! {
+    /// Lengths (in the clouds' units) and acceptance rules of [`refine_poses`], each declared
+    /// once here with its default, unit and range ([`Declared::FIELDS`]). The lengths'
+    /// defaults are for clouds downsampled at a voxel of 1: [`RefineParams::for_voxel`]
+    /// scales them to another voxel.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct RefineParams {
+        /// Refine each pose by point-to-plane ICP before judging it; false: verification
+        /// only, the poses are judged as given.
+        pub icp: bool = true => Unit::Unitless;
+        /// ICP's first (coarsest) stage: model points farther than this from the scan are
+        /// left out of the fit. 3 voxels: a pose fitted to descriptor matches is off by a few
+        /// voxels.
+        pub icp_radius_coarse: f64 = 3.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// ICP's second stage radius (2 voxels).
+        pub icp_radius_middle: f64 = 2.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// ICP's last stage radius: the fitness radius (1.5 voxels), so that ICP ends on the
+        /// points verification counts.
+        pub icp_radius_fine: f64 = 1.5 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// At most this many ICP iterations per stage (a stage ends early once the pose stops
+        /// moving).
+        pub iterations: usize = 10 => Unit::Unitless, [1, 1000];
+        /// The scan's normals for point-to-plane ICP are fitted to its points within this
+        /// distance (at most 30 of them): 2 voxels hold about 12 points of a surface.
+        pub normal_radius: f64 = 2.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// A model point is explained when a scan point lies within this distance: a
+        /// downsampled point lies within about half a voxel of the surface on each side,
+        /// plus noise (1.5 voxels).
+        pub fit_radius: f64 = 1.5 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// With a viewpoint: poses explaining a smaller share of what the sensor could see of
+        /// the model at that pose are rejected.
+        pub min_visible_fitness: f64 = 0.85 => Unit::Unitless, [0.0, 1.0];
+        /// With a viewpoint: poses putting more than this share of their visible points where
+        /// the sensor saw free space are rejected. Point-to-plane ICP settles a right pose on
+        /// the surface, so a right pose leaves almost none.
+        pub max_contradiction: f64 = 0.01 => Unit::Unitless, [0.0, 1.0];
+        /// With a viewpoint: a model point the scan does not explain is judged (seen or
+        /// contradicted) only where its surface faces the sensor within this angle, in degrees
+        /// (90: everywhere). A range sensor rarely returns from surfaces seen nearly edge-on,
+        /// so unexplained points there say nothing about the pose; flat-faced parts have many.
+        pub max_incidence_deg: f64 = 75.0 => Unit::Unitless, [0.0, 90.0];
+        /// With a viewpoint: poses of which the sensor could see less than this share of the
+        /// model are rejected (too little to judge).
+        pub min_seen: f64 = 0.15 => Unit::Unitless, [0.0, 1.0];
+        /// Width of a depth-map cell at the scan's median range: a downsampled surface has a
+        /// point about every voxel, so cells of 1.5 voxels on a surface are rarely empty.
+        pub depth_cell: f64 = 1.5 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// Ranges closer than this along a ray are one surface: noise plus the depth spread
+        /// of a slanted surface within a cell (3 voxels).
+        pub depth_tolerance: f64 = 3.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// The viewpoint is trusted when at most `max_hidden_scan` of the scan lies more than
+        /// `trust_tolerance` behind another scan point in a cell `trust_cell` wide (a single
+        /// view has almost none: slanted surfaces and edges); else the rules without a
+        /// viewpoint.
+        pub trust_cell: f64 = 1.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// See `trust_cell`.
+        pub trust_tolerance: f64 = 5.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
+        /// See `trust_cell`: single range scans hide 2-7 % of themselves there (slanted
+        /// surfaces and edges), the same scans seen from elsewhere 20-70 %.
+        pub max_hidden_scan: f64 = 0.12 => Unit::Unitless, [0.0, 1.0];
+        /// Without a viewpoint: poses explaining a smaller share of the model are rejected.
+        pub min_fitness: f64 = 0.3 => Unit::Unitless, [0.0, 1.0];
+        /// Without a viewpoint: poses explaining less than this share of the best pose's
+        /// fitness are rejected (copies seen alike by one sensor, which heaps break).
+        pub min_relative_fitness: f64 = 0.8 => Unit::Unitless, [0.0, 1.0];
+        /// A pose is a duplicate when more than this share of the scan points it explains are
+        /// already explained by a surer pose.
+        pub max_shared: f64 = 0.5 => Unit::Unitless, [0.0, 1.0];
+        /// Poses are rejected when the model slid along the surface it explains (by that
+        /// surface's spread, either way along its two main directions) still explains more
+        /// than this share of what it explains in place (1: never). A patch lying on a larger
+        /// surface of its shape (a flat face on a table or a wall) fits anywhere on it: the
+        /// fit says nothing about where the object is, however well it explains the scan.
+        pub max_slid_fitness: f64 = 0.9 => Unit::Unitless, [0.0, 1.0];
+    }
 }
 
 impl RefineParams {
-    /// The defaults for clouds downsampled at `voxel`: ICP at 3, 2 and 1.5 voxels, fitness
-    /// within 1.5 voxels (a downsampled point lies within about half a voxel of the surface,
-    /// on each side, plus noise); depth cells of 1.5 voxels (a downsampled surface has a
-    /// point about every voxel, so cells on a surface are rarely empty) and one surface
-    /// within 3 voxels along a ray (noise plus the depth spread of a slanted surface within
-    /// a cell).
+    /// The defaults for clouds downsampled at `voxel`: every length of
+    /// [`RefineParams::default`] (in voxels) times `voxel`.
     pub fn for_voxel(voxel: f64) -> Self {
-        Self {
-            radii: vec![3.0 * voxel, 2.0 * voxel, 1.5 * voxel],
-            iterations: 10,
-            normal_radius: 2.0 * voxel,
-            fit_radius: 1.5 * voxel,
-            min_visible_fitness: 0.85,
-            max_contradiction: 0.01,
-            max_incidence_deg: 75.0,
-            min_seen: 0.15,
-            depth_cell: 1.5 * voxel,
-            depth_tolerance: 3.0 * voxel,
-            trust_cell: voxel,
-            trust_tolerance: 5.0 * voxel,
-            max_hidden_scan: 0.12,
-            min_fitness: 0.3,
-            min_relative_fitness: 0.8,
-            max_shared: 0.5,
-            max_slid_fitness: 0.9,
+        Self::default().scaled(voxel)
+    }
+
+    /// The ICP stages' radii, coarse to fine; empty without ICP.
+    pub fn radii(&self) -> Vec<f64> {
+        if self.icp {
+            vec![
+                self.icp_radius_coarse,
+                self.icp_radius_middle,
+                self.icp_radius_fine,
+            ]
+        } else {
+            Vec::new()
         }
     }
 
     fn check(&self) -> Result<()> {
-        for &r in &self.radii {
-            check_positive("radii", r)?;
+        match self.out_of_range() {
+            None => Ok(()),
+            Some((field, value)) => Err(Error::InvalidParameter {
+                name: field.name,
+                value: value.to_string(),
+                reason: match field.range {
+                    Some((0.0, 1.0)) => "must lie in [0, 1]",
+                    Some((0.0, 90.0)) => "must lie in [0, 90] degrees",
+                    Some((1.0, _)) => "must be a count >= 1 within its bound",
+                    _ => "must be a positive finite number",
+                },
+            }),
         }
-        check_positive("fit_radius", self.fit_radius)?;
-        check_positive("normal_radius", self.normal_radius)?;
-        if !(0.0..=90.0).contains(&self.max_incidence_deg) {
-            return Err(Error::InvalidParameter {
-                name: "max_incidence_deg",
-                value: self.max_incidence_deg.to_string(),
-                reason: "must lie in [0, 90] degrees",
-            });
-        }
-        check_positive("depth_cell", self.depth_cell)?;
-        check_positive("depth_tolerance", self.depth_tolerance)?;
-        check_positive("trust_cell", self.trust_cell)?;
-        check_positive("trust_tolerance", self.trust_tolerance)?;
-        for (name, v) in [
-            ("min_visible_fitness", self.min_visible_fitness),
-            ("max_contradiction", self.max_contradiction),
-            ("min_seen", self.min_seen),
-            ("max_hidden_scan", self.max_hidden_scan),
-            ("min_fitness", self.min_fitness),
-            ("min_relative_fitness", self.min_relative_fitness),
-            ("max_shared", self.max_shared),
-            ("max_slid_fitness", self.max_slid_fitness),
-        ] {
-            if !(0.0..=1.0).contains(&v) {
-                return Err(Error::InvalidParameter {
-                    name,
-                    value: v.to_string(),
-                    reason: "must lie in [0, 1]",
-                });
-            }
-        }
-        Ok(())
     }
 }
 
@@ -238,7 +231,7 @@ impl RefineContext {
         let normals = match target_normals {
             Some(given) => checked_normals(target, given)?.to_vec(),
             // Point-to-plane ICP needs them; without ICP, none.
-            None if params.radii.is_empty() => Vec::new(),
+            None if !params.icp => Vec::new(),
             None => unsigned_normals(target, &index, params)?,
         };
         let trusted = viewpoint.filter(|&v| one_view(target, v, params));
@@ -281,7 +274,7 @@ impl RefineContext {
             });
         }
         let estimated;
-        let normals: &[[f64; 3]] = if self.normals.is_empty() && !params.radii.is_empty() {
+        let normals: &[[f64; 3]] = if self.normals.is_empty() && params.icp {
             estimated = unsigned_normals(&self.target, &self.index, params)?;
             &estimated
         } else {
@@ -293,6 +286,7 @@ impl RefineContext {
             min_cos: params.max_incidence_deg.to_radians().cos(),
         });
         let (source, target) = (&self.source[..], &self.target[..]);
+        let radii = params.radii();
         let fitted: Vec<(RigidTransform, Judged)> = poses
             .par_iter()
             .map(|pose| {
@@ -302,7 +296,7 @@ impl RefineContext {
                     normals,
                     &self.index,
                     *pose,
-                    &params.radii,
+                    &radii,
                     params.iterations,
                     self.depth.as_ref(),
                 );
@@ -337,6 +331,33 @@ impl RefineContext {
             poses: kept,
             by_visibility: self.depth.is_some(),
         })
+    }
+
+    /// Per point of `points`, whether a scan point lies strictly within `radius` of it, in
+    /// parallel on the current rayon pool.
+    pub fn near_mask(&self, points: &[[f64; 3]], radius: f64) -> Result<Vec<bool>> {
+        check_points(points, "points", 0)?;
+        check_positive("radius", radius)?;
+        Ok(points
+            .par_iter()
+            .map(|p| self.index.any_within(p, radius))
+            .collect())
+    }
+
+    /// The model the context was built with.
+    pub fn source(&self) -> &[[f64; 3]] {
+        &self.source
+    }
+
+    /// The scan the context was built with.
+    pub fn target(&self) -> &[[f64; 3]] {
+        &self.target
+    }
+
+    /// The scan's index (with a grid of cells `fit_radius` wide): the one index of the scan
+    /// that the scene's stages share.
+    pub fn index(&self) -> &PointIndex {
+        &self.index
     }
 
     /// The share of `points` (in the source's frame) that each of `poses` puts strictly

@@ -128,6 +128,17 @@ impl PointIndex {
             .map(|n| (n.item as usize, n.distance))
     }
 
+    /// The `k` nearest indexed points to `query`, nearest first: `(index, squared
+    /// distance)` (fewer when the cloud holds fewer).
+    pub fn nearest_k(&self, query: &[f64; 3], k: usize) -> Vec<(usize, f64)> {
+        let k = NonZero::new(k.min(self.len)).unwrap_or(NonZero::<usize>::MIN);
+        self.tree
+            .nearest_n::<SquaredEuclidean>(query, k)
+            .into_iter()
+            .map(|n| (n.item as usize, n.distance))
+            .collect()
+    }
+
     /// The nearest indexed point to `query`: `(index, squared distance)`.
     pub fn nearest(&self, query: &[f64; 3]) -> (usize, f64) {
         let n = self.tree.nearest_one::<SquaredEuclidean>(query);

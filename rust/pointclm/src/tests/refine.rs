@@ -195,7 +195,7 @@ fn bad_inputs_are_typed_errors() {
             ..params()
         },
         RefineParams {
-            radii: vec![0.3, f64::NAN],
+            icp_radius_middle: f64::NAN,
             ..params()
         },
         RefineParams {
@@ -331,7 +331,7 @@ fn a_pose_where_the_sensor_saw_free_space_is_rejected() {
     let scene = sensed(&surfaces, 0.06);
     let wrong = motion([0.0, 1.0, 0.0], 0.0, [4.0, 0.0, 0.7]);
     let loose = RefineParams {
-        radii: vec![],
+        icp: false,
         min_fitness: 0.0,
         min_relative_fitness: 0.0,
         ..RefineParams::for_voxel(0.1)
@@ -454,7 +454,7 @@ fn a_context_refines_as_each_call_would() {
         // Several calls on one context, with other thresholds and without ICP: each as the
         // one-shot function gives it.
         let no_icp = RefineParams {
-            radii: vec![],
+            icp: false,
             ..base.clone()
         };
         let lax = RefineParams {
@@ -553,7 +553,7 @@ fn a_face_lying_on_a_larger_surface_fits_anywhere_and_is_rejected() {
     let (part, table) = plate_on_a_table();
     let pose = RigidTransform::identity();
     let base = RefineParams {
-        radii: vec![],
+        icp: false,
         ..RefineParams::for_voxel(0.1)
     };
     let off = RefineParams {

@@ -1,0 +1,159 @@
+"""The results of `register_point_clouds`: each copy found, each pass of the correspondence
+stage, and the whole registration."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._core import Instance, RegistrationResult
+from ..config import Config
+
+
+@dataclass(frozen=True)
+class CloudInstance:
+    """One copy of the model in the scan, refined and verified on the clouds.
+
+    ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of the
+    (downsampled) model's points with a scan point within 1.5 voxels, and their RMS distance.
+    ``confidence`` in [0, 1] says how sure the pose is (instances come surest first): with a
+    trusted viewpoint, the share of what the sensor could see of the copy at that pose that the
+    scan explains, times one minus the share where the sensor saw free space
+    (``visible_fitness``, ``contradiction``); without one, ``fitness``
+    (:func:`pointclm.refinement.refine_poses`). With ``flips``, it is divided by one plus the
+    number of turns of the pose that the scan supports as well (a near-symmetric part whose
+    differing side the sensor did not see, :func:`pointclm.refinement.resolve_flips`).
+    ``visible_rmse`` is the RMS distance of the explained model points the sensor could see (NaN
+    without a trusted viewpoint): copies whose visible side fits more than 1.3 times as loosely
+    as the scene's median copy are not returned (:func:`pointclm.refinement.loose_poses`), and
+    among three or more, ``confidence`` is multiplied by ``min(1, median / visible_rmse)``
+    (:func:`pointclm.refinement.fit_tightness`) and by how firmly the scan pins the pose down
+    against the median copy (:func:`pointclm.refinement.stability_factor` of
+    :func:`pointclm.refinement.pose_stability`).
+    ``matches`` is the correspondence-stage instance the pose was refined from (its ``inliers``
+    index the correspondences of the pass that proposed it,
+    ``PointCloudRegistration.passes[pass_index].correspondences``; pass 0's are
+    ``PointCloudRegistration.correspondences``), or None when the pose was proposed by point
+    pair voting in a heap (`HEAP_VOTED_POSES`; no correspondence inliers).
+    """
+
+    transformation: np.ndarray
+    fitness: float
+    inlier_rmse: float
+    matches: Instance | None
+    confidence: float = float("nan")
+    visible_fitness: float = float("nan")
+    contradiction: float = float("nan")
+    pass_index: int = 0
+    visible_rmse: float = float("nan")
+
+    @property
+    def inliers(self) -> np.ndarray:
+        if self.matches is None:
+            return np.empty(0, dtype=np.int64)
+        return np.asarray(self.matches.inliers)
+
+    def __len__(self) -> int:
+        return 0 if self.matches is None else len(self.matches)
+
+    def __repr__(self) -> str:
+        # One line a person reads: the scores and where the copy sits, not the 4 x 4 matrix.
+        t = ", ".join(f"{v:.4g}" for v in np.asarray(self.transformation)[:3, 3])
+        return (
+            f"CloudInstance(fitness={self.fitness:.3f}, confidence={self.confidence:.3f}, "
+            f"inlier_rmse={self.inlier_rmse:.3g}, pass_index={self.pass_index}, "
+            f"matches={len(self)}, translation=[{t}])"
+        )
+
+
+@dataclass(frozen=True)
+class Pass:
+    """One pass of the correspondence stage over the scan points no accepted copy explained
+    yet (pass 0: the whole scan)."""
+
+    #: (N, 6) rows: downsampled model point | downsampled scan point.
+    correspondences: np.ndarray
+    result: RegistrationResult
+    #: Indices into ``PointCloudRegistration.target_points`` of the scan points matched.
+    scan_points: np.ndarray
+    #: Copies this pass added to the accepted ones.
+    added: int
+    #: (K, 4, 4) poses proposed by point pair voting over ``scan_points`` (heap passes,
+    #: `HEAP_VOTED_POSES`; empty otherwise), judged beside ``result``'s: an accepted pose's
+    #: ``CloudInstance.matches`` is None when it came from here.
+    voted: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
+    #: (D, 4, 4) poses of this pass that passed verification on a copy already accepted
+    #: (peeling's duplicate check); their rotations relative to that copy's pose are the
+    #: scene's own alternatives for :func:`pointclm.refinement.resolve_flips`.
+    duplicates: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
+
+    def __repr__(self) -> str:
+        return (
+            f"Pass(correspondences={len(self.correspondences)}, candidates={len(self.result)}, "
+            f"voted={len(self.voted)}, scan_points={len(self.scan_points)}, added={self.added}, "
+            f"duplicates={len(self.duplicates)})"
+        )
+
+
+@dataclass(frozen=True)
+class PointCloudRegistration:
+    """The result of :func:`register_point_clouds`; ``print`` shows a summary.
+
+    ``instances`` are the refined and verified copies, surest first (``confidence``).
+    ``result`` is the correspondence stage's :class:`pointclm.RegistrationResult` over
+    ``correspondences`` (rows: downsampled model point | downsampled scene point), before
+    refinement.
+    ``passes`` holds every pass of the correspondence stage: pass 0 over the whole scan, then
+    one per peeling round over what the accepted copies leave unexplained.
+    ``timings`` holds seconds per stage (load, downsample, normals, fpfh, matching, embedding,
+    pruning, clustering, poses, refinement: pass 0's; peeling: every later pass; flips: the
+    half-turned alternatives; total).
+    ``viewpoint`` is the sensor position verification judged by (given, or a PCD file's
+    ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
+    ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
+    empty or doubtful result and what to try ("" when there is nothing to say).
+    """
+
+    result: RegistrationResult
+    correspondences: np.ndarray
+    source_points: np.ndarray
+    target_points: np.ndarray
+    voxel_size: float
+    config: Config
+    instances: list[CloudInstance] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    passes: list[Pass] = field(default_factory=list)
+    viewpoint: np.ndarray | None = None
+    orientation: str = ""
+    diagnosis: str = ""
+
+    @property
+    def transformations(self) -> np.ndarray:
+        """(M, 4, 4) T_target_source of every instance found."""
+        if not self.instances:
+            return np.zeros((0, 4, 4))
+        return np.stack([inst.transformation for inst in self.instances])
+
+    def __repr__(self) -> str:
+        # A summary, not the arrays: what was found, how it was judged, where time went.
+        lines = [
+            f"PointCloudRegistration({len(self.instances)} instance(s) in "
+            f"{len(self.target_points)} scan points at voxel {self.voxel_size:.4g}, "
+            f"{len(self.passes)} pass(es), {self.timings.get('total', float('nan')):.2f} s)"
+        ]
+        lines += [f"  [{i}] {inst!r}" for i, inst in enumerate(self.instances)]
+        if self.diagnosis:
+            lines.append(f"  note: {self.diagnosis}")
+        if self.orientation:
+            lines.append(f"  scan normals: {self.orientation}")
+        judged = "none known" if self.viewpoint is None else _xyz(self.viewpoint)
+        lines.append(f"  verification viewpoint: {judged}")
+        stages = ", ".join(f"{k} {v:.3f}" for k, v in self.timings.items() if k != "total")
+        lines.append(f"  timings (s): {stages}")
+        return "\n".join(lines)
+
+
+def _xyz(p: ArrayLike) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in np.asarray(p, dtype=np.float64)) + ")"

@@ -1,0 +1,144 @@
+//! The scene's declared parameters and its scene-wide stages (`pointclm::scene`): schemas for
+//! the Python side, what accepted copies leave unexplained, and the final ranking factors.
+
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use pointclm::pointcloud::RefineParams;
+use pointclm::scene::{self, SceneParams};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::args;
+use crate::config::{declared_from_dict, declared_schema};
+use crate::convert::{matrices4, points as rows3};
+use crate::pointcloud::rigid_poses;
+use crate::pools::{guarded, pool};
+
+/// Every field of the core's `SceneParams`, in order (as `config_schema`).
+#[pyfunction]
+pub fn scene_params_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    declared_schema(py, &SceneParams::default())
+}
+
+/// Every field of the core's `RefineParams` at a voxel of 1, in order (as `config_schema`;
+/// lengths in voxels).
+#[pyfunction]
+pub fn refine_params_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    declared_schema(py, &RefineParams::default())
+}
+
+/// Checks scene parameters given by name (unknown names, kinds and ranges: ConfigError).
+#[pyfunction]
+pub fn validate_scene_params(params: Bound<'_, PyDict>) -> PyResult<()> {
+    declared_from_dict(SceneParams::default(), Some(&params), "scene parameter").map(|_| ())
+}
+
+/// Per target point, whether it lies at least `radius` from every source point posed at each
+/// of `transformations`.
+#[pyfunction]
+#[pyo3(signature = (target, source, transformations, radius, num_threads=None))]
+pub fn unexplained_points<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::target)] target: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::source)] source: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+    #[pyo3(from_py_with = args::radius)] radius: f64,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray1<bool>>> {
+    let t = rows3(&target, "target")?;
+    let s = rows3(&source, "source")?;
+    let poses = rigid_poses(&transformations)?;
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, threads, move || {
+        scene::peeling::unexplained(&t, &s, &poses, radius)
+    })?;
+    Ok(out.into_pyarray(py))
+}
+
+fn finite_or_nan(values: &PyReadonlyArray1<'_, f64>) -> Vec<f64> {
+    values.as_array().iter().copied().collect()
+}
+
+/// Which poses fit loosely against the scene's others (`scene::ranking::loose_poses`).
+#[pyfunction]
+pub fn loose_poses<'py>(
+    py: Python<'py>,
+    visible_rmse: PyReadonlyArray1<'py, f64>,
+    max_relative: f64,
+    min_poses: usize,
+) -> Bound<'py, PyArray1<bool>> {
+    scene::ranking::loose_poses(&finite_or_nan(&visible_rmse), max_relative, min_poses)
+        .into_pyarray(py)
+}
+
+/// Each pose's tightness factor (`scene::ranking::fit_tightness`).
+#[pyfunction]
+pub fn fit_tightness<'py>(
+    py: Python<'py>,
+    visible_rmse: PyReadonlyArray1<'py, f64>,
+    min_poses: usize,
+) -> Bound<'py, PyArray1<f64>> {
+    scene::ranking::fit_tightness(&finite_or_nan(&visible_rmse), min_poses).into_pyarray(py)
+}
+
+/// Each pose's stability factor (`scene::ranking::stability_factor`).
+#[pyfunction]
+pub fn stability_factor<'py>(
+    py: Python<'py>,
+    stability: PyReadonlyArray1<'py, f64>,
+    min_poses: usize,
+) -> Bound<'py, PyArray1<f64>> {
+    scene::ranking::stability_factor(&finite_or_nan(&stability), min_poses).into_pyarray(py)
+}
+
+/// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`):
+/// the copies' poses (M, 4, 4) surest first, their confidences, the pass each came from, the
+/// number of passes, the voxel and whether the sensor judged them.
+#[pyfunction]
+#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, scene=None, num_threads=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn register_scan<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::source)] model: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::target)] scan: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::optional_voxel_size)] voxel_size: Option<f64>,
+    #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
+    #[pyo3(from_py_with = args::seed)] seed: u64,
+    peel: bool,
+    scene: Option<Bound<'py, PyDict>>,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<ScanArrays<'py>> {
+    let m = rows3(&model, "model")?;
+    let s = rows3(&scan, "scan")?;
+    let options = scene::SceneOptions {
+        voxel_size,
+        viewpoint,
+        seed,
+        peel,
+        scene: declared_from_dict(SceneParams::default(), scene.as_ref(), "scene parameter")?,
+        ..scene::SceneOptions::default()
+    };
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, threads, move || {
+        scene::register_point_clouds(&m, &s, &options)
+    })?;
+    let mats: Vec<_> = out.candidates.iter().map(|c| c.pose.to_matrix()).collect();
+    let confidence: Vec<f64> = out.candidates.iter().map(|c| c.confidence).collect();
+    let passes: Vec<usize> = out.candidates.iter().map(|c| c.pass_index).collect();
+    Ok((
+        matrices4(py, &mats),
+        confidence.into_pyarray(py),
+        passes,
+        out.passes.len(),
+        out.voxel_size,
+        out.by_visibility,
+    ))
+}
+
+type ScanArrays<'py> = (
+    Bound<'py, numpy::PyArray3<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Vec<usize>,
+    usize,
+    f64,
+    bool,
+);

@@ -1,0 +1,142 @@
+//! The voxel a scene is described at: the model's size over `voxels_per_diagonal`, no finer
+//! than the scan's own sampling and noise allow.
+
+use nalgebra::Matrix3;
+
+use crate::pointcloud::PointIndex;
+
+use super::SceneParams;
+
+/// The model's bounding-box diagonal over `voxels_per_diagonal`, raised to at least
+/// `min_voxel_spacings` times the scan's point spacing ([`point_spacing`]) and
+/// `min_voxel_noises` times its noise ([`noise_level`], at `noise_scale_voxels` model voxels).
+/// The model must be non-empty and finite (checked by the caller).
+pub fn default_voxel_size(model: &[[f64; 3]], scan: &[[f64; 3]], params: &SceneParams) -> f64 {
+    let voxel = diagonal(model) / params.voxels_per_diagonal;
+    if scan.len() < 2 {
+        return voxel;
+    }
+    let Ok(index) = PointIndex::new(scan) else {
+        return voxel;
+    };
+    let spacing = point_spacing(scan, &index);
+    let noise = if scan.len() >= 8 {
+        noise_level(scan, &index, params.noise_scale_voxels * voxel)
+    } else {
+        0.0
+    };
+    voxel
+        .max(params.min_voxel_spacings * spacing)
+        .max(params.min_voxel_noises * noise)
+}
+
+/// The length of the bounding-box diagonal of `points` (0 for none).
+pub fn diagonal(points: &[[f64; 3]]) -> f64 {
+    if points.is_empty() {
+        return 0.0;
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
+}
+
+/// The median distance from a point to its nearest other point, over at most about 5000
+/// evenly strided points (the index holds them all: a sample's spacing depends on how the
+/// cloud was sampled).
+pub fn point_spacing(points: &[[f64; 3]], index: &PointIndex) -> f64 {
+    let step = (points.len() / 5000).max(1);
+    let mut d: Vec<f64> = points
+        .iter()
+        .step_by(step)
+        .map(|p| second_nearest(index, p))
+        .collect();
+    median(&mut d)
+}
+
+/// The standard deviation of the points about their surface, at (at most) about 500 evenly
+/// strided points: planes fitted to each one's nearest points (as many as a surface holds
+/// within `scale` at the cloud's spacing, 8 to 48) and to 4 times as many; each residual
+/// variance is the noise's plus a curvature term growing with the fourth power of the radius,
+/// so the two sizes separate them; the median over the points.
+pub fn noise_level(points: &[[f64; 3]], index: &PointIndex, scale: f64) -> f64 {
+    let queries: Vec<&[f64; 3]> = points.iter().step_by((points.len() / 500).max(1)).collect();
+    let mut spacings: Vec<f64> = queries.iter().map(|p| second_nearest(index, p)).collect();
+    let spacing = median(&mut spacings);
+    let k1 = (std::f64::consts::PI * (scale / spacing.max(1e-300)).powi(2)).round();
+    let k1 = (k1.clamp(8.0, 48.0)) as usize;
+    let k2 = (4 * k1).min(points.len());
+    let k1 = (k2 / 4).max(4);
+    let mut v1 = Vec::new();
+    let mut fits = Vec::with_capacity(queries.len());
+    for q in &queries {
+        let near: Vec<usize> = index.nearest_k(q, k2).into_iter().map(|(i, _)| i).collect();
+        let a = plane_fit(points, &near[..k1.min(near.len())]);
+        let b = plane_fit(points, &near);
+        v1.push(a.0);
+        fits.push((a, b));
+    }
+    let mut variance: Vec<f64> = fits
+        .iter()
+        .filter_map(|&((va, ra), (vb, rb))| {
+            let span = rb * rb - ra * ra;
+            (span > 0.0).then(|| (va * rb * rb - vb * ra * ra) / span)
+        })
+        .collect();
+    if variance.is_empty() {
+        return median(&mut v1).max(0.0).sqrt();
+    }
+    median(&mut variance).max(0.0).sqrt()
+}
+
+/// The residual variance of the plane fitted to `points[rows]` (per degree of freedom left)
+/// and the rows' mean squared distance from their centroid.
+fn plane_fit(points: &[[f64; 3]], rows: &[usize]) -> (f64, f64) {
+    let k = rows.len() as f64;
+    let mut mean = [0.0; 3];
+    for &r in rows {
+        for (m, v) in mean.iter_mut().zip(points[r]) {
+            *m += v;
+        }
+    }
+    let mean = mean.map(|m| m / k);
+    let mut cov = Matrix3::<f64>::zeros();
+    let mut radius2 = 0.0;
+    for &r in rows {
+        let c = nalgebra::Vector3::from(points[r]) - nalgebra::Vector3::from(mean);
+        cov += c * c.transpose();
+        radius2 += c.norm_squared();
+    }
+    let low = cov
+        .symmetric_eigenvalues()
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    (low / (k - 3.0), radius2 / k)
+}
+
+/// The distance from `p` to its nearest other indexed point (its second nearest, itself
+/// first).
+fn second_nearest(index: &PointIndex, p: &[f64; 3]) -> f64 {
+    let near = index.nearest_k(p, 2);
+    near.get(1).map_or(0.0, |&(_, d2)| d2.sqrt())
+}
+
+/// The median of `values` (the mean of the middle two for an even count; 0 for none).
+fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f64::total_cmp);
+    let mid = values.len() / 2;
+    if values.len() % 2 == 1 {
+        values[mid]
+    } else {
+        (values[mid - 1] + values[mid]) / 2.0
+    }
+}

@@ -1,0 +1,99 @@
+use crate::config::{Declared, Unit, Value};
+use crate::kabsch::RigidTransform;
+use crate::pointcloud::{PointIndex, RefineParams};
+use crate::scene::peeling::{not_duplicates, unexplained};
+use crate::scene::ranking::{fit_tightness, loose_poses, relative_to_median, stability_factor};
+use crate::scene::SceneParams;
+
+#[test]
+fn every_declared_default_lies_in_its_range_and_every_field_is_named_once() {
+    for fields in [SceneParams::FIELDS, RefineParams::FIELDS] {
+        let mut names: Vec<&str> = fields.iter().map(|f| f.name).collect();
+        let n = names.len();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), n);
+        assert!(fields.iter().all(|f| !f.doc.trim().is_empty()));
+    }
+    assert!(SceneParams::default().out_of_range().is_none());
+    assert!(RefineParams::default().out_of_range().is_none());
+    // Scene rules are ratios, counts and shares: nothing is scaled with the data.
+    assert!(SceneParams::FIELDS.iter().all(|f| f.unit == Unit::Unitless));
+}
+
+#[test]
+fn refine_params_for_a_voxel_scale_the_declared_lengths_only() {
+    let p = RefineParams::for_voxel(0.02);
+    assert_eq!(p.radii(), vec![3.0 * 0.02, 2.0 * 0.02, 1.5 * 0.02]);
+    assert_eq!(p.fit_radius, 1.5 * 0.02);
+    assert_eq!(p.trust_cell, 0.02);
+    assert_eq!(p.min_visible_fitness, 0.85);
+    assert_eq!(p.max_incidence_deg, 75.0);
+    assert!(RefineParams { icp: false, ..p }.radii().is_empty());
+}
+
+#[test]
+fn a_value_out_of_its_declared_range_is_named() {
+    let mut p = SceneParams::default();
+    assert!(p.set("max_stray_share", Value::Float(1.5)));
+    let (field, value) = p.out_of_range().unwrap();
+    assert_eq!((field.name, value), ("max_stray_share", Value::Float(1.5)));
+    assert!(!p.set("max_stray_share", Value::Count(1)), "wrong kind");
+    assert!(!p.set("no_such_rule", Value::Float(0.0)));
+    let mut r = RefineParams::default();
+    assert!(r.set("min_seen", Value::Float(f64::NAN)));
+    assert!(r.out_of_range().is_some());
+}
+
+#[test]
+fn ranking_compares_with_the_median_of_known_values() {
+    let rmse = [1.0, 1.0, 1.1, 0.9, 1.25, 2.0];
+    assert_eq!(
+        loose_poses(&rmse, 1.3, 3),
+        [false, false, false, false, false, true]
+    );
+    // With two known values the median says nothing.
+    assert!(loose_poses(&[1.0, f64::NAN, 5.0], 1.3, 3)
+        .iter()
+        .all(|&l| !l));
+    assert_eq!(fit_tightness(&[1.0, 1.0, 1.0, 1.0, 1.25, 2.0], 3)[4], 0.8);
+    assert_eq!(
+        fit_tightness(&[0.0, 0.0, 0.0, 1.0], 3),
+        [1.0, 1.0, 1.0, 0.0]
+    );
+    assert_eq!(
+        stability_factor(&[0.2, 0.2, 0.1, 0.4], 3),
+        [1.0, 1.0, 0.5, 1.0]
+    );
+    assert!(relative_to_median(&[], 3).is_empty());
+}
+
+#[test]
+fn peeling_explains_what_a_posed_copy_reaches_and_drops_its_duplicates() {
+    let model: Vec<[f64; 3]> = (0..10)
+        .flat_map(|i| (0..10).map(move |j| [i as f64 * 0.1, j as f64 * 0.1, 0.0]))
+        .collect();
+    let far = RigidTransform {
+        translation: nalgebra::Vector3::new(5.0, 0.0, 0.0),
+        ..RigidTransform::identity()
+    };
+    let mut scan = model.clone();
+    scan.extend(model.iter().map(|&p| far.apply(p)));
+    scan.push([20.0, 20.0, 20.0]);
+    let free = unexplained(&scan, &model, &[RigidTransform::identity()], 0.05).unwrap();
+    assert_eq!(free.iter().filter(|&&f| f).count(), 101);
+    assert!(free[..100].iter().all(|&f| !f));
+    assert!(unexplained(&scan, &model, &[], 0.05)
+        .unwrap()
+        .iter()
+        .all(|&f| f));
+    // The same copy twice, then the other copy: the repeat is a duplicate.
+    let index = PointIndex::with_cells(&scan, 0.05).unwrap();
+    let poses = [RigidTransform::identity(), RigidTransform::identity(), far];
+    let mut taken = vec![false; scan.len()];
+    let keep = not_duplicates(&index, &model, &poses, 0.05, 0.5, &mut taken).unwrap();
+    assert_eq!(keep, [0, 2]);
+    assert_eq!(taken.iter().filter(|&&t| t).count(), 200);
+    let mut short = vec![false; 3];
+    assert!(not_duplicates(&index, &model, &poses, 0.05, 0.5, &mut short).is_err());
+}

@@ -1,0 +1,130 @@
+"""The scene-wide rules and the acceptance rules are declared once, in the Rust core, and every
+Python name for them reads that declaration."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pointclm
+import pytest
+from pointclm import _core, point_clouds, refinement
+from pointclm.errors import ConfigError
+from pointclm.scene_params import SCENE_DEFAULTS, SceneParams
+
+
+def test_scene_params_lines_match_the_core_schema() -> None:
+    schema = _core.scene_params_schema()
+    fields = dataclasses.fields(SceneParams)
+    assert [f.name for f in fields] == [s["name"] for s in schema]
+    for f, s in zip(fields, schema, strict=True):
+        assert f.default == s["default"], f.name
+        assert f.type == {"float": "float", "count": "int"}[s["kind"]], f.name
+        lo, hi = s["range"]
+        assert lo <= s["default"] <= hi, f.name
+        assert s["doc"].strip(), f.name
+    # Every field's reason reaches help().
+    assert all(f.name in (SceneParams.__doc__ or "") for f in fields)
+
+
+def test_module_constants_are_the_declared_defaults() -> None:
+    rules = {f["name"]: f["default"] for f in _core.refine_params_schema()}
+    for name in (
+        "min_visible_fitness",
+        "max_contradiction",
+        "min_seen",
+        "min_fitness",
+        "min_relative_fitness",
+        "max_shared",
+        "max_slid_fitness",
+    ):
+        assert getattr(refinement, name.upper()) == rules[name]
+    assert refinement.MAX_RELATIVE_VISIBLE_RMSE == SCENE_DEFAULTS.max_relative_visible_rmse
+    assert refinement.FLIP_EVIDENCE_RATIO == SCENE_DEFAULTS.flip_evidence_ratio
+    assert point_clouds.HEAP_MIN_COPIES == SCENE_DEFAULTS.heap_min_copies
+    assert point_clouds.MAX_PEEL_ROUNDS == SCENE_DEFAULTS.max_peel_rounds
+    assert point_clouds.VOXELS_PER_DIAGONAL == SCENE_DEFAULTS.voxels_per_diagonal
+    # The lengths of verification are declared in voxels.
+    assert rules["fit_radius"] == 1.5 and rules["icp_radius_coarse"] == 3.0
+
+
+def test_bad_scene_params_are_config_errors_naming_the_field() -> None:
+    with pytest.raises(ConfigError, match="max_stray_share"):
+        SceneParams(max_stray_share=1.5)
+    with pytest.raises(ConfigError, match="heap_min_copies"):
+        SceneParams(heap_min_copies=2.5)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="no_such_rule"):
+        SceneParams.from_dict({"no_such_rule": 1})
+    with pytest.raises(ConfigError, match="scene must be"):
+        SceneParams.resolve(3)  # type: ignore[arg-type]
+    assert SceneParams.resolve({"max_peel_rounds": 4}).max_peel_rounds == 4
+
+
+def test_refine_rules_pass_by_name_and_are_checked_by_the_core() -> None:
+    pts = np.random.default_rng(0).uniform(size=(200, 3))
+    with pytest.raises(ConfigError, match="min_seen"):
+        _core.refine_poses(pts, pts, np.eye(4)[None], 0.05, False, None, {"min_seen": 2.0})
+    with pytest.raises(ConfigError, match="unknown refine rule field"):
+        _core.refine_poses(pts, pts, np.eye(4)[None], 0.05, False, None, {"nope": 0.0})
+    kept = refinement.refine_poses(pts, pts, np.eye(4)[None], 0.05, icp=False)
+    assert len(kept.origin) == 1
+
+
+def _three_copies() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(1)
+    # A bumpy, asymmetric blob: distinctive enough for FPFH.
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    model = d * (1.0 + 0.3 * np.sin(3 * d[:, :1]) * np.cos(2 * d[:, 1:2]) + 0.2 * d[:, 2:])
+    copies = [model + [3.0 * k, 0.0, 0.0] for k in range(3)]
+    return model, np.concatenate(copies)
+
+
+def test_scene_params_reach_the_scene_stages() -> None:
+    model, scan = _three_copies()
+    plain = pointclm.register_point_clouds(model, scan, peel=False)
+    no_rounds = pointclm.register_point_clouds(model, scan, scene={"max_peel_rounds": 0})
+    assert len(no_rounds.passes) == 1
+    coarse = pointclm.register_point_clouds(
+        model, scan, peel=False, scene=SceneParams(voxels_per_diagonal=20.0)
+    )
+    assert coarse.voxel_size == pytest.approx(2.0 * plain.voxel_size)
+
+
+#: `register_point_clouds` parameters the command line takes otherwise, and why.
+NOT_A_METHOD_FLAG = {
+    "source": "the MODEL argument",
+    "target": "the SCENE argument (SCANS for batch)",
+}
+
+
+def test_every_parameter_of_register_point_clouds_is_reachable_from_the_command_line() -> None:
+    import inspect
+
+    from pointclm import cli
+    from pointclm.batch.options import OPTION_NAMES
+
+    names = set(inspect.signature(pointclm.register_point_clouds).parameters)
+    wanted = names - set(NOT_A_METHOD_FLAG)
+    flags = ["--scene", "max_peel_rounds=3", "--scene", "scene_turn_deg=10", "--no-flips"]
+    flags += ["--heap-rank", "none", "--mutual-window", "auto", "--top-k", "50", "--k", "2"]
+    args = cli.build_parser().parse_args(["register", "m.ply", "s.ply", *flags, "--normals"])
+    options = cli._method_options(args, lambda: np.zeros((10, 3)))
+    assert wanted <= set(options), wanted - set(options)
+    assert wanted <= set(OPTION_NAMES), wanted - set(OPTION_NAMES)
+    assert options["scene"] == {"max_peel_rounds": 3, "scene_turn_deg": 10.0}
+    assert options["flips"] is False and options["heap_rank"] is None
+    assert (options["mutual_window"], options["top_k"], options["k"]) == ("auto", 50, 2)
+    assert options["normals"] is True
+    batch = cli.build_parser().parse_args(["batch", "m.ply", "s.ply", "--out", "o.jsonl", *flags])
+    assert cli._method_options(batch, lambda: np.zeros((10, 3)))["scene"] == options["scene"]
+
+
+@pytest.mark.parametrize("bad", ["nope=1", "max_peel_rounds", "max_peel_rounds=x"])
+def test_a_bad_scene_flag_is_a_usage_error(bad: str, capsys: pytest.CaptureFixture[str]) -> None:
+    from pointclm import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.build_parser().parse_args(["register", "m.ply", "s.ply", "--scene", bad])
+    assert exit_.value.code == 2
+    assert "--scene" in capsys.readouterr().err
