@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, DATA_HINT
 from pointclm.io import (
     SUPPORTED_SUFFIXES,
     PointCloud,
@@ -24,13 +25,11 @@ from pointclm.io import (
 )
 from pointclm.io.lzf import lzf_decompress
 
-DATA = Path(__file__).parent.parent.parent / "shared" / "data"
-
 
 def data_file(rel: str) -> Path:
     path = DATA / rel
     if not path.exists():
-        pytest.skip(f"test data not available: {path}")
+        pytest.skip(f"{path} is missing; {DATA_HINT}")
     return path
 
 

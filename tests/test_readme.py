@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import DATA_HINT
 from pointclm.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,7 +86,7 @@ def test_claim_matching_fails_on_a_wrong_claim():
 
 def _skip_reason(block: str) -> str | None:
     if "../shared/data" in block and not DATA.is_dir():
-        return f"the block reads ../shared/data, which is missing ({DATA})"
+        return f"the block reads ../shared/data: {DATA_HINT}"
     if re.search(r"^\s*import torch", block, re.M) and importlib.util.find_spec("torch") is None:
         return "the block needs torch (pip install '.[train]')"
     return None

@@ -10,15 +10,14 @@ fitting anywhere there) came after the right one."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pointclm
 import pytest
+from helpers import DATA as SHARED
+from helpers import needs_data
 from pointclm.io.reader import load_points
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "pcl"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+DATA = SHARED / "pcl"
 
 
 def _motion() -> np.ndarray:

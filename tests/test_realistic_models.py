@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, needs_data
 from pointclm.datasets.procedural import PROCEDURAL_SHAPES
 from pointclm.datasets.scenes import (
     HELDOUT_MODELS,
@@ -22,8 +23,6 @@ from pointclm.datasets.scenes import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 
 
 def _load(name: str = "realistic_models") -> types.ModuleType:
