@@ -161,6 +161,14 @@ def test_missing_and_hostile_inputs(
     one_line_error(capsys, "bomb.npy")
 
 
+def test_an_unknown_network_is_refused_before_the_work_naming_the_shipped_ones(
+    clouds: tuple[str, str], capsys: pytest.CaptureFixture[str], no_work: None
+) -> None:
+    model, scene = clouds
+    assert main(["register", model, scene, "--model", "nosuch", "--quiet"]) == 2
+    one_line_error(capsys, "no weights at", "nosuch", "'default', 'paper'", "--model default")
+
+
 def test_eval_and_train_check_outputs_first(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -431,6 +431,10 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
             import matplotlib  # noqa: F401
         except ImportError:
             raise ImportError("--png needs matplotlib: pip install 'pointclm[viz]'") from None
+    if args.model is not None:
+        from .model.weights import load_network
+
+        load_network(args.model)  # a wrong name fails now, naming the shipped ones (cached)
     return None if args.ground_truth is None else _load_ground_truth(args.ground_truth)
 
 
