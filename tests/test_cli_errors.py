@@ -169,6 +169,23 @@ def test_an_unknown_network_is_refused_before_the_work_naming_the_shipped_ones(
     one_line_error(capsys, "no weights at", "nosuch", "'default', 'paper'", "--model default")
 
 
+def test_a_scan_with_nan_rows_is_read_with_a_one_line_warning(
+    tmp_path: Path, clouds: tuple[str, str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    model, scene = clouds
+    holes = tmp_path / "holes.xyz"
+    points = pointclm.io.load_points(scene)
+    points[[5, 9]] = np.nan  # two missing returns, as a scanner writes them
+    holes.write_text("\n".join(" ".join(str(v) for v in p) for p in points))
+    assert main(["register", model, str(holes), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines == [
+        f"pointclm: warning: {holes}: dropped 2 rows with NaN/inf coordinates (missing "
+        f"returns), kept {len(points) - 2} points"
+    ], err
+
+
 def test_eval_and_train_check_outputs_first(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

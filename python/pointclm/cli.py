@@ -10,9 +10,10 @@ import math
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -862,7 +863,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``POINTCLM_DEBUG=1``."""
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return int(args.func(args))
     except KeyboardInterrupt:
         print("pointclm: interrupted", file=sys.stderr)
         return 130
@@ -887,6 +890,27 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _one_line(text: str) -> str:
     return " ".join(text.split())
+
+
+_default_showwarning = warnings.showwarning
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """pointclm's own warnings (a file's NaN rows dropped) as one line on stderr, like its
+    errors; any other warning as Python shows it."""
+    from .io import NonFinitePointsWarning
+
+    if issubclass(category, NonFinitePointsWarning):
+        print(f"pointclm: warning: {_one_line(str(message))}", file=sys.stderr)
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
 
 
 if __name__ == "__main__":
