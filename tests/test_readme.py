@@ -191,3 +191,13 @@ def test_rust_example_is_the_crate_doctest():
     )
     lib = (CRATE / "src" / "lib.rs").read_text()
     assert '#[doc = include_str!("../README.md")]' in lib
+
+
+def test_the_venv_the_readme_creates_is_ignored_by_git():
+    # The README's commands make .venv inside the clone; `git status` must not list it.
+    ignore = ROOT / ".gitignore"
+    if not ignore.is_file():
+        pytest.skip("not a git checkout")
+    assert "python3 -m venv .venv" in README.read_text()
+    patterns = {line.strip() for line in ignore.read_text().splitlines()}
+    assert patterns & {".venv", ".venv/", "/.venv", "/.venv/"}, ".venv is not in .gitignore"
