@@ -186,6 +186,19 @@ def test_a_scan_with_nan_rows_is_read_with_a_one_line_warning(
     ], err
 
 
+def test_a_diagnosis_asking_for_the_viewpoint_says_how_to_know_it() -> None:
+    from pointclm.cli import flag_names
+
+    text = flag_names(
+        "nothing found: ... The scan's normals were oriented without a sensor position: if "
+        "you know it, pass viewpoint=."
+    )
+    assert "pass --viewpoint x,y,z (the sensor's position in the scan's coordinates: 0,0,0" in text
+    assert "viewpoint=" not in text
+    other = flag_names("pass its position, or viewpoint=None to orient the normals without one")
+    assert other == "pass its position, or --viewpoint none to orient the normals without one"
+
+
 def test_eval_and_train_check_outputs_first(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -35,8 +35,15 @@ MATCH_DEG = 15.0
 MATCH_DIAGONALS = 0.1
 
 #: A diagnosis names `register_point_clouds`' arguments; the command's user types flags.
+#: How to know the sensor position `--viewpoint` asks for, said where a diagnosis suggests it.
+VIEWPOINT_HINT = (
+    "--viewpoint x,y,z (the sensor's position in the scan's coordinates: 0,0,0 for a scan "
+    "still in its camera's or scanner's own frame; for a scan moved into a world or robot "
+    "frame, the sensor's position there, from the acquisition's calibration or pose log)"
+)
 _FLAGS_FOR_ARGUMENTS = (
     ("viewpoint=None", "--viewpoint none"),
+    ("pass viewpoint=.", f"pass {VIEWPOINT_HINT}."),
     ("viewpoint=", "--viewpoint x,y,z"),
     ("voxel_size", "--voxel-size"),
     ("mutual=False", "--no-mutual"),
