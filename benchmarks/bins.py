@@ -1,7 +1,13 @@
 """The bin-picking benchmark: dozens of copies of one part per scan (issue 18).
 
+    pip install ".[bench]"      # the peers: KISS-Matcher and Open3D (benchmarks/peers.py)
     python benchmarks/bins.py [--scenes 2] [--validation-scenes 1] [--cache DIR]
                               [--models held-out|validation|all|m1,m2] [--out FILE]
+                              [--skip-missing-peers]
+
+The report goes to ``out/bins.md`` (not committed); ``--out benchmarks/results/bins.md``
+replaces the committed one. A peer that is not installed stops the run before any scene is
+built, naming the package; ``--skip-missing-peers`` runs the other methods instead.
 
 The default (the 7 held-out models, 2 scenes each, all three methods) took 16 minutes on 2
 shared cores; ``--models validation`` reports the validation models (1 scene each by default).
@@ -126,6 +132,32 @@ METHODS = (
     "sequential KISS-Matcher",
     "sequential RANSAC (Open3D)",
 )
+#: The methods that need a peer, and the module each imports (`peers.PEER_PACKAGES`).
+PEER_MODULES = {"sequential KISS-Matcher": "kiss_matcher", "sequential RANSAC (Open3D)": "open3d"}
+#: Where the report goes unless --out says otherwise: beside the committed results, not over
+#: them (out/ is not committed).
+DEFAULT_OUT = "out/bins.md"
+
+
+def choose_methods(requested: str, skip_missing_peers: bool) -> list[str]:
+    """The methods of `requested` (comma-separated names) in `METHODS`' order. A method whose
+    peer is not installed stops the run here, before any scene is built, unless
+    `skip_missing_peers`: then it is left out, and said so."""
+    from peers import missing_peers, require_peers
+
+    names = [m for m in requested.split(",") if m]
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise SystemExit(f"unknown method(s): {', '.join(unknown)}; known: {', '.join(METHODS)}")
+    methods = [m for m in METHODS if m in names]
+    peers = {m: PEER_MODULES[m] for m in methods if m in PEER_MODULES}
+    if not skip_missing_peers:
+        require_peers(peers, "--skip-missing-peers")
+        return methods
+    missing = missing_peers(peers)
+    for method, module in missing.items():
+        print(f"leaving out {method}: the module {module!r} is not installed", flush=True)
+    return [m for m in methods if m not in missing]
 
 
 @dataclass
@@ -377,8 +409,18 @@ def main() -> None:
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset")
     ap.add_argument("--ransac-max-fits", type=int, default=40)
     ap.add_argument("--copies", default="20,80", help="copies per scene: lo,hi")
-    ap.add_argument("--out", default="benchmarks/results/bins.md")
+    ap.add_argument(
+        "--out",
+        default=DEFAULT_OUT,
+        help=f"the report (default {DEFAULT_OUT}; benchmarks/results/bins.md is the committed one)",
+    )
+    ap.add_argument(
+        "--skip-missing-peers",
+        action="store_true",
+        help="leave out the peers that are not installed (default: stop, naming them)",
+    )
     args = ap.parse_args()
+    methods = choose_methods(args.methods, args.skip_missing_peers)
 
     import pointclm
 
@@ -390,7 +432,6 @@ def main() -> None:
         models = list(BIN_MODELS_VALIDATION)
     else:
         models = [m for m in args.models.split(",") if m]
-    methods = [m for m in METHODS if m in args.methods.split(",")]
     lo, hi = (int(v) for v in args.copies.split(","))
     table = Table()
     t_start = time.perf_counter()
@@ -479,6 +520,7 @@ def main() -> None:
     print(text)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(text + "\n")
+    print(f"report written to {args.out}")
 
 
 if __name__ == "__main__":

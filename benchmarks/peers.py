@@ -3,8 +3,10 @@ compared with on the same correspondences.
 
 Each loop fits one pose, removes the correspondences it explains, and fits again, until a fit
 explains fewer than ``min_inliers`` correspondences, the solver gives up, or ``max_instances``
-poses are found. Both need optional packages (``pip install kiss-matcher open3d-cpu``); they
-are imported on first use so that importing this module costs nothing.
+poses are found. Both need optional packages (``pip install ".[bench]"``, or
+``pip install kiss-matcher open3d-cpu``); they are imported on first use so that importing
+this module costs nothing. A benchmark checks for them before it starts
+(:func:`require_peers`): a missing peer is named up front, not after the first scenes ran.
 
 - :func:`sequential_kiss`: KISS-Matcher's ``prune_and_solve`` (graph-theoretic outlier pruning
   then a GNC-TLS-style solver), the strongest single-instance solver on low-inlier
@@ -15,9 +17,49 @@ are imported on first use so that importing this module costs nothing.
 
 from __future__ import annotations
 
+import importlib.util
+from collections.abc import Mapping
+
 import numpy as np
 
-__all__ = ["sequential_kiss", "sequential_ransac", "residuals"]
+__all__ = [
+    "PEER_PACKAGES",
+    "missing_peers",
+    "require_peers",
+    "residuals",
+    "sequential_kiss",
+    "sequential_ransac",
+]
+
+#: The module each peer imports, and the pip package that provides it (the ``[bench]`` extra
+#: of pyproject.toml installs them where PyPI has them).
+PEER_PACKAGES = {"kiss_matcher": "kiss-matcher", "open3d": "open3d-cpu"}
+
+
+def missing_peers(methods: Mapping[str, str]) -> dict[str, str]:
+    """Of `methods` (a method's name -> the module it imports), those whose module cannot be
+    imported here, with that module. Nothing is imported (only looked up)."""
+    return {
+        method: module
+        for method, module in methods.items()
+        if importlib.util.find_spec(module) is None
+    }
+
+
+def require_peers(methods: Mapping[str, str], skip_flag: str) -> None:
+    """Stop with a message naming every method of `methods` whose module is missing, the
+    package to install and `skip_flag`, the option that leaves them out; nothing if none
+    is missing. Called before any scene is built, so a run never fails half-way."""
+    missing = missing_peers(methods)
+    if not missing:
+        return
+    wanted = sorted({PEER_PACKAGES.get(m, m) for m in missing.values()})
+    raise SystemExit(
+        "missing peer(s): "
+        + "; ".join(f"{method} needs the module {module!r}" for method, module in missing.items())
+        + f". Install them with `pip install '.[bench]'` (or `pip install {' '.join(wanted)}`),"
+        f" or pass {skip_flag} to run without them."
+    )
 
 
 def residuals(corr: np.ndarray, pose: np.ndarray) -> np.ndarray:

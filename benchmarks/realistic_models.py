@@ -1,7 +1,7 @@
 """The realistic benchmark over every model: pointclm vs sequential robust solvers on the same
 correspondences, per model and pooled, at N = 1000 or 5000, and one timed N = 50,000 run.
 
-    pip install kiss-matcher open3d-cpu      # the peers (benchmarks/peers.py); optional
+    pip install ".[bench]"      # the peers, KISS-Matcher and Open3D (benchmarks/peers.py)
     python benchmarks/realistic_models.py                              # N = 1000, all models
     python benchmarks/realistic_models.py --n 5000 --scenes-per-model 4 --scale 0 \\
         --out benchmarks/results/realistic_models_n5000.md
@@ -38,7 +38,10 @@ An instance is registered when RE < 15 deg and TE < 10 % of the model's diagonal
 - an upper bound, not a method: an embedding from the true labels (``realistic.py``'s oracle);
 - sequential KISS-Matcher and sequential Open3D RANSAC (``peers.py``): inlier radius 2 voxels
   (the scenes' inlier definition), stop below pointclm's ``min_cluster_size`` inliers or at
-  10 poses. ``--quick`` leaves RANSAC out (seconds per scene).
+  10 poses. ``--quick`` leaves RANSAC out (seconds per scene), ``--no-ransac`` and
+  ``--no-kiss`` leave either out. A peer that is not installed stops the run before any
+  scene is built, naming the package; ``--skip-missing-peers`` leaves it out instead (said
+  at the start, and its row is then absent from the report).
 Times are per scene, wall clock, everything a method does (refinement included).
 
 **N = 50,000** (``--scale``, default 50,000; 0 skips): realistic correspondences, not planted:
@@ -52,8 +55,10 @@ all cores, under an 8 GB address-space limit.
 ``out/realistic_scenes``), keyed by model, seed and scene parameters; delete the folder
 when ``datasets/scenes.py`` or the FPFH code changes.
 
-Results: a markdown report (``--out``) with date, command, hardware, git commit, and a JSON file
-beside it holding every scene's score and time per method.
+Results: a markdown report (``--out``, default ``out/realistic_models.md``, not committed;
+``--out benchmarks/results/realistic_models.md`` replaces the committed one) with date,
+command, hardware, git commit, and a JSON file beside it holding every scene's score and time
+per method.
 """
 
 from __future__ import annotations
@@ -371,6 +376,30 @@ def _peer(name: str) -> Callable[[Any], np.ndarray]:
         return poses
 
     return run
+
+
+#: Where the report goes unless --out says otherwise: not over the committed results
+#: (out/ is not committed).
+DEFAULT_OUT = "out/realistic_models.md"
+
+
+def peers_to_run(kiss: bool, ransac: bool, skip_missing: bool) -> tuple[bool, bool]:
+    """Whether to run the KISS-Matcher and the RANSAC peers, of those asked for. A peer asked
+    for but not installed stops the run here, before any scene is built, naming the package,
+    unless `skip_missing`: then it is left out, and said so."""
+    import peers
+
+    wanted = {"sequential KISS-Matcher": "kiss_matcher"} if kiss else {}
+    wanted |= {"sequential RANSAC (Open3D)": "open3d"} if ransac else {}
+    if not skip_missing:
+        peers.require_peers(wanted, "--skip-missing-peers (or --no-kiss / --no-ransac)")
+        return kiss, ransac
+    missing = peers.missing_peers(wanted)
+    for method, module in missing.items():
+        print(f"leaving out {method}: the module {module!r} is not installed", flush=True)
+    return kiss and "kiss_matcher" not in missing.values(), ransac and (
+        "open3d" not in missing.values()
+    )
 
 
 def _available(module: str) -> str | None:
@@ -722,11 +751,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--refined-config", help="JSON thresholds: one more refined row")
     ap.add_argument("--scale", type=int, default=50_000, help="N of the timed run (0: skip)")
     ap.add_argument("--no-ransac", action="store_true", help="leave the slow RANSAC peer out")
+    ap.add_argument("--no-kiss", action="store_true", help="leave the KISS-Matcher peer out")
+    ap.add_argument(
+        "--skip-missing-peers",
+        action="store_true",
+        help="leave out the peers that are not installed (default: stop, naming them)",
+    )
     ap.add_argument("--quick", action="store_true", help="CI-sized: 2 scenes of 4 models")
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--out", default="benchmarks/results/realistic_models.md")
+    ap.add_argument(
+        "--out",
+        default=DEFAULT_OUT,
+        help=f"the report (default {DEFAULT_OUT}; benchmarks/results/ holds the committed ones)",
+    )
     ap.add_argument(
         "--seeds",
         choices=("benchmark", "threshold"),
@@ -749,6 +788,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.scenes_per_model = min(args.scenes_per_model, 2)
         args.scale, args.no_ransac = 0, True
     models = _resolve_models(args.models)
+    kiss, ransac = peers_to_run(not args.no_kiss, not args.no_ransac, args.skip_missing_peers)
     data_dir = args.data_dir or (str(default_data_dir()) if default_data_dir() else None)
     if data_dir is None and any("/" in m for m in models):
         raise SystemExit("the data folder is missing: pass --data-dir or set POINTCLM_DATA_DIR")
@@ -768,7 +808,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         )
         if text
     ]
-    methods = make_methods(args.model, not args.no_ransac, True, args.backend, configs)
+    methods = make_methods(args.model, ransac, kiss, args.backend, configs)
     print(f"{len(scenes)} scenes, methods: {', '.join(m.key for m in methods)}", flush=True)
     rows = run_methods(scenes, methods)
     scale_lines = (
@@ -854,6 +894,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     out.write_text(text)
     meta = {"command": cmd, "methods": {m.key: m.label for m in methods}, "rows": rows}
     out.with_suffix(".json").write_text(json.dumps(meta, indent=0) + "\n")
+    print(f"report written to {out} (and {out.with_suffix('.json').name} beside it)")
 
 
 if __name__ == "__main__":

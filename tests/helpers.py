@@ -2,9 +2,33 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
+import pytest
 from pointclm import RegistrationResult
 from pointclm.datasets import make_scene
+from pointclm.datasets.scenes import default_data_dir
+
+#: The real data some tests read (Stanford scans and models, PCL and 3DMatch clouds, ModelNet
+#: and common3d meshes: public files, too large or under terms that keep them out of the
+#: repository): ``$POINTCLM_DATA_DIR``, else ``../shared/data`` beside the clone.
+DATA = Path(
+    os.environ.get("POINTCLM_DATA_DIR") or Path(__file__).resolve().parents[2] / "shared" / "data"
+)
+#: Why a test that needs the data folder is skipped, and how to get it.
+DATA_HINT = (
+    f"needs the real data folder, not found at {DATA}: put it at ../shared/data beside the "
+    "clone or set POINTCLM_DATA_DIR; tests/DATA_SOURCES.md lists its files and where to "
+    "download each"
+)
+#: Skips a test that reads files of the data folder.
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=DATA_HINT)
+#: Skips a test whose realistic scenes need the data folder (`make_realistic_scene` with its
+#: default model, the Stanford bunny and its real range scans, or another model stored there;
+#: the packaged model="bunny" with procedural clutter needs nothing).
+needs_scene_data = pytest.mark.skipif(default_data_dir() is None, reason=DATA_HINT)
 
 
 def assert_same_result(a: RegistrationResult, b: RegistrationResult) -> None:

@@ -14,12 +14,11 @@ import pytest
 torch = pytest.importorskip("torch")
 safetensors_torch = pytest.importorskip("safetensors.torch")
 
+from helpers import DATA, needs_data  # noqa: E402
 from pointclm.cli import main  # noqa: E402
 from pointclm.model import EmbeddingConfig, SCNonlocal  # noqa: E402
 from pointclm.training import TrainConfig, train  # noqa: E402
 from pointclm.training.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
-
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
 
 def _model_and_optimizer(seed: int = 0) -> tuple[object, object]:
@@ -105,7 +104,7 @@ def test_legacy_pickle_checkpoint_is_never_loaded(tmp_path: Path) -> None:
     assert not marker.exists()
 
 
-@pytest.mark.skipif(not DATA.is_dir(), reason="needs ../shared/data for the training shapes")
+@needs_data
 def test_resumed_run_equals_uninterrupted_run(tmp_path: Path) -> None:
     cfg = TrainConfig.preset("smoke", data_dir=str(DATA))
     whole = train(cfg, tmp_path / "whole", progress=False)

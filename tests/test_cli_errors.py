@@ -161,6 +161,44 @@ def test_missing_and_hostile_inputs(
     one_line_error(capsys, "bomb.npy")
 
 
+def test_an_unknown_network_is_refused_before_the_work_naming_the_shipped_ones(
+    clouds: tuple[str, str], capsys: pytest.CaptureFixture[str], no_work: None
+) -> None:
+    model, scene = clouds
+    assert main(["register", model, scene, "--model", "nosuch", "--quiet"]) == 2
+    one_line_error(capsys, "no weights at", "nosuch", "'default', 'paper'", "--model default")
+
+
+def test_a_scan_with_nan_rows_is_read_with_a_one_line_warning(
+    tmp_path: Path, clouds: tuple[str, str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    model, scene = clouds
+    holes = tmp_path / "holes.xyz"
+    points = pointclm.io.load_points(scene)
+    points[[5, 9]] = np.nan  # two missing returns, as a scanner writes them
+    holes.write_text("\n".join(" ".join(str(v) for v in p) for p in points))
+    assert main(["register", model, str(holes), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines == [
+        f"pointclm: warning: {holes}: dropped 2 rows with NaN/inf coordinates (missing "
+        f"returns), kept {len(points) - 2} points"
+    ], err
+
+
+def test_a_diagnosis_asking_for_the_viewpoint_says_how_to_know_it() -> None:
+    from pointclm.cli import flag_names
+
+    text = flag_names(
+        "nothing found: ... The scan's normals were oriented without a sensor position: if "
+        "you know it, pass viewpoint=."
+    )
+    assert "pass --viewpoint x,y,z (the sensor's position in the scan's coordinates: 0,0,0" in text
+    assert "viewpoint=" not in text
+    other = flag_names("pass its position, or viewpoint=None to orient the normals without one")
+    assert other == "pass its position, or --viewpoint none to orient the normals without one"
+
+
 def test_eval_and_train_check_outputs_first(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

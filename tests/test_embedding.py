@@ -163,3 +163,27 @@ def test_config_for_voxel_is_the_point_cloud_rule() -> None:
     assert (mine.tau_s, mine.max_rounds) == (0.7, 3)  # unitless fields are kept
     assert scaled_config(0.02, base) == mine
     assert cloud_config(0.02) == Config.for_voxel(0.02, Config(**REFINED_THRESHOLDS, max_nfa=None))
+
+
+def test_an_unknown_model_name_lists_the_shipped_networks(scene) -> None:
+    # A mistyped name is read as a relative path; the error says which names exist.
+    from pointclm.errors import WeightsNotFoundError
+
+    for call in (
+        lambda: pointclm.register(scene.correspondences, model="nosuch"),
+        lambda: load_network("nosuch"),
+    ):
+        with pytest.raises(WeightsNotFoundError, match="nosuch: no such file") as info:
+            call()
+        assert "'default', 'paper'" in str(info.value) and ".safetensors" in str(info.value)
+
+
+def test_cuda_without_a_gpu_says_so_and_what_to_do(scene, monkeypatch) -> None:
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("safetensors")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(InputError, match="CUDA is not available") as info:
+        pointclm.register(scene.correspondences, model="default", backend="torch", device="cuda")
+    assert "device='cpu'" in str(info.value) and "backend='rust'" in str(info.value)
+    with pytest.raises(InputError, match="not a torch device"):
+        pointclm.register(scene.correspondences, model="default", backend="torch", device="gpu0")

@@ -10,12 +10,15 @@ from __future__ import annotations
 import struct
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, DATA_HINT
 from pointclm.io import (
     SUPPORTED_SUFFIXES,
+    NonFinitePointsWarning,
     PointCloud,
     load_points,
     read_open3d_feature,
@@ -24,13 +27,11 @@ from pointclm.io import (
 )
 from pointclm.io.lzf import lzf_decompress
 
-DATA = Path(__file__).parent.parent.parent / "shared" / "data"
-
 
 def data_file(rel: str) -> Path:
     path = DATA / rel
     if not path.exists():
-        pytest.skip(f"test data not available: {path}")
+        pytest.skip(f"{path} is missing; {DATA_HINT}")
     return path
 
 
@@ -106,9 +107,11 @@ def test_pcd_binary_compressed() -> None:
 def test_pcd_binary_compressed_organised_with_nans() -> None:
     path = data_file("pcl/milk_cartoon_all_small_clorox.pcd")
     start = time.perf_counter()
-    cloud = read_point_cloud(path)
+    with pytest.warns(NonFinitePointsWarning, match="dropped 65793 rows"):
+        cloud = read_point_cloud(path)
     elapsed = time.perf_counter() - start
     assert_valid(cloud, 241_407)  # of 640 x 480 = 307,200 pixels
+    assert cloud.dropped == 307_200 - 241_407
     assert cloud.colors is not None and cloud.normals is None
     assert cloud.colors.std(axis=0).min() > 0.05  # real colours, not a constant
     # Kinect depth: everything in front of the camera, within a few metres.
@@ -174,7 +177,8 @@ def test_pcd_layouts_keep_attributes_aligned(tmp_path: Path, layout: str) -> Non
         body = struct.pack("<II", len(_literal_lzf(raw)), len(raw)) + _literal_lzf(raw)
     path = tmp_path / f"aligned_{layout}.pcd"
     path.write_bytes(header + body)
-    cloud = read_point_cloud(path)
+    with pytest.warns(NonFinitePointsWarning, match="dropped 2 rows"):
+        cloud = read_point_cloud(path)
     assert_valid(cloud, 2)  # the NaN and the inf rows are dropped
     np.testing.assert_array_equal(cloud.points, [[0, 0, 0], [1, 2, 3]])
     np.testing.assert_array_equal(cloud.normals, [[0, 0, 1], [0, 1, 0]])
@@ -370,10 +374,61 @@ def test_text_formats(tmp_path: Path) -> None:
 def test_text_drops_nan_rows_keeping_normals_aligned(tmp_path: Path) -> None:
     path = tmp_path / "holes.xyz"
     path.write_text("0 0 0 0 0 1\nnan nan nan 1 0 0\n1 1 1 0 1 0\n2 inf 2 1 0 0\n3 3 3 nan 0 0\n")
-    cloud = read_point_cloud(path)
+    with pytest.warns(NonFinitePointsWarning, match=r"holes\.xyz: dropped 2 rows .*kept 3"):
+        cloud = read_point_cloud(path)
+    assert cloud.dropped == 2
     np.testing.assert_array_equal(cloud.points, [[0, 0, 0], [1, 1, 1], [3, 3, 3]])
     # A finite point with an unknown normal keeps its place; its normal is a zero row.
     np.testing.assert_array_equal(cloud.normals, [[0, 0, 1], [0, 1, 0], [0, 0, 0]])
+
+
+def test_every_reader_drops_non_finite_rows_with_a_warning(tmp_path: Path) -> None:
+    # One policy for files: rows with NaN/inf coordinates (a scanner's missing returns) are
+    # dropped, and the reader says how many, whatever the format; a clean file says nothing.
+    pts = np.arange(15, dtype=np.float64).reshape(5, 3)
+    holes = pts.copy()
+    holes[1, 0], holes[3, 2] = np.nan, -np.inf
+    paths = {".npy": tmp_path / "a.npy", ".xyz": tmp_path / "a.xyz", ".pcd": tmp_path / "a.pcd"}
+    np.save(paths[".npy"], holes)
+    paths[".xyz"].write_text("\n".join(" ".join(str(v) for v in row) for row in holes))
+    paths[".pcd"].write_bytes(
+        _pcd_header("x y z", "8 8 8", "F F F", 5, "ascii")
+        + "\n".join(" ".join(str(v) for v in row) for row in holes).encode()
+    )
+    for path in paths.values():
+        with pytest.warns(NonFinitePointsWarning) as caught:
+            cloud = read_point_cloud(path)
+        assert len(caught) == 1 and str(caught[0].message).startswith(f"{path}: dropped 2 rows")
+        assert cloud.dropped == 2
+        np.testing.assert_array_equal(cloud.points, pts[[0, 2, 4]])
+    # A mesh's NaN vertex: dropped too (no triangle touching it is sampled), and said.
+    mesh = tmp_path / "m.ply"
+    mesh.write_bytes(
+        _tiny_mesh_ply("ascii").replace(b"\n0.0 0.0 1.0 0 0 255", b"\nnan 0.0 1.0 0 0 255")
+    )
+    with pytest.warns(NonFinitePointsWarning, match="m.ply: dropped 1 row "):
+        cloud = read_point_cloud(mesh, n_samples=200)
+    assert cloud.dropped == 1 and np.allclose(cloud.points[:, 2], 0.0)
+    # Clean files: no warning at all; a file of NaN alone is still an error.
+    clean = tmp_path / "clean.xyz"
+    clean.write_text("0 0 0\n1 1 1\n2 2 3\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_point_cloud(clean).dropped == 0
+    (tmp_path / "nan.xyz").write_text("nan nan nan\n")
+    with pytest.raises(ValueError, match="no points with finite coordinates"):
+        read_point_cloud(tmp_path / "nan.xyz")
+
+
+def test_arrays_with_nan_raise_rather_than_being_cleaned() -> None:
+    import pointclm
+    from pointclm.errors import InputError
+
+    model = np.random.default_rng(0).normal(size=(200, 3))
+    scan = model.copy()
+    scan[7, 1] = np.nan
+    with pytest.raises(InputError, match="non-finite value"):
+        pointclm.register_point_clouds(model, scan)
 
 
 def test_npz_and_npy_variants(tmp_path: Path) -> None:

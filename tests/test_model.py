@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 import pointclm  # noqa: E402
-from helpers import scene_with_inputs  # noqa: E402
+from helpers import DATA, DATA_HINT, needs_data, scene_with_inputs  # noqa: E402
 from pointclm import _core  # noqa: E402
 from pointclm.datasets import make_scene  # noqa: E402
 from pointclm.model import (  # noqa: E402
@@ -30,7 +30,6 @@ from pointclm.staged import spatial_consistency as core_beta  # noqa: E402
 from pointclm.training import TrainConfig, train  # noqa: E402
 
 FIXTURES = Path(__file__).parent / "fixtures"
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
 def unit(*v: float) -> list[float]:
@@ -219,7 +218,7 @@ def test_normal_beta_is_invariant_to_rigid_motions_of_each_side() -> None:
     assert not torch.allclose(net.consistency(torch.tensor(turned)[None]), before)
 
 
-@pytest.mark.skipif(not DATA.is_dir(), reason="needs ../shared/data for the training shapes")
+@needs_data
 def test_cpu_training_smoke_run_and_resume(tmp_path: Path) -> None:
     cfg = TrainConfig.preset("smoke", data_dir=str(DATA))
     first = train(cfg, tmp_path, progress=False)
@@ -233,7 +232,7 @@ def test_cpu_training_smoke_run_and_resume(tmp_path: Path) -> None:
 
 def test_training_is_deterministic(tmp_path: Path) -> None:
     if not DATA.is_dir():
-        pytest.skip("needs ../shared/data for the training shapes")
+        pytest.skip(DATA_HINT)
     cfg = TrainConfig.preset("smoke", data_dir=str(DATA), iterations=3, val_every=3)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)

@@ -10,13 +10,12 @@ import numpy as np
 import pointclm
 import pointclm.preprocessing as pp
 import pytest
+from helpers import DATA, needs_data, needs_scene_data
 from pointclm.cli import main
 from pointclm.datasets.scenes import SceneParams, _bunny_scans, make_realistic_scene
 from pointclm.io import read_open3d_feature, read_point_cloud, write_ply
 from pointclm.metrics import score_scene
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 BUNNY = DATA / "stanford/bunny/reconstruction/bun_zipper_res2.ply"
 
 
@@ -442,6 +441,7 @@ def _angle_and_ratio(estimate: np.ndarray, truth: np.ndarray, centre: np.ndarray
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), np.linalg.norm(a) / np.linalg.norm(b)
 
 
+@needs_scene_data
 def test_a_world_frame_scan_without_viewpoint_is_judged_from_its_estimated_sensor() -> None:
     # Realistic scenes are single views from a sensor away from the origin: without the
     # viewpoint, the position from which the scan hides the fewest of its points is guessed
@@ -456,6 +456,7 @@ def test_a_world_frame_scan_without_viewpoint_is_judged_from_its_estimated_senso
         assert s.n_pred >= 1 and s.n_matched == s.n_pred
 
 
+@needs_scene_data
 def test_a_scan_merged_from_two_views_gets_no_estimated_sensor() -> None:
     from pointclm import _core
 

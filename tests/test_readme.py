@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import DATA_HINT
 from pointclm.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,7 +86,7 @@ def test_claim_matching_fails_on_a_wrong_claim():
 
 def _skip_reason(block: str) -> str | None:
     if "../shared/data" in block and not DATA.is_dir():
-        return f"the block reads ../shared/data, which is missing ({DATA})"
+        return f"the block reads ../shared/data: {DATA_HINT}"
     if re.search(r"^\s*import torch", block, re.M) and importlib.util.find_spec("torch") is None:
         return "the block needs torch (pip install '.[train]')"
     return None
@@ -190,3 +191,13 @@ def test_rust_example_is_the_crate_doctest():
     )
     lib = (CRATE / "src" / "lib.rs").read_text()
     assert '#[doc = include_str!("../README.md")]' in lib
+
+
+def test_the_venv_the_readme_creates_is_ignored_by_git():
+    # The README's commands make .venv inside the clone; `git status` must not list it.
+    ignore = ROOT / ".gitignore"
+    if not ignore.is_file():
+        pytest.skip("not a git checkout")
+    assert "python3 -m venv .venv" in README.read_text()
+    patterns = {line.strip() for line in ignore.read_text().splitlines()}
+    assert patterns & {".venv", ".venv/", "/.venv", "/.venv/"}, ".venv is not in .gitignore"

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, needs_data
 from pointclm.datasets.procedural import PROCEDURAL_SHAPES
 from pointclm.datasets.scenes import (
     HELDOUT_MODELS,
@@ -22,8 +23,6 @@ from pointclm.datasets.scenes import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 
 
 def _load(name: str = "realistic_models") -> types.ModuleType:
@@ -149,10 +148,13 @@ def test_summary_counts_predictions_over_ground_truth() -> None:
     assert s["median ms"] == pytest.approx(200.0)
 
 
-def test_quick_run_writes_the_report(tmp_path: Path) -> None:
-    out = tmp_path / "r.md"
+def test_quick_run_writes_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Without --out the report goes to out/ under the working directory, never over the
+    # committed benchmarks/results/.
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out" / "realistic_models.md"
     argv = ["--models", "torus", "--scenes-per-model", "1", "--scale", "0", "--no-ransac"]
-    argv += ["--cache", str(tmp_path / "cache"), "--workers", "1", "--out", str(out)]
+    argv += ["--no-kiss", "--cache", str(tmp_path / "cache"), "--workers", "1"]
     rm.main(argv)
     text = out.read_text()
     assert "Validation models, pooled (torus)" in text and "Headline" not in text
@@ -162,6 +164,43 @@ def test_quick_run_writes_the_report(tmp_path: Path) -> None:
     assert {r["seed"] for r in record["rows"]} == set(rm.benchmark_seeds("torus", 1))
     with pytest.raises(SystemExit, match="unknown model"):
         rm.main(["--models", "no-such-model", "--out", str(out)])
+
+
+def test_a_missing_peer_is_named_before_any_scene_is_built(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setitem(sys.modules, "kiss_matcher", None)  # as if not installed
+    cache = tmp_path / "cache"
+    argv = ["--models", "torus", "--scenes-per-model", "1", "--scale", "0", "--no-ransac"]
+    argv += ["--cache", str(cache), "--workers", "1", "--out", str(tmp_path / "r.md")]
+    with pytest.raises(SystemExit, match=r"KISS-Matcher.*kiss-matcher.*--skip-missing-peers"):
+        rm.main(argv)
+    assert not cache.exists() and not (tmp_path / "r.md").exists()
+    # Asked to, it runs without the peer and says so at the start.
+    rm.main([*argv, "--skip-missing-peers"])
+    assert "leaving out sequential KISS-Matcher" in capsys.readouterr().out.splitlines()[0]
+    record = json.loads((tmp_path / "r.json").read_text())
+    assert "kiss" not in {r["method"] for r in record["rows"]}
+
+
+def test_bins_names_a_missing_peer_up_front_and_writes_beside_the_results(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bins = _load("bins")
+    assert not bins.DEFAULT_OUT.startswith("benchmarks/results")
+    monkeypatch.setitem(sys.modules, "kiss_matcher", None)
+    monkeypatch.setitem(sys.modules, "open3d", None)
+    wanted = "pointclm,sequential KISS-Matcher,sequential RANSAC (Open3D)"
+    with pytest.raises(SystemExit, match=r"kiss-matcher open3d-cpu.*--skip-missing-peers"):
+        bins.choose_methods(wanted, skip_missing_peers=False)
+    assert bins.choose_methods(wanted, skip_missing_peers=True) == ["pointclm"]
+    assert "leaving out sequential KISS-Matcher" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="unknown method"):
+        bins.choose_methods("pointclm,no-such-method", skip_missing_peers=True)
+    # The whole script stops before building its first scene (that took 31 s).
+    monkeypatch.setattr(sys, "argv", ["bins.py", "--models", "no-such-model"])
+    with pytest.raises(SystemExit, match="missing peer"):
+        bins.main()
 
 
 def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:

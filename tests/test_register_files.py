@@ -352,6 +352,43 @@ def test_bad_arguments_fail_before_any_scan(data: dict[str, Any], tmp_path: Path
     assert not out.exists()
 
 
+def test_failed_checks_leave_no_picture_or_cloud_folder(
+    data: dict[str, Any], reference: list[dict[str, Any]], tmp_path: Path, capsys: Any
+) -> None:
+    pytest.importorskip("matplotlib")
+    png, ply = tmp_path / "pictures" / "png", tmp_path / "clouds"
+    folders = ["--png-dir", str(png), "--ply-dir", str(ply), "--quiet"]
+    taken = tmp_path / "taken.jsonl"
+    taken.write_text(json.dumps(reference[0]) + "\n")
+    scan = reference[1]["scan"]
+    for argv, message in [
+        (["batch", data["model"], scan, "--out", str(taken)], "pass --resume"),
+        (
+            ["batch", str(tmp_path / "no-model.ply"), scan, "--out", str(tmp_path / "a.jsonl")],
+            "no-model",
+        ),
+        (
+            ["batch", data["model"], str(tmp_path / "*.pcd"), "--out", str(tmp_path / "b.jsonl")],
+            "matches no file",
+        ),
+    ]:
+        assert main([*argv, *folders]) == 2
+        assert message in capsys.readouterr().err
+        assert not png.exists() and not png.parent.exists() and not ply.exists()
+    # A folder that cannot be made is refused before the work, naming it.
+    (tmp_path / "file").write_text("not a folder")
+    bad = ["--ply-dir", str(tmp_path / "file" / "clouds")]
+    assert main(["batch", data["model"], scan, "--out", str(tmp_path / "c.jsonl"), *bad]) == 2
+    assert "file is not a folder" in capsys.readouterr().err
+    assert not (tmp_path / "c.jsonl").exists()
+    # Once the checks pass, the folders are made, parents included.
+    out = tmp_path / "d.jsonl"
+    assert (
+        main(["batch", data["model"], scan, "--out", str(out), "--seed", str(SEED), *folders]) == 0
+    )
+    assert png.is_dir() and ply.is_dir()
+
+
 def test_an_existing_output_needs_resume_and_the_same_model(
     data: dict[str, Any], reference: list[dict[str, Any]], tmp_path: Path, capsys: Any
 ) -> None:

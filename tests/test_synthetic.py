@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import DATA, needs_data
 from pointclm.datasets import (
     PROCEDURAL_SHAPES,
     SyntheticScene,
@@ -19,9 +20,6 @@ from pointclm.datasets import (
     modelnet40_shapes,
     normalize_unit_sphere,
 )
-
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data not found at {DATA}")
 
 
 def _assert_unit_sphere(cloud: np.ndarray) -> None:

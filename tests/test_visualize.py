@@ -76,11 +76,15 @@ def test_key_has_one_entry_per_copy_with_its_fitness() -> None:
     )
     copies = [t for t in legend_texts(fig) if "fitness" in t]
     assert copies == [
-        "1: fitness 0.91, confidence 0.80",
-        "2: fitness 0.72",
-        "3: fitness 0.50, confidence 0.30",
+        "0: fitness 0.91, confidence 0.80",
+        "1: fitness 0.72",
+        "2: fitness 0.50, confidence 0.30",
     ]
     assert "3 copies found" in fig.get_suptitle()
+    # Both views number the copies as the key does, from 0 like the console's [0], [1], ...
+    for ax in fig.axes:  # (the numbers are the outlined texts; the scale bar's is not)
+        numbers = sorted(t.get_text() for t in ax.texts if t.get_path_effects())
+        assert numbers == ["0", "1", "2"]
 
 
 def test_fitness_is_measured_when_not_given() -> None:
@@ -88,8 +92,8 @@ def test_fitness_is_measured_when_not_given() -> None:
     poses = np.stack([TRUTH[0], pose(0, (0, 0, 10))])
     fig = draw_registration(SCENE, MODEL, poses, 0.05)
     assert [t for t in legend_texts(fig) if "fitness" in t] == [
-        "1: fitness 1.00",
-        "2: fitness 0.00",
+        "0: fitness 1.00",
+        "1: fitness 0.00",
     ]
 
 

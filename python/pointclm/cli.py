@@ -10,9 +10,10 @@ import math
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -34,8 +35,15 @@ MATCH_DEG = 15.0
 MATCH_DIAGONALS = 0.1
 
 #: A diagnosis names `register_point_clouds`' arguments; the command's user types flags.
+#: How to know the sensor position `--viewpoint` asks for, said where a diagnosis suggests it.
+VIEWPOINT_HINT = (
+    "--viewpoint x,y,z (the sensor's position in the scan's coordinates: 0,0,0 for a scan "
+    "still in its camera's or scanner's own frame; for a scan moved into a world or robot "
+    "frame, the sensor's position there, from the acquisition's calibration or pose log)"
+)
 _FLAGS_FOR_ARGUMENTS = (
     ("viewpoint=None", "--viewpoint none"),
+    ("pass viewpoint=.", f"pass {VIEWPOINT_HINT}."),
     ("viewpoint=", "--viewpoint x,y,z"),
     ("voxel_size", "--voxel-size"),
     ("mutual=False", "--no-mutual"),
@@ -465,6 +473,10 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
             import matplotlib  # noqa: F401
         except ImportError:
             raise ImportError("--png needs matplotlib: pip install 'pointclm[viz]'") from None
+    if args.model is not None:
+        from .model.weights import load_network
+
+        load_network(args.model)  # a wrong name fails now, naming the shipped ones (cached)
     return None if args.ground_truth is None else _load_ground_truth(args.ground_truth)
 
 
@@ -944,7 +956,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ``POINTCLM_DEBUG=1``."""
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return int(args.func(args))
     except KeyboardInterrupt:
         print("pointclm: interrupted", file=sys.stderr)
         return 130
@@ -969,6 +983,27 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _one_line(text: str) -> str:
     return " ".join(text.split())
+
+
+_default_showwarning = warnings.showwarning
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """pointclm's own warnings (a file's NaN rows dropped) as one line on stderr, like its
+    errors; any other warning as Python shows it."""
+    from .io import NonFinitePointsWarning
+
+    if issubclass(category, NonFinitePointsWarning):
+        print(f"pointclm: warning: {_one_line(str(message))}", file=sys.stderr)
+    else:
+        _default_showwarning(message, category, filename, lineno, file, line)
 
 
 if __name__ == "__main__":

@@ -6,9 +6,11 @@ The PLY (any viewer) needs nothing beyond numpy; the PNG needs matplotlib
 The PNG shows the scene from above and from a three-quarter view side by side, both with
 equal aspect, in the scene's principal frame (its thinnest axis up: a tabletop's floor lies
 flat). Each copy found is the model placed by its pose, drawn in its own colour and outlined
-(its footprint from above), numbered, with its fitness (and confidence, when known) in the
-key. Given the ground-truth poses, the true copies no found pose matches are drawn hollow and
-dashed in black. A result with no copy says so across the picture, with the reason if given.
+(its footprint from above), numbered from 0 in the order of the result (surest first), as
+``pointclm register`` prints them (``[0]``), as ``reg.instances`` and the JSON of ``--out``
+list them, with its fitness (and confidence, when known) in the key. Given the ground-truth
+poses, the true copies no found pose matches are drawn hollow and dashed in black. A result
+with no copy says so across the picture, with the reason if given.
 """
 
 from __future__ import annotations
@@ -161,7 +163,7 @@ def _fitness(scene: np.ndarray, placed: np.ndarray, radius: float) -> float:
 
 
 def _copy_label(k: int, fitness: float, confidence: float) -> str:
-    text = f"{k + 1}: fitness {fitness:.2f}"
+    text = f"{k}: fitness {fitness:.2f}"
     return text + (f", confidence {confidence:.2f}" if np.isfinite(confidence) else "")
 
 
@@ -250,7 +252,7 @@ def _top_view(ax: Axes, s: np.ndarray, copies: list[_Copy], missed: list[_Copy])
         ax.scatter(c.points[:, 0], c.points[:, 1], color=c.colour, s=1.5, linewidths=0)
         ring = _hull(c.points[:, :2])
         ax.plot(ring[:, 0], ring[:, 1], color=0.7 * c.colour, lw=1.4)
-        _outlined(ax, str(k + 1), (ring[:, 0].mean(), ring[:, 1].max()), 0.7 * c.colour, 11)
+        _outlined(ax, str(k), (ring[:, 0].mean(), ring[:, 1].max()), 0.7 * c.colour, 11)
     for m in missed:
         ring = _hull(m.points[:, :2])
         ax.plot(ring[:, 0], ring[:, 1], color=MISSED, lw=1.4, ls="--", gid="missed")
@@ -275,7 +277,7 @@ def _oblique_view(ax: Any, s: np.ndarray, copies: list[_Copy], missed: list[_Cop
         ax.scatter(*c.points.T, color=c.colour, s=2.0, **kw)
         # Above the copy's highest point, so its own points do not hide the number.
         top = c.points[np.argmax(c.points[:, 2])] + [0, 0, 0.02 * np.ptp(s[:, 2])]
-        _outlined(ax, str(k + 1), top, 0.7 * c.colour, 10)
+        _outlined(ax, str(k), top, 0.7 * c.colour, 10)
     for m in missed:
         hollow = m.points[:: max(1, len(m.points) // 300)]
         ax.scatter(

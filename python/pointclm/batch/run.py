@@ -131,6 +131,11 @@ def run_batch(
     scan_list = expand_scans(scans)
     model_points = _load_model(job.model_file)
     fh, present = open_results(out, resume, _identity(job))
+    try:
+        _make_output_folders(job)  # only now: a failed check leaves no empty folder behind
+    except BaseException:
+        fh.close()
+        raise
     names = picture_names(scan_list)
     tasks = [(i, s, names[i]) for i, s in enumerate(scan_list) if s not in present]
     writer = OrderedWriter(fh, [t[0] for t in tasks])
@@ -179,8 +184,8 @@ def _job(
         os.fspath(model_file),
         checked,
         recorded_options(checked),
-        None if png_dir is None else _output_folder(png_dir, "png_dir"),
-        None if ply_dir is None else _output_folder(ply_dir, "ply_dir"),
+        None if png_dir is None else _check_output_folder(png_dir, "png_dir"),
+        None if ply_dir is None else _check_output_folder(ply_dir, "ply_dir"),
     )
 
 
@@ -191,15 +196,30 @@ def _identity(job: BatchJob) -> dict[str, Any]:
     return dict(json.loads(json.dumps(identity)))
 
 
-def _output_folder(path: str | os.PathLike[str], what: str) -> str:
-    """`path` made (with its parents) if missing, and checked writable."""
+def _check_output_folder(path: str | os.PathLike[str], what: str) -> str:
+    """`path` checked to be a writable folder, or one that can be made (its nearest existing
+    parent is a writable folder); nothing is made here (see `_make_output_folders`)."""
     folder = os.fspath(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise InputError(f"{what} {folder} exists and is not a folder")
-    os.makedirs(folder, exist_ok=True)
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise InputError(f"{what} {folder} is not writable")
+    existing = os.path.abspath(folder)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise InputError(f"{what} {folder}: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"{what} {folder}: {existing} is not writable")
     return folder
+
+
+def _make_output_folders(job: BatchJob) -> None:
+    """The picture and cloud folders made (with their parents) once every check has passed."""
+    for folder, what in ((job.png_dir, "png_dir"), (job.ply_dir, "ply_dir")):
+        if folder is not None:
+            try:
+                os.makedirs(folder, exist_ok=True)
+            except OSError as e:
+                raise InputError(f"{what} {folder} could not be made: {e}") from None
 
 
 def _load_model(model_file: str) -> np.ndarray:

@@ -31,9 +31,14 @@ Design decisions
   vertices: a PLY or OFF file with faces gives ``n_samples`` points drawn uniformly by area
   (default ``max(10_000, vertices)``), seeded, with the normal of the triangle each point
   lies on; a file without faces gives its vertices (with normals and colours when stored).
-- **Only finite points**: rows with NaN/inf coordinates are dropped (organised clouds use
-  them for missing pixels), keeping normals and colours aligned; a file with no finite
-  point is an error, never an empty cloud.
+- **Only finite points, and a warning**: rows of a file with NaN/inf coordinates are dropped
+  (scanners write NaN for a missing return, organised clouds for a missing pixel), keeping
+  normals and colours aligned, and :func:`read_point_cloud` (so :func:`load_points` and
+  every command that reads files) warns with :class:`NonFinitePointsWarning`, naming the
+  file and the count (``PointCloud.dropped``); a mesh's non-finite vertices are dropped the
+  same way. A file with no finite point is an error, never an empty cloud. Arrays passed to
+  ``pointclm.register`` or ``register_point_clouds`` directly are not files: a NaN in them
+  raises :class:`~pointclm.errors.InputError`.
 - **Errors name the file**: a missing file raises
   :class:`~pointclm.errors.PathNotFoundError` (a :class:`FileNotFoundError`); an empty,
   truncated or malformed file, an unsupported extension, or a cloud without finite points
@@ -54,13 +59,14 @@ from __future__ import annotations
 from .features import read_open3d_feature
 from .mesh import Mesh, sample_mesh
 from .ply import write_ply
-from .pointcloud import PointCloud
+from .pointcloud import NonFinitePointsWarning, PointCloud
 from .reader import MESH_SUFFIXES, SUPPORTED_SUFFIXES, load_points, read_mesh, read_point_cloud
 
 __all__ = [
     "MESH_SUFFIXES",
     "SUPPORTED_SUFFIXES",
     "Mesh",
+    "NonFinitePointsWarning",
     "PointCloud",
     "load_points",
     "read_mesh",

@@ -12,6 +12,7 @@ point.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,9 +90,11 @@ class Mesh:
         """A mesh sampled by area (:func:`sample_mesh`); a point file's finite vertices."""
         if self.triangles is None:
             return finite_cloud(self.vertices, self.normals, self.colors)
-        return sample_mesh(
+        cloud = sample_mesh(
             self.vertices, self.triangles, n_samples, seed, vertex_colors=self.colors
         )
+        bad = int((~np.isfinite(np.asarray(self.vertices, dtype=np.float64)).all(axis=1)).sum())
+        return dataclasses.replace(cloud, dropped=bad) if bad else cloud
 
 
 def sample_mesh(

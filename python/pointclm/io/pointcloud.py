@@ -12,7 +12,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PointCloud", "check_integers", "finite_cloud", "unit_colors"]
+__all__ = ["NonFinitePointsWarning", "PointCloud", "check_integers", "finite_cloud", "unit_colors"]
+
+
+class NonFinitePointsWarning(UserWarning):
+    """A file held points (or mesh vertices) with NaN/inf coordinates, which were dropped.
+
+    Scanners and depth cameras write NaN for a missing return, so such a file is read, not
+    refused; the warning gives the file and the count, and the cloud's
+    :attr:`PointCloud.dropped` keeps it. Turn it into an error with
+    ``warnings.simplefilter("error", NonFinitePointsWarning)``, or silence it with
+    ``"ignore"``. Arrays passed to pointclm directly are never cleaned: a NaN in them raises
+    :class:`~pointclm.errors.InputError`.
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,6 +41,10 @@ class PointCloud:
         zero row marks a point whose normal the file gives as NaN/inf.
     colors : numpy.ndarray or None
         (N, 3) float64 RGB in [0, 1] (8-bit channels are divided by 255).
+    dropped : int
+        How many rows of the file had NaN/inf coordinates and were left out: points of a
+        point cloud, or vertices of a mesh (the triangles touching them get no samples).
+        0 for a cloud built from arrays.
 
     Raises
     ------
@@ -45,8 +61,14 @@ class PointCloud:
     points: np.ndarray
     normals: np.ndarray | None = None
     colors: np.ndarray | None = None
+    dropped: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.dropped, bool) or not isinstance(self.dropped, int | np.integer):
+            raise ValueError(f"dropped must be a non-negative int, got {self.dropped!r}")
+        if self.dropped < 0:
+            raise ValueError(f"dropped must be a non-negative int, got {self.dropped!r}")
+        object.__setattr__(self, "dropped", int(self.dropped))
         pts = _real_array(self.points, "points")
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must be (N, 3), got shape {pts.shape}")
@@ -96,8 +118,10 @@ def finite_cloud(
     """Build a cloud from raw file columns, dropping rows whose xyz is not finite.
 
     Files legitimately hold NaN points (organised depth-camera clouds mark missing pixels
-    that way), so readers drop them here, once, keeping the attributes aligned. Normals that
-    are non-finite on a kept point become zero rows rather than failing the whole file.
+    that way), so readers drop them here, once, keeping the attributes aligned, and count
+    them in :attr:`PointCloud.dropped` (:func:`pointclm.io.read_point_cloud` warns with the
+    count). Normals that are non-finite on a kept point become zero rows rather than failing
+    the whole file.
 
     Raises
     ------
@@ -125,7 +149,7 @@ def finite_cloud(
     if colors is not None:
         col = np.asarray(colors, dtype=np.float64)
         colors = col if all_kept else col[keep]
-    return PointCloud(points=pts, normals=normals, colors=colors)
+    return PointCloud(points=pts, normals=normals, colors=colors, dropped=int((~keep).sum()))
 
 
 def unit_colors(channels: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from .mesh import Mesh, check_n_samples
 from .off import off_mesh, parse_off
 from .pcd import parse_pcd
 from .ply import parse_ply, ply_mesh
-from .pointcloud import PointCloud
+from .pointcloud import NonFinitePointsWarning, PointCloud
 from .text import parse_text
 
 __all__ = ["MESH_SUFFIXES", "SUPPORTED_SUFFIXES", "load_points", "read_mesh", "read_point_cloud"]
@@ -72,7 +73,10 @@ def read_point_cloud(
     -------
     PointCloud
         Points (N, 3) float64, plus normals and colours when the file has them. Points
-        with NaN/inf coordinates (missing pixels of organised clouds) are dropped.
+        with NaN/inf coordinates (a scanner's missing returns, the missing pixels of
+        organised clouds) are dropped, with a :class:`NonFinitePointsWarning` naming the
+        file and the count (also in ``PointCloud.dropped``); so are a mesh's vertices with
+        NaN/inf coordinates (the triangles touching them get no samples).
 
     Raises
     ------
@@ -95,10 +99,26 @@ def read_point_cloud(
     suffix = file.suffix.lower()
     try:
         if suffix in _MESH_READERS:
-            return _MESH_READERS[suffix](raw, n_samples, seed)
-        return _CLOUD_READERS[suffix](raw)
+            cloud = _MESH_READERS[suffix](raw, n_samples, seed)
+        else:
+            cloud = _CLOUD_READERS[suffix](raw)
     except (ValueError, struct.error, EOFError) as exc:
         raise ValueError(f"{file}: {exc}") from exc
+    if cloud.dropped:
+        _warn_dropped(file, cloud)
+    return cloud
+
+
+def _warn_dropped(file: Path, cloud: PointCloud) -> None:
+    """The :class:`NonFinitePointsWarning` of a file whose NaN/inf rows were dropped, shown
+    at the line that called :func:`read_point_cloud` (or :func:`load_points`)."""
+    n = cloud.dropped
+    warnings.warn(
+        f"{file}: dropped {n} {'row' if n == 1 else 'rows'} with NaN/inf coordinates "
+        f"(missing returns), kept {len(cloud)} points",
+        NonFinitePointsWarning,
+        stacklevel=3,
+    )
 
 
 def load_points(

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .weights import load_model, require_torch, weights_path
+from .weights import load_model, require_device, require_torch, weights_path
 
 __all__ = ["embed", "resolve_model"]
 
@@ -35,7 +35,7 @@ def embed(correspondences: np.ndarray, model: Any = "default", device: str = "cp
     (with `normals=` and `similarity=` as separate arguments).
     """
     torch = require_torch()
-
+    require_device(device)
     net = resolve_model(model, device)
     with torch.no_grad():
         corr = torch.tensor(correspondences, dtype=torch.float32, device=device)[None]

@@ -25,6 +25,7 @@ __all__ = [
     "load_metadata",
     "load_model",
     "load_network",
+    "require_device",
     "require_torch",
     "save_model",
     "weights_path",
@@ -52,6 +53,22 @@ def weights_path(model: str | os.PathLike[str]) -> Path:
     if os.fspath(model) == "" or "\x00" in os.fspath(model):
         raise InputError(f"model {os.fspath(model)!r} is not a valid path")
     return Path(model)
+
+
+def _shipped_hint() -> str:
+    names = ", ".join(repr(n) for n in SHIPPED)
+    return (
+        f"the shipped networks are {names} (e.g. model='default', --model default); any "
+        "other model is the path of a .safetensors file with its .json beside it"
+    )
+
+
+def _check_exists(path: Path) -> None:
+    """A WeightsNotFoundError naming `path` and the shipped names when there is no weight
+    file at `path` (a mistyped name lands here: it is read as a relative path)."""
+    if not path.is_file():
+        what = "not a file" if path.exists() else "no such file"
+        raise WeightsNotFoundError(f"no weights at {path}: {what}; {_shipped_hint()}")
 
 
 def load_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -85,6 +102,30 @@ def require_torch() -> Any:
     return torch
 
 
+def require_device(device: str) -> None:
+    """Check that torch can run on `device`: an InputError saying what to do when it names
+    CUDA and torch has none (a CPU build, or no GPU visible), or is not a device at all."""
+    torch = require_torch()
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, ValueError, TypeError):
+        raise InputError(
+            f"device={device!r} is not a torch device (e.g. 'cpu', 'cuda', 'cuda:1')"
+        ) from None
+    if kind == "cuda" and not torch.cuda.is_available():
+        why = (
+            f"this torch ({torch.__version__}) is built without CUDA"
+            if torch.version.cuda is None
+            else "torch sees no CUDA GPU on this machine"
+        )
+        raise InputError(
+            f"device={device!r}: CUDA is not available ({why}). Use device='cpu', or "
+            "backend='rust' (the default), which runs the network on the CPU without torch; "
+            "for a GPU, install a CUDA build of torch (https://pytorch.org) on a machine with "
+            "an NVIDIA driver"
+        )
+
+
 def _config_path(path: Path) -> Path:
     return path.with_suffix(".json")
 
@@ -98,6 +139,7 @@ def load_network(path: str | os.PathLike[str] | None = None) -> _core.Network:
     """
     p = weights_path(path) if path is not None else DEFAULT_WEIGHTS
     p = Path(os.path.abspath(p))
+    _check_exists(p)
     stamps: list[tuple[int, int] | None] = []
     for f in (p, _config_path(p)):
         try:
@@ -142,7 +184,9 @@ def load_model(path: str | Path | None = None, device: str = "cpu") -> SCNonloca
 
     from .network import EmbeddingConfig, SCNonlocal
 
+    require_device(device)
     path = weights_path(path) if path is not None else DEFAULT_WEIGHTS
+    _check_exists(Path(os.path.abspath(path)))
     cfg_path = _config_path(path)
     if not path.is_file() or not cfg_path.is_file():
         raise WeightsNotFoundError(f"no weights at {path} (needs {path.name} and {cfg_path.name})")
