@@ -152,12 +152,6 @@ def test_register_point_clouds_refines_by_default() -> None:
     assert base.n_matched <= good.n_matched
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="with refine=False, register_point_clouds still drops the poses that fit loosely "
-    "against the others and reorders the rest by sureness when the scan is judged from an "
-    "estimated sensor (point_clouds._settle), so one of the 5 poses of this scene is lost",
-)
 def test_without_refinement_the_poses_are_the_correspondence_stage_s() -> None:
     scene = make_realistic_scene(0, BUNNY_ONLY)
     raw = pointclm.register_point_clouds(

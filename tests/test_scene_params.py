@@ -128,3 +128,28 @@ def test_a_bad_scene_flag_is_a_usage_error(bad: str, capsys: pytest.CaptureFixtu
         cli.build_parser().parse_args(["register", "m.ply", "s.ply", "--scene", bad])
     assert exit_.value.code == 2
     assert "--scene" in capsys.readouterr().err
+
+
+def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
+    # The Rust crate's end-to-end path (a known viewpoint, no heap voting, no turns) against
+    # `register_point_clouds` with the same choices, on a small bin of procedural boxes: the
+    # same copies, passes and voxel, poses and confidences to rounding.
+    from pointclm.datasets.bins import make_bin_scene
+    from test_bins import SMALL
+
+    for seed in (0, 1):
+        scene = make_bin_scene(seed, SMALL)
+        view = tuple(float(v) for v in scene.sensor)
+        py = pointclm.register_point_clouds(
+            scene.model_points, scene.scan, viewpoint=view, heap=False, flips=False
+        )
+        poses, confidence, passes, n_passes, voxel, judged = _core.register_scan(
+            scene.model_points, scene.scan, viewpoint=view
+        )
+        assert voxel == py.voxel_size and n_passes == len(py.passes) and judged
+        assert len(poses) == len(py.instances) >= 1
+        np.testing.assert_allclose(poses, py.transformations, atol=1e-12)
+        np.testing.assert_allclose(confidence, [i.confidence for i in py.instances], atol=1e-12)
+        assert passes == [i.pass_index for i in py.instances]
+    with pytest.raises(ConfigError, match="max_stray_share"):
+        _core.register_scan(scene.model_points, scene.scan, scene={"max_stray_share": 2.0})

@@ -331,7 +331,7 @@ def _register(
     if refine and peel and len(tags):
         refined, tags = _peel(run, refined, tags, passes, cfg)
     t6 = time.perf_counter()
-    refined, tags = _settle(run, refined, tags, refine and flips, passes)
+    refined, tags = _settle(run, refined, tags, flips, passes) if refine else (refined, tags)
     t7 = time.perf_counter()
     stage = dict(result.timings)
     timings = {

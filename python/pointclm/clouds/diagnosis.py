@@ -19,12 +19,7 @@ from .run import _Run
 def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool) -> str:
     """Why the result is empty or doubtful, and what to try; "" when there is nothing to say."""
     first = passes[0]
-    no_view = (
-        " The scan's normals were oriented without a sensor position: if you know it, pass "
-        "viewpoint=."
-        if run.viewpoint is None
-        else ""
-    )
+    no_view = "" if run.viewpoint is not None else _no_viewpoint(run.unconfirmed)
     if len(refined.origin) and run.viewpoint is not None and refine and not refined.by_visibility:
         return (
             f"the scan does not look like one view from the viewpoint {_xyz(run.viewpoint)} "
@@ -69,4 +64,20 @@ def _rejected(run: _Run, first: Pass) -> str:
         f"sensor saw free space (at most {MAX_CONTRADICTION:.0%}), and the sensor could see "
         f"{scores.seen[i]:.0%} of the model (needs {MIN_SEEN:.0%}). If that is not where the "
         "sensor stood, pass its position, or viewpoint=None to orient the normals without one."
+    )
+
+
+def _no_viewpoint(unconfirmed: tuple[float, float, float] | None) -> str:
+    """What to say of a run judged without a viewpoint: how the normals were oriented, and how
+    to know the sensor's position."""
+    how = (
+        " The scan's normals were oriented without a sensor position"
+        if unconfirmed is None
+        else f" The scan's normals face {_xyz(unconfirmed)}, a guess of the sensor's position "
+        "that verification from there did not confirm, so poses were judged without one"
+    )
+    return (
+        how + ": if you know where the sensor stood, pass viewpoint= (its position in the "
+        "scan's coordinates: the origin for a scan still in its sensor's frame, else the "
+        "position from the calibration or pose log)."
     )

@@ -44,6 +44,9 @@ class _Run:
     #: The viewpoint is the origin of a scan in its sensor's frame, not given: the first
     #: pass confirms it (:func:`_confirm_viewpoint`).
     guessed_viewpoint: bool = False
+    #: A guessed viewpoint the first pass did not confirm: the scan's normals face it, but
+    #: poses are judged without one.
+    unconfirmed: tuple[float, float, float] | None = None
     #: Whether the scan is a heap (``heap``): None once `SceneParams.heap_min_copies` copies
     #: are accepted, True in every pass.
     heap: bool | None = None

@@ -54,7 +54,7 @@ def _confirm_viewpoint(
     its surest copy. An estimate 10 degrees off costs about a twentieth of the realistic F1,
     20 degrees a fifth (BENCHMARKS.md, stop 35). ICP does not depend on the viewpoint, so the
     poses are refined once and judged both ways."""
-    blind_run = replace(run, viewpoint=None, guessed_viewpoint=False)
+    blind_run = replace(run, viewpoint=None, guessed_viewpoint=False, unconfirmed=run.viewpoint)
     fitted = blind_run.refiner.refine(
         np.asarray(result.transformations).reshape(-1, 4, 4),
         **_KEEP_ALL,
