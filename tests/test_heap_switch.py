@@ -12,10 +12,10 @@ import pointclm
 import pointclm.point_clouds as pc
 import pointclm.preprocessing as pp
 import pytest
-from pointclm import scene_params
+from pointclm import scene_rules
 from pointclm.datasets.bins import make_bin_scene
 from pointclm.errors import InputError
-from pointclm.scene_params import SceneParams
+from pointclm.scene_rules import SceneRules
 from test_bins import SMALL  # a small bin of procedural boxes: about a second per registration
 
 
@@ -26,7 +26,7 @@ def scene():
 
 def _defaults(monkeypatch: pytest.MonkeyPatch, **fields: Any) -> None:
     """The scene-wide rules' defaults with `fields` changed, for every call in the test."""
-    monkeypatch.setattr(scene_params, "SCENE_DEFAULTS", SceneParams(**fields))
+    monkeypatch.setattr(scene_rules, "SCENE_DEFAULTS", SceneRules(**fields))
 
 
 def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:

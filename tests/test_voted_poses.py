@@ -11,10 +11,10 @@ import pointclm
 import pointclm.point_clouds as pc
 import pointclm.preprocessing as pp
 import pytest
-from pointclm import _core, scene_params
+from pointclm import _core, scene_rules
 from pointclm.datasets.bins import make_bin_scene
 from pointclm.errors import InputError
-from pointclm.scene_params import SceneParams
+from pointclm.scene_rules import SceneRules
 from scipy.spatial import cKDTree
 from test_bins import SMALL
 
@@ -34,7 +34,7 @@ def described(scene):
 
 def _defaults(monkeypatch: pytest.MonkeyPatch, **fields: Any) -> None:
     """The scene-wide rules' defaults with `fields` changed, for every call in the test."""
-    monkeypatch.setattr(scene_params, "SCENE_DEFAULTS", SceneParams(**fields))
+    monkeypatch.setattr(scene_rules, "SCENE_DEFAULTS", SceneRules(**fields))
 
 
 def _voter(model: Any, **kwargs: Any) -> _core.PpfModel:

@@ -16,7 +16,7 @@ from .config import Config
 from .point_clouds import CloudInstance, register_point_clouds
 from .refinement import RefinementContext, refine_poses
 from .registration import register, register_batch
-from .scene_params import SceneParams
+from .scene_rules import SceneRules
 
 if TYPE_CHECKING:
     from . import io
@@ -29,7 +29,7 @@ __all__ = [
     "Network",
     "RefinementContext",
     "RegistrationResult",
-    "SceneParams",
+    "SceneRules",
     "__version__",
     "errors",
     "io",

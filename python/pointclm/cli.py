@@ -117,9 +117,9 @@ def _rank(text: str) -> int | None:
 
 
 def _scene_param(text: str) -> tuple[str, Any]:
-    """``--scene NAME=VALUE``: a field of `SceneParams` and its value, typed by the core's
+    """``--scene NAME=VALUE``: a field of `SceneRules` and its value, typed by the core's
     schema (checked against its range when the run starts)."""
-    from .scene_params import _SCHEMA
+    from .scene_rules import _SCHEMA
 
     name, sep, value = text.partition("=")
     name = name.strip()
@@ -812,7 +812,7 @@ def _add_method_flags(p: argparse.ArgumentParser) -> None:
         type=_scene_param,
         metavar="NAME=VALUE",
         help="a scene-wide rule (repeatable), e.g. --scene max_peel_rounds=5; the names, "
-        "defaults and reasons: help(pointclm.SceneParams)",
+        "defaults and reasons: help(pointclm.SceneRules)",
     )
     _add_config_flags(p)
 

@@ -213,10 +213,10 @@ PARAMETERS: dict[str, str] = _entries(
             in 68 -> 69 of 72 validation scenes. False: the poses as verified.
         """,
     scene="""
-        scene : pointclm.SceneParams or dict, optional
+        scene : pointclm.SceneRules or dict, optional
             The scene-wide rules (the voxel's floor, stray points, peeling, heaps, turned
             alternatives, the final ranking), or a dict of some of them by name; None: the
-            defaults. Each rule's default, range and reason: ``help(pointclm.SceneParams)``.
+            defaults. Each rule's default, range and reason: ``help(pointclm.SceneRules)``.
         """,
     cloud_returns="""
         Returns

@@ -24,7 +24,7 @@ from .refinement import (
     RefinedPoses,
     RefinementContext,
 )
-from .scene_params import SCENE_DEFAULTS, SceneParams
+from .scene_rules import SCENE_DEFAULTS, SceneRules
 
 __all__ = ["explained_scan_points", "flip_turns", "quarter_turns", "resolve_flips"]
 
@@ -51,7 +51,7 @@ def quarter_turns(
 
 
 def _shape(
-    source_points: ArrayLike, voxel_size: float, scene: SceneParams = SCENE_DEFAULTS
+    source_points: ArrayLike, voxel_size: float, scene: SceneRules = SCENE_DEFAULTS
 ) -> _Shape:
     src = pp.as_points(source_points, "source_points")
     return _Shape(src, pp.as_positive(voxel_size, "voxel_size"), scene)
@@ -61,7 +61,7 @@ class _Shape:
     """A model's points, centroid, principal axes and k-d tree, to turn it and measure how
     much a turn moves."""
 
-    def __init__(self, src: np.ndarray, voxel: float, scene: SceneParams = SCENE_DEFAULTS) -> None:
+    def __init__(self, src: np.ndarray, voxel: float, scene: SceneRules = SCENE_DEFAULTS) -> None:
         from scipy.spatial import cKDTree
 
         self.src, self.radius, self.scene = src, 1.5 * float(voxel), scene
@@ -170,7 +170,7 @@ def resolve_flips(
     num_threads: int | None = None,
     context: RefinementContext | None = None,
     rotations: ArrayLike | None = None,
-    scene: SceneParams | None = None,
+    scene: SceneRules | None = None,
 ) -> tuple[RefinedPoses, np.ndarray]:
     """Verified `poses` with each replaced by a turned alternative the scan supports better,
     surest first, and the row of `poses` each came from.
@@ -197,8 +197,8 @@ def resolve_flips(
     tried (`MIN_FLIP_CHANGE`; `MIN_FLIP_CHANGE_BY_FITNESS` without a viewpoint). `context`: a
     :class:`RefinementContext` of the same clouds, voxel and viewpoint, to reuse. `rotations`
     (K x 3 x 3): the scene's own alternatives, tried like the quarter turns (`SCENE_TURN_DEG`).
-    `scene`: the turns' rules (:class:`pointclm.SceneParams`; None: the defaults)."""
-    shape = _shape(source_points, voxel_size, SceneParams.resolve(scene))
+    `scene`: the turns' rules (:class:`pointclm.SceneRules`; None: the defaults)."""
+    shape = _shape(source_points, voxel_size, SceneRules.resolve(scene))
     turns, half = shape.turns(poses.by_visibility, _as_rotations(rotations))
     n = len(poses.transformations)
     if n == 0 or len(turns) == 0:
@@ -280,7 +280,7 @@ def explained_scan_points(
     return np.unique(idx[np.isfinite(dist)])
 
 
-def _decisive(more: int, fewer: int, scene: SceneParams = SCENE_DEFAULTS) -> bool:
+def _decisive(more: int, fewer: int, scene: SceneRules = SCENE_DEFAULTS) -> bool:
     """Whether `more` explained points that tell two poses apart decide against `fewer`
     (`FLIP_EVIDENCE_RATIO`, `FLIP_EVIDENCE_SIGMAS`)."""
     ratio, sigmas = scene.flip_evidence_ratio, scene.flip_evidence_sigmas

@@ -39,7 +39,7 @@ from .embedding import Embedding, resolve
 from .errors import InputError
 from .refinement import RefinementContext  # noqa: F401 (re-exported: peeling refines with it)
 from .registration import as_config, as_threads, register
-from .scene_params import SCENE_DEFAULTS, SceneParams
+from .scene_rules import SCENE_DEFAULTS, SceneRules
 
 __all__ = [
     "REFINED_THRESHOLDS",
@@ -76,8 +76,8 @@ __all__ = [
 REFINED_THRESHOLDS: dict[str, Any] = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
 
 
-# The scene-wide rules' defaults, as the Rust core declares them (`pointclm::scene::SceneParams`,
-# where each one's reason and the data it was chosen on are written; `help(SceneParams)`).
+# The scene-wide rules' defaults, as the Rust core declares them (`pointclm::scene::SceneRules`,
+# where each one's reason and the data it was chosen on are written; `help(SceneRules)`).
 VOXELS_PER_DIAGONAL = SCENE_DEFAULTS.voxels_per_diagonal
 PEEL_CLUSTER_LEVEL = SCENE_DEFAULTS.peel_cluster_level
 MIN_VOXEL_SPACINGS = SCENE_DEFAULTS.min_voxel_spacings
@@ -194,7 +194,7 @@ def register_point_clouds(
     peel: bool = True,
     flips: bool = True,
     num_threads: int | None = None,
-    scene: SceneParams | Mapping[str, Any] | None = None,
+    scene: SceneRules | Mapping[str, Any] | None = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
 
@@ -223,7 +223,7 @@ def register_point_clouds(
     t0 = time.perf_counter()
     embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window, rank = _heap_arguments(mutual_window, heap_rank, heap, mutual, k)
-    sc = SceneParams.resolve(scene)
+    sc = SceneRules.resolve(scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)

@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike
 from . import _core
 from . import preprocessing as pp
 from .registration import as_threads
-from .scene_params import SCENE_DEFAULTS
+from .scene_rules import SCENE_DEFAULTS
 
 #: The core's declaration of `RefineParams` (lengths in voxels): every rule's default, read
 #: here so that it is stated once, in Rust (`pointclm::pointcloud::RefineParams`).
@@ -72,8 +72,8 @@ __all__ = [
 ]
 
 # The acceptance rules' defaults, and the turned alternatives' and scene ranking's, as the
-# Rust core declares them (`pointclm::pointcloud::RefineParams`, `pointclm::scene::SceneParams`,
-# where each field's reason and the data it was chosen on are written; `help(SceneParams)`).
+# Rust core declares them (`pointclm::pointcloud::RefineParams`, `pointclm::scene::SceneRules`,
+# where each field's reason and the data it was chosen on are written; `help(SceneRules)`).
 MIN_VISIBLE_FITNESS: float = _RULE_DEFAULTS["min_visible_fitness"]
 MAX_CONTRADICTION: float = _RULE_DEFAULTS["max_contradiction"]
 MIN_SEEN: float = _RULE_DEFAULTS["min_seen"]

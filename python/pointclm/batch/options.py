@@ -14,7 +14,7 @@ from .. import preprocessing as pp
 from ..config import Config
 from ..errors import InputError
 from ..registration import as_config, as_seed, as_threads
-from ..scene_params import SceneParams
+from ..scene_rules import SceneRules
 
 __all__ = [
     "NO_VIEWPOINT",
@@ -104,7 +104,7 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
     if view is not None and not (isinstance(view, str) and view.strip().lower() == NO_VIEWPOINT):
         out["viewpoint"] = pp.as_point(np.asarray(view, dtype=np.float64), "viewpoint")
     if "scene" in out:
-        out["scene"] = SceneParams.resolve(out["scene"])
+        out["scene"] = SceneRules.resolve(out["scene"])
     out["model"] = _model_spec(out.get("model"))
     return out
 
@@ -126,7 +126,7 @@ def recorded_options(options: dict[str, Any]) -> dict[str, Any]:
         out["config"] = out["config"].to_dict()
     if isinstance(out["viewpoint"], tuple):
         out["viewpoint"] = list(out["viewpoint"])
-    out["scene"] = SceneParams.resolve(out["scene"]).to_dict()
+    out["scene"] = SceneRules.resolve(out["scene"]).to_dict()
     return out
 
 

@@ -18,7 +18,7 @@ from ..refinement import (
     RefinedPoses,
 )
 from ..registration import as_threads, register
-from ..scene_params import SCENE_DEFAULTS, SceneParams
+from ..scene_rules import SCENE_DEFAULTS, SceneRules
 from .results import Pass
 from .run import _match, _Run
 from .verification import _merge, _take
@@ -184,7 +184,7 @@ def _within_reach(run: _Run, voted: np.ndarray, accepted: RefinedPoses) -> np.nd
 
 
 def _without_weak_votes(
-    new: RefinedPoses, clustered: int, accepted: RefinedPoses, scene: SceneParams = SCENE_DEFAULTS
+    new: RefinedPoses, clustered: int, accepted: RefinedPoses, scene: SceneRules = SCENE_DEFAULTS
 ) -> RefinedPoses:
     """`new` without the voted poses (origin at or past `clustered`) that explain less of the
     model than `VOTED_MIN_RELATIVE_FITNESS` times the median accepted copy (the copies
@@ -197,7 +197,7 @@ def _without_weak_votes(
     return _take(new, np.flatnonzero(~voted | (new.fitness >= floor)))
 
 
-def _vote_floor(fitness: np.ndarray, scene: SceneParams = SCENE_DEFAULTS) -> float:
+def _vote_floor(fitness: np.ndarray, scene: SceneRules = SCENE_DEFAULTS) -> float:
     """The share of the model a voted pose must explain: `VOTED_MIN_RELATIVE_FITNESS` (the
     scene's ``voted_min_relative_fitness``) times the median of the copies' `fitness`."""
     return scene.voted_min_relative_fitness * float(np.median(fitness))

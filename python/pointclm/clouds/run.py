@@ -17,7 +17,7 @@ from ..embedding import Embedding
 from ..refinement import (
     RefinementContext,
 )
-from ..scene_params import SCENE_DEFAULTS, SceneParams
+from ..scene_rules import SCENE_DEFAULTS, SceneRules
 
 
 @dataclass(frozen=True)
@@ -44,14 +44,14 @@ class _Run:
     #: The viewpoint is the origin of a scan in its sensor's frame, not given: the first
     #: pass confirms it (:func:`_confirm_viewpoint`).
     guessed_viewpoint: bool = False
-    #: A guessed viewpoint the first pass did not confirm: the scan's normals face it, but
-    #: poses are judged without one.
-    unconfirmed: tuple[float, float, float] | None = None
-    #: Whether the scan is a heap (``heap``): None once `SceneParams.heap_min_copies` copies
+    #: Whether the scan is a heap (``heap``): None once `SceneRules.heap_min_copies` copies
     #: are accepted, True in every pass.
     heap: bool | None = None
     #: The scene-wide rules.
-    scene: SceneParams = SCENE_DEFAULTS
+    scene: SceneRules = SCENE_DEFAULTS
+    #: A guessed viewpoint the first pass did not confirm: the scan's normals face it, but
+    #: poses are judged without one.
+    unconfirmed: tuple[float, float, float] | None = None
 
     @cached_property
     def refiner(self) -> RefinementContext:
@@ -136,7 +136,7 @@ def _matchings(
     src: np.ndarray,
     rank: int | None = None,
     heap: bool | None = None,
-    scene: SceneParams = SCENE_DEFAULTS,
+    scene: SceneRules = SCENE_DEFAULTS,
 ) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """The matcher's arguments of the first passes, and those once a heap is recognised
     (None: no switch)."""

@@ -14,18 +14,18 @@ from numpy.typing import ArrayLike
 from .. import _core
 from .. import preprocessing as pp
 from ..errors import InputError
-from ..scene_params import SCENE_DEFAULTS, SceneParams
+from ..scene_rules import SCENE_DEFAULTS, SceneRules
 from .results import _xyz
 
 
 def default_voxel_size(
-    model_points: ArrayLike, scan_points: ArrayLike | None = None, scene: SceneParams | None = None
+    model_points: ArrayLike, scan_points: ArrayLike | None = None, scene: SceneRules | None = None
 ) -> float:
     """The model's bounding-box diagonal / 40; with `scan_points`, at least
     :data:`MIN_VOXEL_SPACINGS` times the scan's point spacing
     (:func:`pointclm.preprocessing.point_spacing`) and :data:`MIN_VOXEL_NOISES` times its
     noise (:func:`pointclm.preprocessing.noise_level`)."""
-    sc = SceneParams.resolve(scene)
+    sc = SceneRules.resolve(scene)
     p = np.asarray(model_points, dtype=np.float64)
     voxel = float(np.linalg.norm(p.max(0) - p.min(0))) / sc.voxels_per_diagonal
     if scan_points is None:
@@ -35,7 +35,7 @@ def default_voxel_size(
 
 
 def _voxel_size(
-    src: np.ndarray, tgt: np.ndarray, voxel_size: float | None, scene: SceneParams
+    src: np.ndarray, tgt: np.ndarray, voxel_size: float | None, scene: SceneRules
 ) -> float:
     """The given voxel, checked, or the clouds' default (:func:`default_voxel_size`)."""
     voxel = (
@@ -55,7 +55,7 @@ def _describe_target(
     not_given: bool,
     src_d: pp.DescribedCloud,
     num_threads: int | None,
-    scene: SceneParams = SCENE_DEFAULTS,
+    scene: SceneRules = SCENE_DEFAULTS,
 ) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None, bool]:
     """:func:`_describe_scan`, and the viewpoint of the run: `view` (given, or recorded in the
     file when `not_given`), else a guess the first pass confirms (the last value True): the
@@ -73,7 +73,7 @@ def _describe_scan(
     view: tuple[float, float, float] | None,
     src_d: pp.DescribedCloud,
     num_threads: int | None,
-    scene: SceneParams = SCENE_DEFAULTS,
+    scene: SceneRules = SCENE_DEFAULTS,
 ) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None]:
     """The scan downsampled, with normals and FPFH, how its normals were oriented, and where
     its sensor likely stood (None: unknown), for the first pass to confirm: the origin when the
@@ -223,7 +223,7 @@ def _signed_by_descriptors(
 
 
 def _without_strays(
-    points: np.ndarray, voxel: float, num_threads: int | None, scene: SceneParams = SCENE_DEFAULTS
+    points: np.ndarray, voxel: float, num_threads: int | None, scene: SceneRules = SCENE_DEFAULTS
 ) -> np.ndarray:
     """The downsampled scan without its stray points (fewer than `STRAY_NEIGHBOURS` others
     within the normals' radius, 2 voxels) when they are more than `MAX_STRAY_SHARE` of it;

@@ -10,23 +10,7 @@ use pyo3::types::{PyDict, PyList};
 use crate::errors::{to_py_err, ConfigError};
 
 pub fn from_dict(d: Option<&Bound<'_, PyDict>>) -> PyResult<Config> {
-    let mut c = Config::default();
-    let Some(d) = d else {
-        return Ok(c);
-    };
-    for (k, v) in d.iter() {
-        let key: String = k
-            .extract()
-            .map_err(|_| ConfigError::new_err(format!("config keys must be str, got {k}")))?;
-        let field = Config::FIELDS
-            .iter()
-            .find(|f| f.name == key)
-            .ok_or_else(|| ConfigError::new_err(format!("unknown config field {key:?}")))?;
-        let value = extract(field, &v)
-            .map_err(|e| ConfigError::new_err(format!("config field {key}: {e}")))?;
-        let set = c.set(field.name, value);
-        debug_assert!(set, "extract gives a value of the field's kind");
-    }
+    let c = declared_from_dict(Config::default(), d, "config")?;
     c.validate().map_err(to_py_err)?;
     Ok(c)
 }
@@ -104,15 +88,15 @@ pub fn declared_from_dict<T: Declared>(
                 names.join(", ")
             ))
         })?;
-        let value =
-            extract(field, &v).map_err(|e| ConfigError::new_err(format!("{what} {key}: {e}")))?;
+        let value = extract(field, &v)
+            .map_err(|e| ConfigError::new_err(format!("{what} field {key}: {e}")))?;
         let set = base.set(field.name, value);
         debug_assert!(set, "extract gives a value of the field's kind");
     }
     if let Some((field, value)) = base.out_of_range() {
         let (lo, hi) = field.range.unwrap_or((f64::NAN, f64::NAN));
         return Err(ConfigError::new_err(format!(
-            "{what} {}: {value} is out of range, must lie in [{lo}, {hi}]",
+            "{what} field {}: {value} is out of range, must lie in [{lo}, {hi}]",
             field.name
         )));
     }

@@ -287,9 +287,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(kabsch, m)?)?;
     m.add_function(wrap_pyfunction!(default_config, m)?)?;
     m.add_function(wrap_pyfunction!(config_schema, m)?)?;
-    m.add_function(wrap_pyfunction!(scene::scene_params_schema, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::scene_rules_schema, m)?)?;
     m.add_function(wrap_pyfunction!(scene::refine_params_schema, m)?)?;
-    m.add_function(wrap_pyfunction!(scene::validate_scene_params, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::validate_scene_rules, m)?)?;
     m.add_function(wrap_pyfunction!(scene::unexplained_points, m)?)?;
     m.add_function(wrap_pyfunction!(scene::loose_poses, m)?)?;
     m.add_function(wrap_pyfunction!(scene::fit_tightness, m)?)?;

@@ -3,7 +3,7 @@
 
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pointclm::pointcloud::RefineParams;
-use pointclm::scene::{self, SceneParams};
+use pointclm::scene::{self, SceneRules};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -13,10 +13,10 @@ use crate::convert::{matrices4, points as rows3};
 use crate::pointcloud::rigid_poses;
 use crate::pools::{guarded, pool};
 
-/// Every field of the core's `SceneParams`, in order (as `config_schema`).
+/// Every field of the core's `SceneRules`, in order (as `config_schema`).
 #[pyfunction]
-pub fn scene_params_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
-    declared_schema(py, &SceneParams::default())
+pub fn scene_rules_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    declared_schema(py, &SceneRules::default())
 }
 
 /// Every field of the core's `RefineParams` at a voxel of 1, in order (as `config_schema`;
@@ -28,8 +28,8 @@ pub fn refine_params_schema(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
 
 /// Checks scene parameters given by name (unknown names, kinds and ranges: ConfigError).
 #[pyfunction]
-pub fn validate_scene_params(params: Bound<'_, PyDict>) -> PyResult<()> {
-    declared_from_dict(SceneParams::default(), Some(&params), "scene parameter").map(|_| ())
+pub fn validate_scene_rules(params: Bound<'_, PyDict>) -> PyResult<()> {
+    declared_from_dict(SceneRules::default(), Some(&params), "scene").map(|_| ())
 }
 
 /// Per target point, whether it lies at least `radius` from every source point posed at each
@@ -114,7 +114,7 @@ pub fn register_scan<'py>(
         viewpoint,
         seed,
         peel,
-        scene: declared_from_dict(SceneParams::default(), scene.as_ref(), "scene parameter")?,
+        scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         ..scene::SceneOptions::default()
     };
     let threads = num_threads.map(pool).transpose()?;

@@ -21,7 +21,7 @@ use crate::pointcloud::{
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
 use super::voxel::default_voxel_size;
-use super::SceneParams;
+use super::SceneRules;
 
 /// How [`register_point_clouds`] runs; [`SceneOptions::default`] is the Python package's
 /// defaults for this path.
@@ -43,7 +43,7 @@ pub struct SceneOptions {
     /// Seeds the sampling of matches and the correspondence stage (pass `r` uses `seed + r`).
     pub seed: u64,
     /// The scene-wide rules.
-    pub scene: SceneParams,
+    pub scene: SceneRules,
 }
 
 impl Default for SceneOptions {
@@ -58,7 +58,7 @@ impl Default for SceneOptions {
             config: None,
             peel: true,
             seed: 0,
-            scene: SceneParams::default(),
+            scene: SceneRules::default(),
         }
     }
 }
@@ -156,7 +156,7 @@ pub fn register_point_clouds(
         return Err(Error::InvalidParameter {
             name: field.name,
             value: value.to_string(),
-            reason: "outside its declared range (see SceneParams::FIELDS)",
+            reason: "outside its declared range (see SceneRules::FIELDS)",
         });
     }
     let voxel = match options.voxel_size {
@@ -519,7 +519,7 @@ fn poses_of(registration: &Registration) -> Vec<RigidTransform> {
 
 /// The downsampled scan without its strays (fewer than `stray_neighbours` others within 2
 /// voxels) when they are more than `max_stray_share` of it; an error when every point is one.
-fn without_strays(points: Vec<[f64; 3]>, voxel: f64, scene: &SceneParams) -> Result<Vec<[f64; 3]>> {
+fn without_strays(points: Vec<[f64; 3]>, voxel: f64, scene: &SceneRules) -> Result<Vec<[f64; 3]>> {
     let stray = isolated_points(&points, 2.0 * voxel, scene.stray_neighbours)?;
     let n = stray.iter().filter(|&&s| s).count();
     if n == points.len() {

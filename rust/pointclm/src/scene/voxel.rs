@@ -5,13 +5,13 @@ use nalgebra::Matrix3;
 
 use crate::pointcloud::PointIndex;
 
-use super::SceneParams;
+use super::SceneRules;
 
 /// The model's bounding-box diagonal over `voxels_per_diagonal`, raised to at least
 /// `min_voxel_spacings` times the scan's point spacing ([`point_spacing`]) and
 /// `min_voxel_noises` times its noise ([`noise_level`], at `noise_scale_voxels` model voxels).
 /// The model must be non-empty and finite (checked by the caller).
-pub fn default_voxel_size(model: &[[f64; 3]], scan: &[[f64; 3]], params: &SceneParams) -> f64 {
+pub fn default_voxel_size(model: &[[f64; 3]], scan: &[[f64; 3]], params: &SceneRules) -> f64 {
     let voxel = diagonal(model) / params.voxels_per_diagonal;
     if scan.len() < 2 {
         return voxel;

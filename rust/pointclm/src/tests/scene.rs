@@ -3,11 +3,11 @@ use crate::kabsch::RigidTransform;
 use crate::pointcloud::{PointIndex, RefineParams};
 use crate::scene::peeling::{not_duplicates, unexplained};
 use crate::scene::ranking::{fit_tightness, loose_poses, relative_to_median, stability_factor};
-use crate::scene::SceneParams;
+use crate::scene::SceneRules;
 
 #[test]
 fn every_declared_default_lies_in_its_range_and_every_field_is_named_once() {
-    for fields in [SceneParams::FIELDS, RefineParams::FIELDS] {
+    for fields in [SceneRules::FIELDS, RefineParams::FIELDS] {
         let mut names: Vec<&str> = fields.iter().map(|f| f.name).collect();
         let n = names.len();
         names.sort_unstable();
@@ -15,10 +15,10 @@ fn every_declared_default_lies_in_its_range_and_every_field_is_named_once() {
         assert_eq!(names.len(), n);
         assert!(fields.iter().all(|f| !f.doc.trim().is_empty()));
     }
-    assert!(SceneParams::default().out_of_range().is_none());
+    assert!(SceneRules::default().out_of_range().is_none());
     assert!(RefineParams::default().out_of_range().is_none());
     // Scene rules are ratios, counts and shares: nothing is scaled with the data.
-    assert!(SceneParams::FIELDS.iter().all(|f| f.unit == Unit::Unitless));
+    assert!(SceneRules::FIELDS.iter().all(|f| f.unit == Unit::Unitless));
 }
 
 #[test]
@@ -34,7 +34,7 @@ fn refine_params_for_a_voxel_scale_the_declared_lengths_only() {
 
 #[test]
 fn a_value_out_of_its_declared_range_is_named() {
-    let mut p = SceneParams::default();
+    let mut p = SceneRules::default();
     assert!(p.set("max_stray_share", Value::Float(1.5)));
     let (field, value) = p.out_of_range().unwrap();
     assert_eq!((field.name, value), ("max_stray_share", Value::Float(1.5)));

@@ -1,4 +1,4 @@
-//! [`SceneParams`]: every scene-wide rule of point-cloud registration, declared once.
+//! [`SceneRules`]: every scene-wide rule of point-cloud registration, declared once.
 
 use crate::config::Unit;
 
@@ -10,7 +10,7 @@ crate::config::config! {
     /// unitless (a ratio to the voxel). The acceptance rules of one pose are
     /// [`crate::pointcloud::RefineParams`]'.
     #[derive(Debug, Clone, PartialEq)]
-    pub struct SceneParams {
+    pub struct SceneRules {
         /// The default voxel is the model's bounding-box diagonal over this: about 1,500
         /// points on a typical object whatever its units, and an FPFH radius (5 voxels) of
         /// 1/8 of its size.

@@ -1,8 +1,8 @@
-"""`SceneParams`: the scene-wide rules of `register_point_clouds`, the typed Python view of the
-Rust `pointclm::scene::SceneParams`.
+"""`SceneRules`: the scene-wide rules of `register_point_clouds`, the typed Python view of the
+Rust `pointclm::scene::SceneRules`.
 
 The Rust struct is the one definition of the fields: their names, defaults, ranges and the
-reasons for them reach Python through `_core.scene_params_schema()`. Here each field is a typed
+reasons for them reach Python through `_core.scene_rules_schema()`. Here each field is a typed
 line whose default is read from that schema; the checks and the "Attributes" section of the
 docstring are derived from it, and a test fails if the lines and the schema drift apart.
 """
@@ -17,10 +17,10 @@ from . import _core
 from .config import _attributes, _checked
 from .errors import ConfigError
 
-__all__ = ["SCENE_DEFAULTS", "SceneParams"]
+__all__ = ["SCENE_DEFAULTS", "SceneRules"]
 
-#: The Rust core's description of every field of `SceneParams`, by name, in declaration order.
-_SCHEMA: dict[str, dict[str, Any]] = {f["name"]: f for f in _core.scene_params_schema()}
+#: The Rust core's description of every field of `SceneRules`, by name, in declaration order.
+_SCHEMA: dict[str, dict[str, Any]] = {f["name"]: f for f in _core.scene_rules_schema()}
 
 
 def _default(name: str) -> Any:
@@ -29,11 +29,11 @@ def _default(name: str) -> Any:
 
 
 @dataclass(frozen=True)
-class SceneParams:
+class SceneRules:
     """The scene-wide rules of :func:`pointclm.register_point_clouds`, checked by the Rust core
     when constructed: the voxel's floor, stray points, peeling, heaps, turned alternatives and
     the final ranking. Every field is unitless (a share, a count, a ratio, a number of voxels or
-    of model diagonals, or degrees). Pass ``scene=SceneParams(...)`` or a dict of some fields to
+    of model diagonals, or degrees). Pass ``scene=SceneRules(...)`` or a dict of some fields to
     `register_point_clouds`, or ``--scene NAME=VALUE`` on the command line. The acceptance rules
     of one pose are :func:`pointclm.refinement.refine_poses`' arguments.
     """
@@ -69,15 +69,15 @@ class SceneParams:
             value = _checked(name, getattr(self, name), _SCHEMA, "scene parameter")
             object.__setattr__(self, name, value)
         # The Rust core is the single source of truth for valid ranges.
-        _core.validate_scene_params(self.to_dict())
+        _core.validate_scene_rules(self.to_dict())
 
     def to_dict(self) -> dict[str, Any]:
         """Fields as a plain dict (what the Rust core receives)."""
         return {name: getattr(self, name) for name in self.__dataclass_fields__}
 
     @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> SceneParams:
-        """SceneParams from a dict of some of its fields; unknown keys are a ConfigError naming
+    def from_dict(cls, values: Mapping[str, Any]) -> SceneRules:
+        """SceneRules from a dict of some of its fields; unknown keys are a ConfigError naming
         them and the valid ones."""
         known = set(cls.__dataclass_fields__)
         unknown = [k for k in values if k not in known]
@@ -88,22 +88,22 @@ class SceneParams:
         return cls(**values)
 
     @classmethod
-    def resolve(cls, value: SceneParams | Mapping[str, Any] | None) -> SceneParams:
-        """`value` as SceneParams: itself, the defaults with a dict's fields, or the defaults
+    def resolve(cls, value: SceneRules | Mapping[str, Any] | None) -> SceneRules:
+        """`value` as SceneRules: itself, the defaults with a dict's fields, or the defaults
         (None); anything else is a ConfigError."""
         if value is None:
             return SCENE_DEFAULTS
-        if isinstance(value, SceneParams):
+        if isinstance(value, SceneRules):
             return value
         if isinstance(value, Mapping):
             return cls.from_dict(value)
         raise ConfigError(
-            f"scene must be a pointclm.SceneParams, a dict or None, got {type(value).__name__}"
+            f"scene must be a pointclm.SceneRules, a dict or None, got {type(value).__name__}"
         )
 
 
-if SceneParams.__doc__ is not None:  # None under python -OO
-    SceneParams.__doc__ = SceneParams.__doc__.rstrip() + _attributes(_SCHEMA)
+if SceneRules.__doc__ is not None:  # None under python -OO
+    SceneRules.__doc__ = SceneRules.__doc__.rstrip() + _attributes(_SCHEMA)
 
 #: The defaults.
-SCENE_DEFAULTS = SceneParams()
+SCENE_DEFAULTS = SceneRules()

@@ -10,12 +10,12 @@ import pointclm
 import pytest
 from pointclm import _core, point_clouds, refinement
 from pointclm.errors import ConfigError
-from pointclm.scene_params import SCENE_DEFAULTS, SceneParams
+from pointclm.scene_rules import SCENE_DEFAULTS, SceneRules
 
 
-def test_scene_params_lines_match_the_core_schema() -> None:
-    schema = _core.scene_params_schema()
-    fields = dataclasses.fields(SceneParams)
+def test_scene_rules_lines_match_the_core_schema() -> None:
+    schema = _core.scene_rules_schema()
+    fields = dataclasses.fields(SceneRules)
     assert [f.name for f in fields] == [s["name"] for s in schema]
     for f, s in zip(fields, schema, strict=True):
         assert f.default == s["default"], f.name
@@ -24,7 +24,7 @@ def test_scene_params_lines_match_the_core_schema() -> None:
         assert lo <= s["default"] <= hi, f.name
         assert s["doc"].strip(), f.name
     # Every field's reason reaches help().
-    assert all(f.name in (SceneParams.__doc__ or "") for f in fields)
+    assert all(f.name in (SceneRules.__doc__ or "") for f in fields)
 
 
 def test_module_constants_are_the_declared_defaults() -> None:
@@ -48,16 +48,16 @@ def test_module_constants_are_the_declared_defaults() -> None:
     assert rules["fit_radius"] == 1.5 and rules["icp_radius_coarse"] == 3.0
 
 
-def test_bad_scene_params_are_config_errors_naming_the_field() -> None:
+def test_bad_scene_rules_are_config_errors_naming_the_field() -> None:
     with pytest.raises(ConfigError, match="max_stray_share"):
-        SceneParams(max_stray_share=1.5)
+        SceneRules(max_stray_share=1.5)
     with pytest.raises(ConfigError, match="heap_min_copies"):
-        SceneParams(heap_min_copies=2.5)  # type: ignore[arg-type]
+        SceneRules(heap_min_copies=2.5)  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="no_such_rule"):
-        SceneParams.from_dict({"no_such_rule": 1})
+        SceneRules.from_dict({"no_such_rule": 1})
     with pytest.raises(ConfigError, match="scene must be"):
-        SceneParams.resolve(3)  # type: ignore[arg-type]
-    assert SceneParams.resolve({"max_peel_rounds": 4}).max_peel_rounds == 4
+        SceneRules.resolve(3)  # type: ignore[arg-type]
+    assert SceneRules.resolve({"max_peel_rounds": 4}).max_peel_rounds == 4
 
 
 def test_refine_rules_pass_by_name_and_are_checked_by_the_core() -> None:
@@ -80,13 +80,13 @@ def _three_copies() -> tuple[np.ndarray, np.ndarray]:
     return model, np.concatenate(copies)
 
 
-def test_scene_params_reach_the_scene_stages() -> None:
+def test_scene_rules_reach_the_scene_stages() -> None:
     model, scan = _three_copies()
     plain = pointclm.register_point_clouds(model, scan, peel=False)
     no_rounds = pointclm.register_point_clouds(model, scan, scene={"max_peel_rounds": 0})
     assert len(no_rounds.passes) == 1
     coarse = pointclm.register_point_clouds(
-        model, scan, peel=False, scene=SceneParams(voxels_per_diagonal=20.0)
+        model, scan, peel=False, scene=SceneRules(voxels_per_diagonal=20.0)
     )
     assert coarse.voxel_size == pytest.approx(2.0 * plain.voxel_size)
 

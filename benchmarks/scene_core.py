@@ -1,0 +1,106 @@
+"""The Rust crate's end-to-end scene pipeline against the Python `register_point_clouds` on the
+same choices: the same copies, passes and voxel, poses to rounding, and the time of each.
+
+    python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--out FILE]
+
+Scenes: bins of the validation models' parts (procedural boxes, fandisk, dragon; 20-30 copies,
+the bin's sensor as viewpoint) and realistic scenes of the held-out models with their sensor.
+Both paths run with a known viewpoint, no heap voting and no turned alternatives
+(``heap=False, flips=False``: what the crate's path covers). Each round runs every scene with
+each path in turn (alternating which goes first); the table takes each scene's fastest call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+
+def scenes(seeds: int) -> list[tuple[str, np.ndarray, np.ndarray, tuple[float, float, float]]]:
+    """(name, model points, scan points, viewpoint) of every scene compared."""
+    from pointclm.datasets.bins import BinParams, make_bin_scene
+    from pointclm.datasets.scenes import HELDOUT_MODELS, SceneParams, make_realistic_scene
+
+    out = []
+    for model in ("box", "common3d/fandisk", "stanford/dragon"):
+        for seed in range(seeds):
+            sc = make_bin_scene(seed, BinParams(model=model, copies=(20, 30)))
+            out.append((f"bin {model} {seed}", sc.model_points, sc.scan, _view(sc.sensor)))
+    for model in HELDOUT_MODELS:
+        for seed in range(seeds):
+            sc = make_realistic_scene(seed, SceneParams(model=model))
+            if sc.viewpoint is not None:
+                view = _view(sc.viewpoint)
+                out.append((f"realistic {model} {seed}", sc.source_points, sc.target_points, view))
+    return out
+
+
+def _view(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def main() -> None:
+    import pointclm
+    from pointclm import _core
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--out", help="write the report here (default: print it)")
+    args = ap.parse_args()
+    rows = []
+    for name, model, scan, view in scenes(args.seeds):
+        best = {"python": np.inf, "rust": np.inf}
+        for r in range(args.rounds):
+            for path in ("python", "rust") if r % 2 == 0 else ("rust", "python"):
+                t0 = time.perf_counter()
+                if path == "python":
+                    py = pointclm.register_point_clouds(
+                        model, scan, viewpoint=view, heap=False, flips=False,
+                        num_threads=args.threads,
+                    )  # fmt: skip
+                else:
+                    rs = _core.register_scan(model, scan, viewpoint=view, num_threads=args.threads)
+                best[path] = min(best[path], time.perf_counter() - t0)
+        poses, conf, _, n_passes, voxel, _ = rs
+        same_count = len(poses) == len(py.instances) and n_passes == len(py.passes)
+        diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
+        rows.append((name, len(py.instances), len(poses), same_count, diff, best))
+    lines = [
+        f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.processor()}"
+        f" {platform.machine()}, {args.threads} threads)",
+        "",
+        "| scene | copies (Python) | copies (Rust) | same copies and passes | max pose diff "
+        "| Python s | Rust s | Rust / Python |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, n_py, n_rs, same, diff, best in rows:
+        ratio = best["rust"] / best["python"]
+        lines.append(
+            f"| {name} | {n_py} | {n_rs} | {same} | {diff:.1e} | {best['python']:.3f} "
+            f"| {best['rust']:.3f} | {ratio:.2f} |"
+        )
+    ratios = [b["rust"] / b["python"] for *_, b in rows]
+    lines += [
+        "",
+        f"{sum(r[3] for r in rows)} of {len(rows)} scenes with the same copies and passes; "
+        f"largest pose difference {max(r[4] for r in rows):.1e}; time Rust / Python median "
+        f"{np.median(ratios):.2f}.",
+    ]
+    text = "\n".join(lines) + "\n"
+    if args.out:
+        Path(args.out).write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
