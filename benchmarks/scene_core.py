@@ -4,9 +4,10 @@ same choices: the same copies, passes and voxel, poses to rounding, and the time
     python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--out FILE]
 
 Scenes: bins of the validation models' parts (procedural boxes, fandisk, dragon; 20-30 copies,
-the bin's sensor as viewpoint) and realistic scenes of the held-out models with their sensor.
-Both paths run with a known viewpoint, no heap voting and no turned alternatives
-(``heap=False, flips=False``: what the crate's path covers). Each round runs every scene with
+the bin's sensor as viewpoint), each with the default heap rule (ranked matching from the tenth
+copy on) and said to be a heap (``heap=True``: point pair voting too), and realistic scenes of
+the held-out models with their sensor. Both paths run with a known viewpoint and no turned
+alternatives (``flips=False``: what the crate's path covers). Each round runs every scene with
 each path in turn (alternating which goes first); the table takes each scene's fastest call.
 """
 
@@ -24,8 +25,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def scenes(seeds: int) -> list[tuple[str, np.ndarray, np.ndarray, tuple[float, float, float]]]:
-    """(name, model points, scan points, viewpoint) of every scene compared."""
+Job = tuple[str, np.ndarray, np.ndarray, tuple[float, float, float], bool | None]
+
+
+def scenes(seeds: int) -> list[Job]:
+    """(name, model points, scan points, viewpoint, heap) of every run compared."""
     from pointclm.datasets.bins import BinParams, make_bin_scene
     from pointclm.datasets.scenes import HELDOUT_MODELS, SceneParams, make_realistic_scene
 
@@ -33,13 +37,16 @@ def scenes(seeds: int) -> list[tuple[str, np.ndarray, np.ndarray, tuple[float, f
     for model in ("box", "common3d/fandisk", "stanford/dragon"):
         for seed in range(seeds):
             sc = make_bin_scene(seed, BinParams(model=model, copies=(20, 30)))
-            out.append((f"bin {model} {seed}", sc.model_points, sc.scan, _view(sc.sensor)))
+            for heap in (None, True):
+                name = f"bin {model} {seed}" + (" heap=True" if heap else "")
+                out.append((name, sc.model_points, sc.scan, _view(sc.sensor), heap))
     for model in HELDOUT_MODELS:
         for seed in range(seeds):
             sc = make_realistic_scene(seed, SceneParams(model=model))
             if sc.viewpoint is not None:
                 view = _view(sc.viewpoint)
-                out.append((f"realistic {model} {seed}", sc.source_points, sc.target_points, view))
+                name = f"realistic {model} {seed}"
+                out.append((name, sc.source_points, sc.target_points, view, None))
     return out
 
 
@@ -58,18 +65,20 @@ def main() -> None:
     ap.add_argument("--out", help="write the report here (default: print it)")
     args = ap.parse_args()
     rows = []
-    for name, model, scan, view in scenes(args.seeds):
+    for name, model, scan, view, heap in scenes(args.seeds):
         best = {"python": np.inf, "rust": np.inf}
         for r in range(args.rounds):
             for path in ("python", "rust") if r % 2 == 0 else ("rust", "python"):
                 t0 = time.perf_counter()
                 if path == "python":
                     py = pointclm.register_point_clouds(
-                        model, scan, viewpoint=view, heap=False, flips=False,
+                        model, scan, viewpoint=view, heap=heap, flips=False,
                         num_threads=args.threads,
                     )  # fmt: skip
                 else:
-                    rs = _core.register_scan(model, scan, viewpoint=view, num_threads=args.threads)
+                    rs = _core.register_scan(
+                        model, scan, viewpoint=view, heap=heap, num_threads=args.threads
+                    )
                 best[path] = min(best[path], time.perf_counter() - t0)
         poses, conf, _, n_passes, voxel, _ = rs
         same_count = len(poses) == len(py.instances) and n_passes == len(py.passes)

@@ -131,20 +131,21 @@ def test_a_bad_scene_flag_is_a_usage_error(bad: str, capsys: pytest.CaptureFixtu
 
 
 def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
-    # The Rust crate's end-to-end path (a known viewpoint, no heap voting, no turns) against
-    # `register_point_clouds` with the same choices, on a small bin of procedural boxes: the
+    # The Rust crate's end-to-end path (a known viewpoint, no turns) against
+    # `register_point_clouds` with the same choices, on a small bin of procedural boxes, as a
+    # heap from the tenth copy on (the default) and said to be one (point pair voting): the
     # same copies, passes and voxel, poses and confidences to rounding.
     from pointclm.datasets.bins import make_bin_scene
     from test_bins import SMALL
 
-    for seed in (0, 1):
+    for seed, heap in ((0, None), (1, False), (2, True)):
         scene = make_bin_scene(seed, SMALL)
         view = tuple(float(v) for v in scene.sensor)
         py = pointclm.register_point_clouds(
-            scene.model_points, scene.scan, viewpoint=view, heap=False, flips=False
+            scene.model_points, scene.scan, viewpoint=view, heap=heap, flips=False
         )
         poses, confidence, passes, n_passes, voxel, judged = _core.register_scan(
-            scene.model_points, scene.scan, viewpoint=view
+            scene.model_points, scene.scan, viewpoint=view, heap=heap
         )
         assert voxel == py.voxel_size and n_passes == len(py.passes) and judged
         assert len(poses) == len(py.instances) >= 1

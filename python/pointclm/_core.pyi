@@ -269,6 +269,8 @@ def register_scan(
     viewpoint: tuple[float, float, float] | None = None,
     seed: int = 0,
     peel: bool = True,
+    heap: bool | None = None,
+    heap_rank: int | None = 64,
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], list[int], int, float, bool]: ...

@@ -90,11 +90,12 @@ pub fn stability_factor<'py>(
     scene::ranking::stability_factor(&finite_or_nan(&stability), min_poses).into_pyarray(py)
 }
 
-/// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`):
+/// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
+/// `register_point_clouds(..., flips=False)`'s stages):
 /// the copies' poses (M, 4, 4) surest first, their confidences, the pass each came from, the
 /// number of passes, the voxel and whether the sensor judged them.
 #[pyfunction]
-#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, scene=None, num_threads=None))]
+#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=Some(64), scene=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
     py: Python<'py>,
@@ -104,6 +105,8 @@ pub fn register_scan<'py>(
     #[pyo3(from_py_with = args::viewpoint)] viewpoint: Option<[f64; 3]>,
     #[pyo3(from_py_with = args::seed)] seed: u64,
     peel: bool,
+    heap: Option<bool>,
+    heap_rank: Option<usize>,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<ScanArrays<'py>> {
@@ -114,6 +117,8 @@ pub fn register_scan<'py>(
         viewpoint,
         seed,
         peel,
+        heap,
+        heap_rank,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         ..scene::SceneOptions::default()
     };

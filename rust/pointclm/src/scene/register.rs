@@ -2,10 +2,11 @@
 //! stages over one description of each cloud and one index of the scan: voxel, description,
 //! matching, proposals (the correspondence stage), verification, peeling, ranking.
 //!
-//! This is the training-free path with a known sensor position or none: the Python package's
-//! `register_point_clouds` with `heap=False` and `flips=False` runs the same stages with the
-//! same arithmetic, and adds the learned embedding, point pair voting in heaps, turned
-//! alternatives and the estimation of an unknown viewpoint.
+//! This is the training-free path with a known sensor position or none, in heaps too (the
+//! ranked mutual check once many copies are found, point pair voting when the scan is said to
+//! be a heap): the Python package's `register_point_clouds` with `flips=False` runs the same
+//! stages with the same arithmetic, and adds the learned embedding, turned alternatives and
+//! the estimation of an unknown viewpoint.
 
 use crate::config::Config;
 use crate::correspondences::{Correspondences, Features};
@@ -15,12 +16,13 @@ use crate::matching::{match_features_given, nearest_sources, MatchingConfig, Nea
 use crate::pipeline::{register, Registration};
 use crate::pointcloud::{
     check_points, check_positive, describe, isolated_points, voxel_downsample, DescribeParams,
-    Described, FpfhVariant, Orientation, RefineContext, RefineParams, Refined, RefinedPose,
+    Described, FpfhVariant, Orientation, PpfModel, PpfParams, RefineContext, RefineParams, Refined,
+    RefinedPose,
 };
 
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
-use super::voxel::default_voxel_size;
+use super::voxel::{default_voxel_size, median};
 use super::SceneRules;
 
 /// How [`register_point_clouds`] runs; [`SceneOptions::default`] is the Python package's
@@ -40,6 +42,14 @@ pub struct SceneOptions {
     pub config: Option<Config>,
     /// Further passes over the scan points no accepted copy explains (peeling).
     pub peel: bool,
+    /// Whether the scan is a heap of identical parts: `Some(true)`, every pass ranks its
+    /// mutual matches as in a heap and each peeling round also votes with point pair
+    /// features; `None`, passes rank as in a heap once `heap_min_copies` copies are accepted;
+    /// `Some(false)`, never.
+    pub heap: Option<bool>,
+    /// In a heap, a match is kept when the scan point is among its model point's `heap_rank`
+    /// most similar scan points still unexplained (`None` or 1: the plain mutual check).
+    pub heap_rank: Option<usize>,
     /// Seeds the sampling of matches and the correspondence stage (pass `r` uses `seed + r`).
     pub seed: u64,
     /// The scene-wide rules.
@@ -57,6 +67,8 @@ impl Default for SceneOptions {
             },
             config: None,
             peel: true,
+            heap: None,
+            heap_rank: Some(64),
             seed: 0,
             scene: SceneRules::default(),
         }
@@ -70,7 +82,8 @@ pub struct Candidate {
     pub pose: RigidTransform,
     /// The pass of the correspondence stage that proposed it (0: the whole scan).
     pub pass_index: usize,
-    /// Its instance in that pass's [`Registration`].
+    /// Its instance in that pass's [`Registration`]; from `instances.len()` on, the pose that
+    /// point pair voting proposed at `instance - instances.len()` in [`Pass::voted`].
     pub instance: usize,
     /// How sure the pose is, in [0, 1] (surest first): verification's confidence times the
     /// ranking's tightness and stability factors.
@@ -101,6 +114,8 @@ pub struct Pass {
     pub scan_points: Vec<usize>,
     /// Copies this pass added to the accepted ones.
     pub added: usize,
+    /// Poses proposed by point pair voting over `scan_points` (in a scan said to be a heap).
+    pub voted: Vec<RigidTransform>,
 }
 
 /// The result of [`register_point_clouds`].
@@ -176,8 +191,9 @@ pub fn register_point_clouds(
         ),
     };
     let everything: Vec<usize> = (0..run.target.points.len()).collect();
+    let heap = run.is_heap(0);
     let corr = run
-        .matched(&everything, options.seed)?
+        .matched(&everything, options.seed, heap)?
         .map_err(|got| Error::TooFewCorrespondences { got, min: 3 })?;
     let registration = register(&corr, None, &config, options.seed)?;
     let first = run.refine(&poses_of(&registration), &run.rules.clone())?;
@@ -188,6 +204,7 @@ pub fn register_point_clouds(
         registration,
         scan_points: everything,
         added,
+        voted: Vec::new(),
     });
     if options.peel && !accepted.is_empty() {
         accepted = run.peel(accepted, &config)?;
@@ -209,6 +226,10 @@ struct Run<'o> {
     source: Described,
     target: Described,
     nearest: NearestSources,
+    /// Each model row's nearest scan rows, nearest first (the ranked mutual check's
+    /// candidates), found on first use.
+    targets_of_sources: Option<NearestSources>,
+    voter: Option<PpfModel>,
     context: RefineContext,
     rules: RefineParams,
     voxel: f64,
@@ -269,6 +290,8 @@ impl<'o> Run<'o> {
             source,
             target,
             nearest,
+            targets_of_sources: None,
+            voter: None,
             context,
             rules,
             voxel,
@@ -281,10 +304,24 @@ impl<'o> Run<'o> {
     /// Correspondences between the model and the scan points `rows` (mutual, sampled with
     /// `seed`), or how many survived when fewer than 3 (too few for a pose).
     fn matched(
-        &self,
+        &mut self,
         rows: &[usize],
         seed: u64,
+        heap: bool,
     ) -> Result<std::result::Result<Correspondences, usize>> {
+        let mut config = self.options.matching;
+        let ranked;
+        let rows = if heap {
+            // The pairs the ranked check keeps are the mutual ones: no further check.
+            ranked = self.rank_mutual(rows)?;
+            config.mutual = false;
+            if ranked.is_empty() {
+                return Ok(Err(0));
+            }
+            &ranked[..]
+        } else {
+            rows
+        };
         let dim = self.target.descriptors.dim();
         let flat: Vec<f64> = rows
             .iter()
@@ -303,13 +340,7 @@ impl<'o> Run<'o> {
                 .flat_map(|&r| self.nearest.dist2[r * k..(r + 1) * k].iter().copied())
                 .collect(),
         };
-        let m = match_features_given(
-            &self.source.descriptors,
-            &subset,
-            &nearest,
-            &self.options.matching,
-            seed,
-        )?;
+        let m = match_features_given(&self.source.descriptors, &subset, &nearest, &config, seed)?;
         let src: Vec<[f64; 3]> = m.source.iter().map(|&i| self.source.points[i]).collect();
         let used: Vec<usize> = m.target.iter().map(|&j| rows[j]).collect();
         let tgt: Vec<[f64; 3]> = used.iter().map(|&j| self.target.points[j]).collect();
@@ -317,6 +348,88 @@ impl<'o> Run<'o> {
             return Ok(Err(src.len()));
         }
         Ok(Ok(Correspondences::new(&src, &tgt)?))
+    }
+
+    /// Whether a pass after `accepted` copies matches as in a heap: the scan is said to be one,
+    /// or that many copies show one; never where only the mutual check could be relaxed.
+    fn is_heap(&self, accepted: usize) -> bool {
+        let o = self.options;
+        let relaxable = o.matching.mutual
+            && o.matching.k == 1
+            && o.heap != Some(false)
+            && o.heap_rank.is_some_and(|r| r > 1);
+        relaxable && (o.heap == Some(true) || accepted >= o.scene.heap_min_copies)
+    }
+
+    /// The scan rows of `rows` whose nearest model row counts them among its `heap_rank`
+    /// nearest rows of `rows` (looked for among its nearest 64 of the whole scan, or
+    /// `heap_rank` if more), ascending.
+    fn rank_mutual(&mut self, rows: &[usize]) -> Result<Vec<usize>> {
+        let rank = self.options.heap_rank.unwrap_or(1);
+        let k = rank.max(WINDOW_CANDIDATES).min(self.target.points.len());
+        if self.targets_of_sources.as_ref().is_none_or(|n| n.k < k) {
+            let near = nearest_sources(&self.target.descriptors, &self.source.descriptors, k)?;
+            self.targets_of_sources = Some(near);
+        }
+        let near = self.targets_of_sources.as_ref().expect("set above");
+        let mut taking_part = vec![false; self.target.points.len()];
+        for &r in rows {
+            taking_part[r] = true;
+        }
+        let mut kept = Vec::new();
+        for s in 0..self.source.points.len() {
+            let list = &near.source[s * near.k..(s + 1) * near.k];
+            for &t in list.iter().filter(|&&t| taking_part[t]).take(rank) {
+                if self.nearest.source[t * self.nearest.k] == s {
+                    kept.push(t);
+                }
+            }
+        }
+        kept.sort_unstable();
+        kept.dedup();
+        Ok(kept)
+    }
+
+    /// Poses voted by point pairs among the scan points `rows`, most voted first (the
+    /// references start at `round`, so that each round votes from other points).
+    fn voted(&mut self, rows: &[usize], round: usize) -> Result<Vec<RigidTransform>> {
+        if self.voter.is_none() {
+            let diameter = super::voxel::diagonal(&self.source.points);
+            let params = PpfParams {
+                max_poses: self.options.scene.heap_voted_poses.max(1),
+                ..PpfParams::for_diameter(diameter)
+            };
+            self.voter = Some(PpfModel::new(
+                &self.source.points,
+                &self.source.normals,
+                params,
+            )?);
+        }
+        let voter = self.voter.as_ref().expect("set above");
+        let poses = voter.poses(&self.target.points, &self.target.normals, rows, round)?;
+        Ok(poses.into_iter().map(|p| p.transform).collect())
+    }
+
+    /// The rows of `voted` worth refining: those already bringing `voted_min_relative_fitness`
+    /// times the median accepted copy's share of the model within ICP's first radius.
+    fn within_reach(&self, voted: &[RigidTransform], accepted: &Accepted) -> Result<Vec<usize>> {
+        if voted.is_empty() || accepted.is_empty() {
+            return Ok((0..voted.len()).collect());
+        }
+        let n = self.source.points.len();
+        let step = n.div_ceil(self.options.scene.screen_points);
+        let model: Vec<[f64; 3]> = self.source.points.iter().step_by(step).copied().collect();
+        let near = self
+            .context
+            .near_shares(voted, &model, self.rules.icp_radius_coarse)?;
+        let fitness: Vec<f64> = accepted.rows.iter().map(|r| r.fitness).collect();
+        let floor = self.vote_floor(fitness);
+        Ok((0..voted.len()).filter(|&i| near[i] >= floor).collect())
+    }
+
+    /// The share of the model a voted pose must explain.
+    fn vote_floor(&self, mut fitness: Vec<f64>) -> f64 {
+        self.options.scene.voted_min_relative_fitness * median(&mut fitness)
     }
 
     fn refine(&mut self, poses: &[RigidTransform], params: &RefineParams) -> Result<Refined> {
@@ -336,36 +449,52 @@ impl<'o> Run<'o> {
         )
     }
 
-    /// Peeling rounds until one adds no copy (or `max_peel_rounds`).
+    /// Peeling rounds until one adds no copy (in a heap, `heap_empty_rounds` in a row), or
+    /// `max_peel_rounds`.
     fn peel(&mut self, mut accepted: Accepted, config: &Config) -> Result<Accepted> {
         let mut free = self.unexplained(&accepted)?;
+        let mut empty = 0;
         for round in 1..=self.options.scene.max_peel_rounds {
             let rows: Vec<usize> = (0..free.len()).filter(|&i| free[i]).collect();
             if rows.len() < 3 {
                 break;
             }
+            let heap = self.is_heap(accepted.len());
             let seed = self.options.seed.wrapping_add(round as u64);
-            let Ok(corr) = self.matched(&rows, seed)? else {
+            let voted = if heap && self.options.heap == Some(true) {
+                self.voted(&rows, round)?
+            } else {
+                Vec::new()
+            };
+            let Ok(corr) = self.matched(&rows, seed, heap)? else {
                 break;
             };
             let registration = register(&corr, None, config, seed)?;
+            let clustered = registration.instances.len();
+            let reach = self.within_reach(&voted, &accepted)?;
+            let mut candidates = poses_of(&registration);
+            candidates.extend(reach.iter().map(|&i| voted[i]));
             let every = RefineParams {
                 max_shared: 1.0,
                 ..self.rules.clone()
             };
-            let new = self.refine(&poses_of(&registration), &every)?;
-            if !new.poses.is_empty() && new.by_visibility {
-                let new = Accepted::from_pass(new, round);
+            let mut new = self.refine(&candidates, &every)?;
+            for pose in &mut new.poses {
+                // A voted pose's origin names its row of `voted`, past the clusters'.
+                if pose.origin >= clustered {
+                    pose.origin = clustered + reach[pose.origin - clustered];
+                }
+            }
+            let new =
+                self.without_weak_votes(Accepted::from_pass(new, round), clustered, &accepted);
+            if !new.is_empty() && self.by_visibility {
                 let mut taken: Vec<bool> = free.iter().map(|f| !f).collect();
-                let radius = 1.5 * self.voxel;
-                let max_shared = self.rules.max_shared;
-                let index = self.context.index();
                 let keep = not_duplicates(
-                    index,
+                    self.context.index(),
                     &self.source.points,
                     &new.poses(),
-                    radius,
-                    max_shared,
+                    1.5 * self.voxel,
+                    self.rules.max_shared,
                     &mut taken,
                 )?;
                 let kept = new.take(&keep);
@@ -374,8 +503,7 @@ impl<'o> Run<'o> {
                     *f &= e;
                 }
                 accepted = accepted.merged(kept);
-            } else if !new.poses.is_empty() {
-                let new = Accepted::from_pass(new, round);
+            } else if !new.is_empty() {
                 let pool = accepted.merged_unsorted(new);
                 let judged = self.refine(
                     &pool.poses(),
@@ -393,12 +521,52 @@ impl<'o> Run<'o> {
                 registration,
                 scan_points: rows,
                 added,
+                voted,
             });
-            if added == 0 {
+            empty = if added > 0 { 0 } else { empty + 1 };
+            let patience = if heap {
+                self.options.scene.heap_empty_rounds
+            } else {
+                1
+            };
+            if empty >= patience {
                 break;
             }
         }
         Ok(accepted)
+    }
+
+    /// `new` without the voted poses (instance at or past `clustered`) that explain less of
+    /// the model than `voted_min_relative_fitness` times the median copy (those accepted
+    /// before this round and this round's clustered ones; with none, the best voted).
+    fn without_weak_votes(&self, new: Accepted, clustered: usize, accepted: &Accepted) -> Accepted {
+        let voted: Vec<bool> = new.tags.iter().map(|t| t.1 >= clustered).collect();
+        if !voted.iter().any(|&v| v) {
+            return new;
+        }
+        let mut peers: Vec<f64> = accepted.rows.iter().map(|r| r.fitness).collect();
+        peers.extend(
+            new.rows
+                .iter()
+                .zip(&voted)
+                .filter(|(_, &v)| !v)
+                .map(|(r, _)| r.fitness),
+        );
+        if peers.is_empty() {
+            let best = new
+                .rows
+                .iter()
+                .zip(&voted)
+                .filter(|(_, &v)| v)
+                .map(|(r, _)| r.fitness)
+                .fold(f64::NEG_INFINITY, f64::max);
+            peers.push(best);
+        }
+        let floor = self.vote_floor(peers);
+        let keep: Vec<usize> = (0..new.len())
+            .filter(|&i| !voted[i] || new.rows[i].fitness >= floor)
+            .collect();
+        new.take(&keep)
     }
 
     /// The accepted poses, final: with the sensor's judgement, those fitting loosely against
@@ -511,6 +679,10 @@ impl Accepted {
         }
     }
 }
+
+/// The ranked mutual check looks at this many of a model point's nearest scan points (or
+/// `heap_rank` if more): every candidate the Python matcher's windows look at too.
+const WINDOW_CANDIDATES: usize = 64;
 
 /// The poses of a registration's instances, in order.
 fn poses_of(registration: &Registration) -> Vec<RigidTransform> {

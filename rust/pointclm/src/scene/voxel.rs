@@ -128,7 +128,7 @@ fn second_nearest(index: &PointIndex, p: &[f64; 3]) -> f64 {
 }
 
 /// The median of `values` (the mean of the middle two for an even count; 0 for none).
-fn median(values: &mut [f64]) -> f64 {
+pub(crate) fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {
         return 0.0;
     }

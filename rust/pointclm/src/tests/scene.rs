@@ -144,6 +144,13 @@ fn the_scene_pipeline_finds_every_copy_of_a_distinctive_shape() {
         .iter()
         .zip(&again.candidates)
         .all(|(a, b)| key(a) == key(b)));
+    // Said to be a heap: ranked matching and point pair voting find the same copies.
+    let heap = SceneOptions {
+        heap: Some(true),
+        ..SceneOptions::default()
+    };
+    let voted = register_point_clouds(&model, &scan, &heap).unwrap();
+    assert_eq!(voted.candidates.len(), 3);
     let mut bad = SceneOptions::default();
     bad.scene.max_stray_share = f64::NAN;
     assert!(register_point_clouds(&model, &scan, &bad).is_err());
