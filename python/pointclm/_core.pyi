@@ -270,7 +270,7 @@ def register_scan(
     seed: int = 0,
     peel: bool = True,
     heap: bool | None = None,
-    heap_rank: int | None = 64,
+    heap_rank: int = 64,
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], list[int], int, float, bool]: ...

@@ -95,7 +95,7 @@ pub fn stability_factor<'py>(
 /// the copies' poses (M, 4, 4) surest first, their confidences, the pass each came from, the
 /// number of passes, the voxel and whether the sensor judged them.
 #[pyfunction]
-#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=Some(64), scene=None, num_threads=None))]
+#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, scene=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
     py: Python<'py>,
@@ -106,7 +106,7 @@ pub fn register_scan<'py>(
     #[pyo3(from_py_with = args::seed)] seed: u64,
     peel: bool,
     heap: Option<bool>,
-    heap_rank: Option<usize>,
+    heap_rank: usize,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<ScanArrays<'py>> {
@@ -118,7 +118,8 @@ pub fn register_scan<'py>(
         seed,
         peel,
         heap,
-        heap_rank,
+        // 0 or 1: the plain mutual check (None in `register_point_clouds`).
+        heap_rank: Some(heap_rank).filter(|&r| r > 1),
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         ..scene::SceneOptions::default()
     };
