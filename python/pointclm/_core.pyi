@@ -37,6 +37,8 @@ __all__ = [
     "fit_tightness",
     "stability_factor",
     "register_scan",
+    "bounding_diagonal",
+    "default_voxel_size",
     "voxel_downsample",
     "isolated_points",
     "estimate_normals",
@@ -274,6 +276,12 @@ def register_scan(
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], list[int], int, float, bool]: ...
+def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
+def default_voxel_size(
+    model: npt.NDArray[np.float64],
+    scan: npt.NDArray[np.float64] | None = None,
+    scene: dict[str, Any] | None = None,
+) -> float: ...
 def stability_factor(
     stability: npt.NDArray[np.float64], min_poses: int
 ) -> npt.NDArray[np.float64]: ...

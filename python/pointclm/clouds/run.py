@@ -70,7 +70,7 @@ class _Run:
         """The model's point pair features tabled for voting, built once for every pass; its
         diameter is the model's bounding-box diagonal."""
         pts = self.src_d.points
-        diameter = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+        diameter = _core.bounding_diagonal(pts)
         return _core.PpfModel(
             pts, self.src_d.normals, diameter, max_poses=self.scene.heap_voted_poses
         )

@@ -21,17 +21,16 @@ from .results import _xyz
 def default_voxel_size(
     model_points: ArrayLike, scan_points: ArrayLike | None = None, scene: SceneRules | None = None
 ) -> float:
-    """The model's bounding-box diagonal / 40; with `scan_points`, at least
-    :data:`MIN_VOXEL_SPACINGS` times the scan's point spacing
-    (:func:`pointclm.preprocessing.point_spacing`) and :data:`MIN_VOXEL_NOISES` times its
-    noise (:func:`pointclm.preprocessing.noise_level`)."""
-    sc = SceneRules.resolve(scene)
-    p = np.asarray(model_points, dtype=np.float64)
-    voxel = float(np.linalg.norm(p.max(0) - p.min(0))) / sc.voxels_per_diagonal
-    if scan_points is None:
-        return voxel
-    spacing, noise = pp.scan_scales(scan_points, sc.noise_scale_voxels * voxel)
-    return max(voxel, sc.min_voxel_spacings * spacing, sc.min_voxel_noises * noise)
+    """The model's bounding-box diagonal over ``voxels_per_diagonal`` (40); with
+    `scan_points`, at least ``min_voxel_spacings`` times the scan's point spacing
+    (:func:`pointclm.preprocessing.point_spacing`) and ``min_voxel_noises`` times its noise
+    (:func:`pointclm.preprocessing.noise_level`), the rules of `scene`
+    (:class:`pointclm.SceneRules`). Computed by the core
+    (``pointclm::scene::voxel::default_voxel_size``), as its own pipeline does."""
+    rules = SceneRules.resolve(scene).to_dict()
+    model = pp.as_points(model_points, "model_points")
+    scan = None if scan_points is None else pp.as_points(scan_points, "scan_points")
+    return float(_core.default_voxel_size(model, scan, rules))
 
 
 def _voxel_size(

@@ -295,6 +295,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::fit_tightness, m)?)?;
     m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::default_voxel_size, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::isolated_points, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::estimate_normals, m)?)?;

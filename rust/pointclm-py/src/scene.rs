@@ -148,3 +148,31 @@ type ScanArrays<'py> = (
     f64,
     bool,
 );
+
+/// The length of the bounding-box diagonal of `points` (the model's size every scene rule in
+/// model diagonals or radii is measured against).
+#[pyfunction]
+pub fn bounding_diagonal(
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+) -> PyResult<f64> {
+    Ok(scene::voxel::diagonal(&rows3(&points, "points")?))
+}
+
+/// `register_point_clouds`' default voxel (`pointclm::scene::voxel::default_voxel_size`): the
+/// model's diagonal over `voxels_per_diagonal`, no finer than the scan's spacing and noise
+/// allow (without `scan`, the model's rule alone).
+#[pyfunction]
+#[pyo3(signature = (model, scan=None, scene=None))]
+pub fn default_voxel_size(
+    py: Python<'_>,
+    #[pyo3(from_py_with = args::source)] model: PyReadonlyArray2<'_, f64>,
+    scan: Option<PyReadonlyArray2<'_, f64>>,
+    scene: Option<Bound<'_, PyDict>>,
+) -> PyResult<f64> {
+    let m = rows3(&model, "model")?;
+    let s = scan.map(|a| rows3(&a, "scan")).transpose()?;
+    let rules = declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?;
+    guarded(py, None, move || {
+        scene::voxel::default_voxel_size(&m, s.as_deref(), &rules)
+    })
+}

@@ -15,9 +15,9 @@ use crate::kabsch::RigidTransform;
 use crate::matching::{match_features_given, nearest_sources, MatchingConfig, NearestSources};
 use crate::pipeline::{register, Registration};
 use crate::pointcloud::{
-    check_points, check_positive, describe, isolated_points, voxel_downsample, DescribeParams,
-    Described, FpfhVariant, Orientation, PpfModel, PpfParams, RefineContext, RefineParams, Refined,
-    RefinedPose,
+    check_points, check_positive, describe, isolated_points, nearest_rotation, voxel_downsample,
+    DescribeParams, Described, FpfhVariant, Orientation, PpfModel, PpfParams, RefineContext,
+    RefineParams, Refined, RefinedPose,
 };
 
 use super::peeling::{not_duplicates, unexplained};
@@ -179,7 +179,7 @@ pub fn register_point_clouds(
             check_positive("voxel_size", v)?;
             v
         }
-        None => default_voxel_size(model, scan, &options.scene),
+        None => default_voxel_size(model, Some(scan), &options.scene)?,
     };
     check_positive("voxel_size (the model has no extent: give one)", voxel)?;
     let mut run = Run::new(model, scan, voxel, options)?;
@@ -407,7 +407,7 @@ impl<'o> Run<'o> {
         }
         let voter = self.voter.as_ref().expect("set above");
         let poses = voter.poses(&self.target.points, &self.target.normals, rows, round)?;
-        Ok(poses.into_iter().map(|p| p.transform).collect())
+        Ok(poses.into_iter().map(|p| handed(p.transform)).collect())
     }
 
     /// The rows of `voted` worth refining: those already bringing `voted_min_relative_fitness`
@@ -637,8 +637,9 @@ impl Accepted {
         self.rows.is_empty()
     }
 
+    /// The poses, as stages take them ([`handed`]).
     fn poses(&self) -> Vec<RigidTransform> {
-        self.rows.iter().map(|r| r.pose).collect()
+        self.rows.iter().map(|r| handed(r.pose)).collect()
     }
 
     fn take(&self, rows: &[usize]) -> Self {
@@ -684,9 +685,25 @@ impl Accepted {
 /// `heap_rank` if more): every candidate the Python matcher's windows look at too.
 const WINDOW_CANDIDATES: usize = 64;
 
-/// The poses of a registration's instances, in order.
+/// The poses of a registration's instances, in order, as stages take poses.
 fn poses_of(registration: &Registration) -> Vec<RigidTransform> {
-    registration.instances.iter().map(|i| i.pose).collect()
+    registration
+        .instances
+        .iter()
+        .map(|i| handed(i.pose))
+        .collect()
+}
+
+/// A pose as a stage takes it: its rotation block replaced by the nearest rotation, as for a
+/// pose given as a 4 x 4 matrix. Why every pose a stage receives goes through this: the
+/// Python pipeline hands its poses to the core as matrices, and ICP on flat faces turns a
+/// difference in the last bit into another settled pose; the same step here keeps the two
+/// paths' poses identical.
+fn handed(pose: RigidTransform) -> RigidTransform {
+    RigidTransform {
+        rotation: nearest_rotation(&pose.rotation).unwrap_or(pose.rotation),
+        ..pose
+    }
 }
 
 /// The downsampled scan without its strays (fewer than `stray_neighbours` others within 2

@@ -3,31 +3,39 @@
 
 use nalgebra::Matrix3;
 
-use crate::pointcloud::PointIndex;
+use crate::error::Result;
+use crate::pointcloud::{check_points, PointIndex};
 
 use super::SceneRules;
 
-/// The model's bounding-box diagonal over `voxels_per_diagonal`, raised to at least
-/// `min_voxel_spacings` times the scan's point spacing ([`point_spacing`]) and
+/// The model's bounding-box diagonal over `voxels_per_diagonal`, raised (with a scan) to at
+/// least `min_voxel_spacings` times the scan's point spacing ([`point_spacing`]) and
 /// `min_voxel_noises` times its noise ([`noise_level`], at `noise_scale_voxels` model voxels).
-/// The model must be non-empty and finite (checked by the caller).
-pub fn default_voxel_size(model: &[[f64; 3]], scan: &[[f64; 3]], params: &SceneRules) -> f64 {
+/// Errors: an empty model, a non-finite coordinate.
+pub fn default_voxel_size(
+    model: &[[f64; 3]],
+    scan: Option<&[[f64; 3]]>,
+    params: &SceneRules,
+) -> Result<f64> {
+    check_points(model, "model points", 1)?;
     let voxel = diagonal(model) / params.voxels_per_diagonal;
-    if scan.len() < 2 {
-        return voxel;
-    }
-    let Ok(index) = PointIndex::new(scan) else {
-        return voxel;
+    let Some(scan) = scan else {
+        return Ok(voxel);
     };
+    check_points(scan, "scan points", 0)?;
+    if scan.len() < 2 {
+        return Ok(voxel);
+    }
+    let index = PointIndex::new(scan)?;
     let spacing = point_spacing(scan, &index);
     let noise = if scan.len() >= 8 {
         noise_level(scan, &index, params.noise_scale_voxels * voxel)
     } else {
         0.0
     };
-    voxel
+    Ok(voxel
         .max(params.min_voxel_spacings * spacing)
-        .max(params.min_voxel_noises * noise)
+        .max(params.min_voxel_noises * noise))
 }
 
 /// The length of the bounding-box diagonal of `points` (0 for none).
