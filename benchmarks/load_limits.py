@@ -100,7 +100,7 @@ def threads() -> None:
     print(f"threads alive before: {before}, right after the 200 calls: {after} ({dt} s in all)")
 
 
-def learned(sizes: tuple[int, ...] = (2_000, 8_000, 50_000)) -> None:
+def learned(sizes: tuple[int, ...] = (8_000, 32_768, 50_000)) -> None:
     print("## learned: register(model='default') on N random correspondences")
     print("| N | time | result |")
     print("|---|---|---|")
