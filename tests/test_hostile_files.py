@@ -23,6 +23,7 @@ from hardening import CASES, bounded, expect_clean, write_counts
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pointclm.io import PointCloud, read_open3d_feature, read_point_cloud
+from pointclm.io.arrays import read_npz_members
 
 #: Fixed budget and derandomised search: CI sees the same cases every run.
 SETTINGS = settings(
@@ -172,6 +173,49 @@ def test_npz_reads_only_the_members_it_needs(tmp_path: Path) -> None:
     assert len(cloud) == 5
     assert usage.peak_bytes < 4 << 20  # the junk member alone is 16 MB
     assert size < 1 << 20
+
+
+def _npz_with_zeros(path: Path, name: str, nbytes: int) -> Path:
+    """An archive of 5 points and a member ``name`` of ``nbytes`` zeros (float64, one column),
+    deflated a chunk at a time (a few hundred KB on disk)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        buf = io.BytesIO()
+        np.save(buf, np.ones((5, 3)))
+        z.writestr("points.npy", buf.getvalue())
+        with z.open(f"{name}.npy", "w", force_zip64=True) as fh:
+            fh.write(npy_bytes("<f8", (nbytes // 8, 1), b""))
+            chunk = bytes(8 << 20)
+            for _ in range(nbytes // len(chunk)):
+                fh.write(chunk)
+    return path
+
+
+@pytest.mark.parametrize("name", ["extra", "normals", "colors"])
+def test_a_large_npz_member_that_is_not_used_is_not_decompressed(tmp_path: Path, name: str) -> None:
+    # 200 MB of zeros: skipped as unused ("extra"), or refused from its header's shape
+    # (normals and colors must match the points) before any of it is decompressed.
+    path = _npz_with_zeros(tmp_path / f"{name}.npz", name, 200 << 20)
+    assert path.stat().st_size < 1 << 20
+    with bounded() as usage:
+        out = expect_clean(lambda: read_point_cloud(path), allow_memory_error=False)
+    assert usage.peak_bytes < 8 << 20
+    if name == "extra":
+        assert isinstance(out, PointCloud) and len(out) == 5
+    else:
+        fails(out, rf"array '{name}' has shape \(26214400, 1\), the points have \(5, 3\)")
+
+
+def test_a_used_npz_member_is_decompressed_into_its_array_once() -> None:
+    # 24 MB of points: the reader's peak is the array plus one chunk, not the array twice.
+    pts = np.random.default_rng(0).normal(size=(1_000_000, 3))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, points=pts)
+    raw = buf.getvalue()
+    with bounded() as usage:
+        arrays, names = read_npz_members(raw)
+    np.testing.assert_array_equal(arrays["points"], pts)
+    assert names == ["points"]
+    assert usage.peak_bytes < pts.nbytes + (6 << 20)
 
 
 def test_npz_object_arrays_are_never_unpickled(tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -158,6 +159,21 @@ def test_bad_weight_files_give_value_errors(tmp_path: Path) -> None:
     badjson.with_suffix(".json").write_text("{")
     with pytest.raises(ValueError, match="not valid JSON"):
         Network(badjson)
+
+
+def test_many_consistent_correspondences_beyond_the_dense_limit_are_refused_up_front() -> None:
+    # 50,000 uniform rows in a unit cube: most pairs are length-consistent at the network's
+    # sigma_d, so only the dense attention (time ~ N^2, minutes here) could run.
+    corr = np.random.default_rng(0).uniform(-0.5, 0.5, size=(50_000, 6))
+    limit = "at most 32768 correspondences"
+    t = time.perf_counter()
+    with pytest.raises(pointclm.errors.InputError, match=limit) as err:
+        pointclm.register(corr, model="default")
+    assert isinstance(err.value, ValueError)
+    assert "got 50000" in str(err.value) and "model=None" in str(err.value)
+    with pytest.raises(ValueError, match=limit):
+        load_network("default").embed(corr)
+    assert time.perf_counter() - t < 30  # both refusals together, on a loaded 2-core machine
 
 
 def test_a_rewritten_weight_file_is_reloaded(tmp_path: Path) -> None:

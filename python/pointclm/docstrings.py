@@ -57,6 +57,11 @@ PARAMETERS: dict[str, str] = _entries(
             shapes are used. The network sees the correspondences in the units it was trained in
             (converted when the config's ``sigma_d`` differs from the network's; see
             :mod:`pointclm.embedding`). None (default) is the training-free pipeline.
+            The Rust forward pass takes any N when few pairs of correspondences are
+            length-consistent (its sparse attention); when more than 1/16 of them (or more
+            than 50 million) are, its dense attention runs, whose time grows as N^2, and more
+            than 32,768 correspondences are refused up front with an InputError (a
+            ValueError) saying so.
         """,
     backend="""
         backend : {"rust", "torch"}

@@ -28,6 +28,7 @@ fn raise(e: &pointclm::Error, msg: String) -> PyErr {
         | E::LengthMismatch { .. }
         | E::InvalidParameter { .. }
         | E::MissingInput { .. }
+        | E::TooManyForDenseAttention { .. }
         | E::InvalidMatrix(_) => InputError::new_err(msg),
         E::InvalidConfig { .. } | E::ConfigOutOfRange { .. } => ConfigError::new_err(msg),
         E::EigenNoConvergence { .. } | E::MagnitudeRange { .. } => NumericalError::new_err(msg),

@@ -86,7 +86,9 @@ impl PyNetwork {
     /// float64 embeddings. A network with `inputs` also needs `normals` ((N, 6), source normal
     /// | target normal, rescaled to unit length; or given as columns 7-12 of (N, 12)
     /// correspondences) and `similarity` ((N,), the descriptor similarity of each match) where
-    /// it reads them; those it does not read are ignored.
+    /// it reads them; those it does not read are ignored. Where more than 1/16 of the pairs
+    /// (or more than 50 million) are length-consistent, the dense attention runs (time ~ N^2)
+    /// and more than 32,768 correspondences are an InputError (a ValueError).
     #[pyo3(signature = (correspondences, normals=None, similarity=None, num_threads=None))]
     fn embed<'py>(
         &self,

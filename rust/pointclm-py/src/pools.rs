@@ -12,11 +12,17 @@
 //!   locks that may have been held at the fork) and new ones are built.
 //! - Bounded: at most [`CACHED_POOLS`] pools and [`cached_threads`] threads are kept (least
 //!   recently used goes first; a pool larger than the whole budget serves its call and is
-//!   not kept); an evicted pool's threads exit when the last call using it returns.
+//!   not kept). A pool that leaves the cache is shut down by whoever holds it last: the
+//!   eviction itself, or the call using it when that call returns, which joins the pool's
+//!   threads before returning. Threads alive after any sequence of calls are therefore at
+//!   most the cache's budget plus the pools of calls still running, never the threads of
+//!   pools already given up (rayon lets a dropped pool's threads exit in the background,
+//!   so a loop over many thread counts would otherwise run ahead of their exits).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::mpsc::{sync_channel, RecvTimeoutError};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
 use std::time::Duration;
 
 use pointclm::cancel::CancelToken;
@@ -40,10 +46,76 @@ fn cached_threads() -> usize {
 /// How often a waiting call looks for Ctrl-C (the issue asks for under about a second).
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
 
+/// A private rayon pool that knows its threads, so that shutting it down can wait for them.
+pub struct Pool {
+    pool: ThreadPool,
+    threads: Mutex<Vec<JoinHandle<()>>>,
+}
+
+impl std::ops::Deref for Pool {
+    type Target = ThreadPool;
+
+    fn deref(&self) -> &ThreadPool {
+        &self.pool
+    }
+}
+
+impl Pool {
+    /// A pool of `num_threads` threads (0: rayon's default count), each spawned here so that
+    /// its handle is kept.
+    fn new(num_threads: usize) -> pointclm::Result<Self> {
+        let threads = Mutex::new(Vec::new());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(num_threads)
+            .spawn_handler(|thread| {
+                let mut b = std::thread::Builder::new();
+                if let Some(name) = thread.name() {
+                    b = b.name(name.to_owned());
+                }
+                if let Some(size) = thread.stack_size() {
+                    b = b.stack_size(size);
+                }
+                let handle = b.spawn(|| thread.run())?;
+                threads
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(handle);
+                Ok(())
+            })
+            .build()
+            .map_err(|e| pointclm::Error::ThreadPool {
+                threads: num_threads,
+                reason: e.to_string(),
+            })?;
+        Ok(Self { pool, threads })
+    }
+
+    /// Stops the pool and waits until its threads have exited (its work is done: the caller
+    /// holds the last reference, and every call waits for its job before letting go).
+    fn shut_down(self) {
+        let Self { pool, threads } = self;
+        drop(pool);
+        let me = std::thread::current().id();
+        for handle in threads.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            if handle.thread().id() != me {
+                let _ = handle.join();
+            }
+        }
+    }
+}
+
+/// Lets go of `pool`, shutting it down ([`Pool::shut_down`]) when this was the last
+/// reference: the cache no longer holds it and no other call uses it.
+fn release(pool: Arc<Pool>) {
+    if let Some(p) = Arc::into_inner(pool) {
+        p.shut_down();
+    }
+}
+
 struct Cache {
     pid: u32,
     /// `(num_threads, pool)`, most recently used last; 0 is rayon's default count.
-    pools: Vec<(usize, Arc<ThreadPool>)>,
+    pools: Vec<(usize, Arc<Pool>)>,
 }
 
 static CACHE: Mutex<Cache> = Mutex::new(Cache {
@@ -62,7 +134,7 @@ fn lock() -> MutexGuard<'static, Cache> {
     cache
 }
 
-fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
+fn cached(num_threads: usize) -> PyResult<Arc<Pool>> {
     {
         let mut cache = lock();
         if let Some(k) = cache.pools.iter().position(|(n, _)| *n == num_threads) {
@@ -73,7 +145,7 @@ fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
         }
     }
     // built outside the lock: spawning threads takes a while
-    let pool = Arc::new(pointclm::pipeline::thread_pool(num_threads).map_err(to_py_err)?);
+    let pool = Arc::new(Pool::new(num_threads).map_err(to_py_err)?);
     let budget = cached_threads();
     let size = pool.current_num_threads();
     if size > budget {
@@ -81,8 +153,11 @@ fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
     }
     let mut cache = lock();
     if let Some((_, p)) = cache.pools.iter().find(|(n, _)| *n == num_threads) {
-        // another thread built one meanwhile: share it, drop ours
-        return Ok(p.clone());
+        // another thread built one meanwhile: share it, shut ours down
+        let shared = p.clone();
+        drop(cache);
+        release(pool);
+        return Ok(shared);
     }
     let held = |c: &Cache| {
         c.pools
@@ -90,17 +165,21 @@ fn cached(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
             .map(|(_, p)| p.current_num_threads())
             .sum::<usize>()
     };
+    let mut evicted = Vec::new();
     while !cache.pools.is_empty()
         && (cache.pools.len() >= CACHED_POOLS || held(&cache) + size > budget)
     {
-        cache.pools.remove(0);
+        evicted.push(cache.pools.remove(0).1);
     }
     cache.pools.push((num_threads, pool.clone()));
+    // joined outside the lock: a pool still in use is shut down by its last call instead
+    drop(cache);
+    evicted.into_iter().for_each(release);
     Ok(pool)
 }
 
 /// The pool for an explicit thread count (`1..=MAX_THREADS`).
-pub fn pool(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
+pub fn pool(num_threads: usize) -> PyResult<Arc<Pool>> {
     if !(1..=MAX_THREADS).contains(&num_threads) {
         return Err(InputError::new_err(format!(
             "num_threads must lie in 1..={MAX_THREADS} (or None for all cores), got {num_threads}"
@@ -116,7 +195,7 @@ pub fn pool(num_threads: usize) -> PyResult<Arc<ThreadPool>> {
 /// more thread wake-ups (about 15 us measured on a 2 ms `register` call after Python work).
 pub fn guarded<T: Send + 'static>(
     py: Python<'_>,
-    pool: Option<Arc<ThreadPool>>,
+    pool: Option<Arc<Pool>>,
     f: impl FnOnce() -> pointclm::Result<T> + Send + 'static,
 ) -> PyResult<T> {
     let pool = match pool {
@@ -131,30 +210,34 @@ pub fn guarded<T: Send + 'static>(
         // the receiver is gone when the caller was interrupted: nobody wants the result
         let _ = tx.send(r);
     });
-    loop {
+    let out = loop {
         // the receiver is moved in and out: it is Send but not Sync
         let (received, back) = py.detach(move || (rx.recv_timeout(SIGNAL_POLL), rx));
         rx = back;
         match received {
-            Ok(Ok(r)) => return r.map_err(to_py_err),
+            Ok(Ok(r)) => break r.map_err(to_py_err),
             Ok(Err(_)) => {
-                return Err(PyRuntimeError::new_err(
+                break Err(PyRuntimeError::new_err(
                     "internal error in pointclm (please report)",
                 ))
             }
             Err(RecvTimeoutError::Timeout) => {
                 if let Err(interrupt) = py.check_signals() {
                     token.cancel();
+                    // not joined: the cancelled job may still run; its threads exit after it
                     return Err(interrupt);
                 }
             }
             Err(RecvTimeoutError::Disconnected) => {
-                return Err(PyRuntimeError::new_err(
+                break Err(PyRuntimeError::new_err(
                     "internal error in pointclm: the worker stopped without a result",
                 ))
             }
         }
-    }
+    };
+    // the job is over: a pool that left the cache meanwhile is shut down here
+    py.detach(move || release(pool));
+    out
 }
 
 /// [`guarded`] for a staged function that holds `copies` dense `n x n` f64 matrices: the

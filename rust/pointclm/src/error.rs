@@ -100,6 +100,23 @@ pub enum Error {
         hint: &'static str,
     },
 
+    /// More correspondences than the embedding network's dense attention takes, for input
+    /// whose consistent pairs are too many for its sparse attention (see
+    /// [`network::MAX_DENSE_ATTENTION_ROWS`](crate::network::MAX_DENSE_ATTENTION_ROWS)).
+    #[error(
+        "the learned embedding takes at most {max} correspondences when many of their pairs \
+         are length-consistent (more than 1/{share_denominator} of all pairs, or more than \
+         {max_pairs} pairs: its dense attention, whose time grows as N^2, runs), got {n}; \
+         give fewer correspondences (keep the best matches, or match fewer points), or \
+         register without the learned model (model=None, the training-free pipeline)"
+    )]
+    TooManyForDenseAttention {
+        n: usize,
+        max: usize,
+        share_denominator: usize,
+        max_pairs: usize,
+    },
+
     /// An allocation sized by the input that the system refused (or that could not even be
     /// sized without overflow): the input is too large for this machine's memory.
     #[error("{what}: cannot allocate {bytes} bytes (input too large for the available memory)")]

@@ -14,7 +14,9 @@ use faer::MatRef;
 use rayon::prelude::*;
 
 use super::layers::{attention_rows, AttentionScratch, Geometry};
-use super::sparse_attention::{attention_rows_sparse, SparseBeta, Strided, MAX_SPARSE_SHARE};
+use super::sparse_attention::{
+    attention_rows_sparse, SparseBeta, Strided, MAX_SPARSE_PAIRS, MAX_SPARSE_SHARE,
+};
 use super::{scene_norm, Architecture, Block, Network, Normalization};
 use crate::correspondences::{Correspondences, Features, PairNormals};
 use crate::error::{checked_elements, try_filled, Error, Result};
@@ -22,6 +24,14 @@ use crate::error::{checked_elements, try_filled, Error, Result};
 /// Rows per block: the attention holds `BLOCK_ROWS x N` logits per thread (0.5 MB at
 /// N = 1000), small enough for the L2 cache, large enough for efficient matrix products.
 pub(crate) const BLOCK_ROWS: usize = 128;
+
+/// Correspondences the dense attention takes (2^15): its time grows as `N^2` (about 30 s
+/// on two cores at this size for the default network), so input whose consistent pairs are
+/// too many for the sparse attention and that has more rows is refused up front with
+/// [`Error::TooManyForDenseAttention`] instead of running for minutes. The sparse attention
+/// (consistent pairs at most 1/16 of all pairs and at most [`MAX_SPARSE_PAIRS`]) has no
+/// such bound.
+pub const MAX_DENSE_ATTENTION_ROWS: usize = 1 << 15;
 
 /// Per-thread buffers.
 #[derive(Default)]
@@ -94,6 +104,25 @@ pub(crate) fn embed_with(
     block_rows: usize,
     max_sparse_share: f64,
 ) -> Result<Features> {
+    embed_limited(
+        net,
+        c,
+        parallel,
+        block_rows,
+        max_sparse_share,
+        MAX_DENSE_ATTENTION_ROWS,
+    )
+}
+
+/// [`embed_with`], with the dense attention refused above `max_dense_rows` rows.
+pub(crate) fn embed_limited(
+    net: &Network,
+    c: &Correspondences,
+    parallel: bool,
+    block_rows: usize,
+    max_sparse_share: f64,
+    max_dense_rows: usize,
+) -> Result<Features> {
     let n = c.len();
     let arch = &net.architecture;
     let (w, channels) = (arch.width, arch.input_channels());
@@ -104,6 +133,14 @@ pub(crate) fn embed_with(
         geometry = geometry.with_normals(pn, arch.sigma_d, arch.normal_tolerance);
     }
     let sparse = SparseBeta::new(&geometry, parallel, max_sparse_share);
+    if sparse.is_none() && n > max_dense_rows {
+        return Err(Error::TooManyForDenseAttention {
+            n,
+            max: max_dense_rows,
+            share_denominator: (1.0 / MAX_SPARSE_SHARE).round() as usize,
+            max_pairs: MAX_SPARSE_PAIRS,
+        });
+    }
     let pass = Pass {
         parallel,
         block_rows,

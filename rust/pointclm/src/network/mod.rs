@@ -67,6 +67,8 @@ mod scene_norm;
 pub(crate) mod sparse_attention;
 mod weights;
 
+pub use forward::MAX_DENSE_ATTENTION_ROWS;
+
 use std::fmt;
 use std::path::Path;
 

@@ -298,6 +298,57 @@ fn coordinates_beyond_f32_are_a_typed_error() {
     ));
 }
 
+/// `n` correspondences uniform in a cube of side `side` at both ends: at the network's
+/// sigma_d and a side near 1, far more than 1/16 of the pairs are length-consistent.
+fn uniform_correspondences(n: usize, side: f64, seed: u64) -> Correspondences {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let rows: Vec<[f64; 6]> = (0..n)
+        .map(|_| std::array::from_fn(|_| rng.random_range(0.0..side)))
+        .collect();
+    Correspondences::from_rows(&rows).unwrap()
+}
+
+fn all_rows(f: &Features) -> Vec<f64> {
+    (0..f.len()).flat_map(|i| f.row(i).to_vec()).collect()
+}
+
+#[test]
+fn the_dense_attention_beyond_its_row_limit_is_refused_up_front() {
+    let net = Network::from_file(shipped("default")).unwrap();
+    let share = super::sparse_attention::MAX_SPARSE_SHARE;
+    // many consistent pairs: only the dense attention can run, and 300 > 200 rows
+    let dense = uniform_correspondences(300, 1.0, 1);
+    assert!(super::sparse_attention::SparseBeta::new(
+        &Geometry::new(&dense, net.architecture.sigma_d),
+        false,
+        share
+    )
+    .is_none());
+    let err = forward::embed_limited(&net, &dense, true, 128, share, 200).unwrap_err();
+    assert!(matches!(
+        err,
+        Error::TooManyForDenseAttention {
+            n: 300,
+            max: 200,
+            share_denominator: 16,
+            ..
+        }
+    ));
+    let msg = err.to_string();
+    assert!(msg.contains("at most 200 correspondences"), "{msg}");
+    assert!(msg.contains("model=None"), "{msg}");
+    // at the limit it runs, and gives what the unlimited pass gives
+    let at_limit = forward::embed_limited(&net, &dense, true, 128, share, 300).unwrap();
+    let plain = forward::embed(&net, &dense, true, 128).unwrap();
+    assert_eq!(all_rows(&at_limit), all_rows(&plain));
+    // few consistent pairs: the sparse attention runs whatever the row limit
+    let sparse = random_scene(700, 4, 0.1, 6);
+    let limited = forward::embed_limited(&net, &sparse.corr, true, 128, share, 200).unwrap();
+    let plain = forward::embed(&net, &sparse.corr, true, 128).unwrap();
+    assert_eq!(all_rows(&limited), all_rows(&plain));
+    assert_eq!(MAX_DENSE_ATTENTION_ROWS, 32_768);
+}
+
 // ---- weight files ----
 
 const META: &str = r#"{"architecture": {"depth": 1, "width": 4, "sigma_d": 0.05}}"#;
