@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-import pointclm.cli
+import pointclm.cli.commands
 import pointclm.datasets.scenes
 import pointclm.evaluation
 import pointclm.registration
@@ -109,7 +109,7 @@ def test_model_flags_keep_the_networks_other_thresholds(
     others stay (not `Config()`'s). `demo`'s realistic scene gets the flags too."""
     recommended = resolve("default").recommended_config()
     assert recommended is not None and recommended.tau_n != Config().tau_n
-    synthetic = _spy_on_register(monkeypatch, pointclm.cli)
+    synthetic = _spy_on_register(monkeypatch, pointclm.cli.commands)
     realistic = _spy_on_register(monkeypatch, pointclm.evaluation)
     voxels = _spy_on_voxels(monkeypatch)
     argv = [command, "--scenes", "1", "--model", "default", "--ransac-iterations", "500"]
