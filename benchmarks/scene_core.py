@@ -85,8 +85,8 @@ def main() -> None:
         diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [
-        f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.processor()}"
-        f" {platform.machine()}, {args.threads} threads)",
+        f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.machine()}, "
+        f"{args.threads} threads)",
         "",
         "| scene | copies (Python) | copies (Rust) | same copies and passes | max pose diff "
         "| Python s | Rust s | Rust / Python |",
