@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -99,9 +99,21 @@ class _Run:
         )
 
 
+class PassMatches(NamedTuple):
+    """A pass's correspondences, with what its network takes beside them."""
+
+    #: (N, 6) rows: downsampled model point | downsampled scan point.
+    correspondences: np.ndarray
+    #: (N, 6) the unit normals at both ends, when the run uses normals or its network takes
+    #: them; else None.
+    normals: np.ndarray | None
+    #: (N,) descriptor similarity, when the network takes it; else None.
+    similarity: np.ndarray | None
+
+
 def _match(
     run: _Run, rows: np.ndarray, seed: int, matching: dict[str, Any] | None = None
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+) -> PassMatches:
     """Correspondences between the model and the scan points `rows`, by the run's
     :class:`pointclm.preprocessing.DescriptorMatcher` with `matching` (the run's own when
     None); the normals at their ends when the run uses normals or its network takes them,
@@ -113,7 +125,7 @@ def _match(
     if run.normals or "normals" in inputs:
         normals = m.normals(run.src_d.normals, run.tgt_d.normals)
     sims = similarity(m.distance) if "similarity" in inputs and len(corr) else None
-    return corr, normals, sims
+    return PassMatches(corr, normals, sims)
 
 
 def _matching(

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from functools import cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -47,6 +47,18 @@ def _voxel_size(
     return voxel
 
 
+class DescribedScan(NamedTuple):
+    """The scan described, and where the run takes its sensor to be."""
+
+    cloud: pp.DescribedCloud
+    #: How its normals were oriented, in words.
+    orientation: str
+    #: The sensor position verification judges by (given, recorded, or guessed); None: none.
+    viewpoint: tuple[float, float, float] | None
+    #: Whether `viewpoint` is a guess the first pass must confirm.
+    guessed: bool
+
+
 def _describe_target(
     tgt: np.ndarray,
     voxel: float,
@@ -55,7 +67,7 @@ def _describe_target(
     src_d: pp.DescribedCloud,
     num_threads: int | None,
     scene: SceneRules = SCENE_DEFAULTS,
-) -> tuple[pp.DescribedCloud, str, tuple[float, float, float] | None, bool]:
+) -> DescribedScan:
     """:func:`_describe_scan`, and the viewpoint of the run: `view` (given, or recorded in the
     file when `not_given`), else a guess the first pass confirms (the last value True): the
     origin of a scan in its sensor's frame, or the sensor position estimated from the scan."""
@@ -63,7 +75,7 @@ def _describe_target(
     if view is not None and not_given:
         orientation += " (the file's VIEWPOINT)"
     guessed = view is None and guess is not None
-    return tgt_d, orientation, guess if guessed else view, guessed
+    return DescribedScan(tgt_d, orientation, guess if guessed else view, guessed)
 
 
 def _describe_scan(

@@ -4,7 +4,7 @@ verified poses: taking rows, merging lists, the instances returned."""
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -17,9 +17,18 @@ from .results import CloudInstance, Pass
 from .run import _Run
 
 
-def _verify(
-    run: _Run, result: RegistrationResult, refine: bool
-) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
+class Verified(NamedTuple):
+    """Pass 0's poses as verification left them, and the run that goes on."""
+
+    #: The run, its viewpoint settled (a guess confirmed, or dropped).
+    run: _Run
+    #: The verified poses, surest first.
+    poses: RefinedPoses
+    #: Each pose's (pass, instance of that pass's result).
+    tags: list[tuple[int, int]]
+
+
+def _verify(run: _Run, result: RegistrationResult, refine: bool) -> Verified:
     """Pass 0's poses refined and verified (or, without `refine`, only scored, in the
     correspondence stage's order), each with its (pass, instance of that pass's result), and
     the run that goes on (:func:`_confirm_viewpoint` settles a guessed viewpoint)."""
@@ -36,12 +45,10 @@ def _verify(
         # Unverified poses keep the correspondence stage's order (most inliers first).
         keep = np.argsort(refined.origin)
         refined, tags = _take(refined, keep), [tags[i] for i in keep]
-    return run, refined, tags
+    return Verified(run, refined, tags)
 
 
-def _confirm_viewpoint(
-    run: _Run, result: RegistrationResult
-) -> tuple[_Run, RefinedPoses, list[tuple[int, int]]]:
+def _confirm_viewpoint(run: _Run, result: RegistrationResult) -> Verified:
     """Pass 0 of a run whose viewpoint is a guess (the origin of a scan in its sensor's
     frame, or the sensor position estimated from the scan): the run with it, when verification
     from there keeps the pose that the model share ranks first, else the run without a
@@ -68,9 +75,9 @@ def _confirm_viewpoint(
     blind, blind_tags = _judge(blind_run, poses, source)
     kept = set(seen.origin.tolist())
     if kept and (len(blind.origin) == 0 or int(blind.origin[0]) in kept):
-        return run, seen, seen_tags
+        return Verified(run, seen, seen_tags)
     # Nothing either way confirms nothing: the run goes on (and explains) without a viewpoint.
-    return blind_run, blind, blind_tags
+    return Verified(blind_run, blind, blind_tags)
 
 
 def _judge(
