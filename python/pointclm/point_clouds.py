@@ -222,17 +222,17 @@ def register_point_clouds(
     """
     t0 = time.perf_counter()
     embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
-    window, rank = _heap_arguments(mutual_window, heap_rank, heap, mutual, k)
-    sc = SceneRules.resolve(scene)
+    window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
     scan = _describe_target(tgt, voxel, view, viewpoint is None, src_d, num_threads, sc)
-    tgt_d, orientation, view, guessed = scan
     matching, heaped = _matchings(top_k, mutual, n_samples, k, window, src, rank, heap, sc)
-    args = (src_d, tgt_d, voxel, view, matching, _matcher(src_d, tgt_d, k, num_threads))
-    run = _Run(*args, normals, seed, embedding, num_threads, heaped, guessed, heap, sc)
-    return _finished(_register(run, config, refine, peel, flips), orientation, t_load, t0)
+    tgt_d, matcher = scan.cloud, _matcher(src_d, scan.cloud, k, num_threads)
+    run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
+               num_threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
+               scene=sc)  # fmt: skip
+    return _finished(_register(run, config, refine, peel, flips), scan.orientation, t_load, t0)
 
 
 def _loaded(
@@ -273,14 +273,19 @@ def _checked_arguments(
 
 
 def _heap_arguments(
-    window: float | str | None, rank: int | None, heap: bool | None, mutual: bool, k: int
-) -> tuple[float | str | None, int | None]:
-    """`mutual_window`, `heap_rank` and `heap` checked before the files are read."""
+    window: float | str | None,
+    rank: int | None,
+    heap: bool | None,
+    mutual: bool,
+    k: int,
+    scene: SceneRules | Mapping[str, Any] | None = None,
+) -> tuple[float | str | None, int | None, SceneRules]:
+    """`mutual_window`, `heap_rank`, `heap` and the scene's rules checked before the files are
+    read."""
     if heap is not None:
         pp.as_flag(heap, "heap")
-    return _window_diagonals(window, mutual, k), (
-        None if rank is None else pp.as_count(rank, "heap_rank", 1)
-    )
+    rank = None if rank is None else pp.as_count(rank, "heap_rank", 1)
+    return _window_diagonals(window, mutual, k), rank, SceneRules.resolve(scene)
 
 
 def _window_diagonals(window: float | str | None, mutual: bool, k: int) -> float | str | None:
