@@ -298,6 +298,8 @@ def test_a_pcd_viewpoint_is_used_and_a_wrong_viewpoint_explains_itself(tmp_path:
     wrong = pointclm.register_point_clouds(BUNNY, scan, viewpoint=(0.0, 0.0, 0.0))
     assert len(wrong.instances) == 0
     assert "rejected all" in wrong.diagnosis and "viewpoint=None" in wrong.diagnosis
+    # It names the rule that rejected the candidates, with the nearest miss and the threshold.
+    assert "by min_visible_fitness (" in wrong.diagnosis and "needs at least 85%" in wrong.diagnosis
     assert wrong.diagnosis in repr(wrong)
 
 

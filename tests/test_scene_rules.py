@@ -154,3 +154,31 @@ def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
         assert passes == [i.pass_index for i in py.instances]
     with pytest.raises(ConfigError, match="max_stray_share"):
         _core.register_scan(scene.model_points, scene.scan, scene={"max_stray_share": 2.0})
+
+
+def test_verification_names_the_rule_that_rejected_each_pose() -> None:
+    # Without a viewpoint: the model on its own scan twice (the second a duplicate) and once
+    # far from it (explaining nothing of the model against the best pose's share).
+    rng = np.random.default_rng(3)
+    model = rng.normal(size=(800, 3))
+    model /= np.linalg.norm(model, axis=1, keepdims=True)
+    far = np.eye(4)
+    far[:3, 3] = (10.0, 0.0, 0.0)
+    poses = np.stack([np.eye(4), np.eye(4), far])
+    context = refinement.RefinementContext(model, model, 0.1)
+    kept = context.refine(poses, icp=False)
+    assert kept.origin.tolist() == [0]
+    rejected = context.rejections(poses, icp=False)
+    assert [(r.origin, r.rule) for r in rejected] == [
+        (1, "max_shared"),
+        (2, "min_relative_fitness"),
+    ]
+    assert rejected[0].value == 1.0 and rejected[0].threshold == refinement.MAX_SHARED
+    assert rejected[1].value == 0.0 and rejected[1].threshold == pytest.approx(
+        refinement.MIN_RELATIVE_FITNESS
+    )
+    # With every rule off but the duplicates', only the duplicate is rejected.
+    loose = context.rejections(poses, icp=False, min_fitness=0.0, min_relative_fitness=0.0)
+    assert [r.rule for r in loose] == ["max_shared", "explains_nothing"]
+    with pytest.raises(ValueError, match="unknown rule"):
+        context.rejections(poses, min_seeen=0.1)

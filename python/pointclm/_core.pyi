@@ -118,6 +118,7 @@ class RefineContext:
         list[npt.NDArray[np.float64]],
         npt.NDArray[np.int64],
         bool,
+        list[tuple[int, str, float, float]],
     ]: ...
     def near_shares(
         self,
@@ -379,4 +380,5 @@ def refine_poses(
     list[npt.NDArray[np.float64]],
     npt.NDArray[np.int64],
     bool,
+    list[tuple[int, str, float, float]],
 ]: ...

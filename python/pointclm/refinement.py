@@ -235,6 +235,28 @@ class RefinementContext:
             num_threads=as_threads(num_threads),
         )
 
+    def rejections(
+        self,
+        transformations: ArrayLike,
+        *,
+        icp: bool = True,
+        num_threads: int | None = None,
+        **rules: float,
+    ) -> list[Rejection]:
+        """Why :meth:`refine` with the same arguments rejects each pose it does not keep, by
+        input order (`rules` as :meth:`refine` takes them; the defaults otherwise)."""
+        unknown = sorted(set(rules) - set(_RULES))
+        if unknown:
+            raise ValueError(f"unknown rule(s) {unknown}; the rules are {list(_RULES)}")
+        named = {name: _number(v, name) for name, v in rules.items()}
+        *_, rejected = self._core.refine(
+            _as_poses(transformations),
+            pp.as_flag(icp, "icp"),
+            named,
+            num_threads=as_threads(num_threads),
+        )
+        return [Rejection(*r) for r in rejected]
+
     def near_shares(
         self,
         transformations: ArrayLike,
@@ -279,7 +301,7 @@ class RefinementContext:
             name: _number(v, name)
             for v, name in zip((*rules, max_shared, max_slid_fitness), _RULES, strict=True)
         }
-        mats, columns, origin, by_visibility = self._core.refine(
+        mats, columns, origin, by_visibility, _ = self._core.refine(
             _as_poses(transformations),
             pp.as_flag(icp, "icp"),
             named,
@@ -298,6 +320,17 @@ class RefinementContext:
             visible_rmse,
             bool(by_visibility),
         )
+
+
+class Rejection(NamedTuple):
+    """Why verification did not keep a pose: the first rule it failed (a field of
+    :func:`refine_poses`' rules, or ``"explains_nothing"``), its value and the threshold."""
+
+    #: Index of the input pose.
+    origin: int
+    rule: str
+    value: float
+    threshold: float
 
 
 #: The rules' names, in the order the core takes them.

@@ -5,11 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..refinement import (
-    _KEEP_ALL,
-    MAX_CONTRADICTION,
-    MIN_FITNESS,
-    MIN_SEEN,
-    MIN_VISIBLE_FITNESS,
     RefinedPoses,
 )
 from .results import Pass, _xyz
@@ -39,31 +34,53 @@ def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool
     return _rejected(run, first) + no_view
 
 
+#: How each rule reads in a diagnosis: what its value measures, and how it compares.
+_RULE_WORDS = {
+    "min_seen": ("the share of the model the sensor could see", "needs at least"),
+    "min_visible_fitness": ("the share of what the sensor could see that the scan explains",
+                            "needs at least"),
+    "max_contradiction": ("the share of it lying where the sensor saw free space", "at most"),
+    "min_fitness": ("the share of the model explained", "needs at least"),
+    "min_relative_fitness": ("the share of the model explained, against the best pose's",
+                             "needs at least"),
+    "max_slid_fitness": ("the share still explained with the model slid along its surface "
+                         "(it fits anywhere on a larger surface)", "at most"),
+    "max_shared": ("the share of its scan points a surer pose explains", "at most"),
+    "explains_nothing": ("the scan points it explains", "needs at least"),
+}  # fmt: skip
+
+
 def _rejected(run: _Run, first: Pass) -> str:
-    """Why verification rejected every candidate pose: the best one's scores against the
-    rules (one more ICP of the candidates, only when nothing was found)."""
-    scores = run.refiner.refine(
-        np.asarray(first.result.transformations).reshape(-1, 4, 4),
-        **_KEEP_ALL,
-        max_shared=1.0,
-        num_threads=run.num_threads,
-    )
+    """Why verification rejected every candidate pose: for each rule that rejected some, how
+    many and the nearest miss, its value against the threshold (one more ICP of the
+    candidates, only when nothing was found)."""
+    poses = np.asarray(first.result.transformations).reshape(-1, 4, 4)
+    rejected = run.refiner.rejections(poses, num_threads=run.num_threads)
     n = len(first.result)
-    head = f"nothing found: verification rejected all {n} candidate pose(s)"
-    if not scores.by_visibility:
-        best = float(scores.fitness.max()) if len(scores.fitness) else 0.0
-        return (
-            f"{head}: the best explains {best:.0%} of the model (needs {MIN_FITNESS:.0%}). "
-            "A partial or occluded view explains little of a model."
+    by_rule: dict[str, list[tuple[float, float]]] = {}
+    for r in rejected:
+        by_rule.setdefault(r.rule, []).append((r.value, r.threshold))
+    parts = []
+    for rule, values in sorted(by_rule.items(), key=lambda kv: -len(kv[1])):
+        what, compare = _RULE_WORDS.get(rule, (rule, "against"))
+        ceiling = compare == "at most"
+        value, threshold = (min if ceiling else max)(values, key=lambda vt: vt[0])
+        parts.append(
+            f"{len(values)} by {rule} ({what}: nearest {value:.0%}, {compare} {threshold:.0%})"
         )
-    i = int(np.argmax(scores.confidence))
-    return (
-        f"{head} as seen from the viewpoint {_xyz(run.viewpoint or (0, 0, 0))}: the best "
-        f"explains {scores.visible_fitness[i]:.0%} of what the sensor could see of it (needs "
-        f"{MIN_VISIBLE_FITNESS:.0%}), {scores.contradiction[i]:.0%} of it lies where the "
-        f"sensor saw free space (at most {MAX_CONTRADICTION:.0%}), and the sensor could see "
-        f"{scores.seen[i]:.0%} of the model (needs {MIN_SEEN:.0%}). If that is not where the "
-        "sensor stood, pass its position, or viewpoint=None to orient the normals without one."
+    judged = (
+        f" as seen from the viewpoint {_xyz(run.viewpoint or (0, 0, 0))}"
+        if run.viewpoint is not None
+        else ""
+    )
+    tail = (
+        " If that is not where the sensor stood, pass its position, or viewpoint=None to "
+        "orient the normals without one."
+        if run.viewpoint is not None
+        else " A partial or occluded view explains little of a model."
+    )
+    return f"nothing found: verification rejected all {n} candidate pose(s){judged}: " + (
+        "; ".join(parts) + "." + tail
     )
 
 

@@ -296,6 +296,7 @@ type RefinedArrays<'py> = (
     [Bound<'py, PyArray1<f64>>; 7],
     Bound<'py, PyArray1<i64>>,
     bool,
+    Vec<(usize, &'static str, f64, f64)>,
 );
 
 /// Rigid poses from (M, 4, 4) `T_target_source` matrices: the rotation block must be a
@@ -630,6 +631,10 @@ fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArr
         ],
         indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
         out.by_visibility,
+        out.rejected
+            .iter()
+            .map(|r| (r.origin, r.rule, r.value, r.threshold))
+            .collect(),
     )
 }
 

@@ -24,7 +24,7 @@ pub use normals::{edge_on_scores, estimate_normals, Orientation};
 pub use ppf::{PpfModel, PpfParams, PpfPose};
 pub use refine::{
     looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,
-    RefinedPose, MAX_ROTATION_DEVIATION,
+    RefinedPose, Rejection, MAX_ROTATION_DEVIATION,
 };
 pub use search::{isolated_points, Neighbourhoods, PointIndex};
 pub use sensor::{estimate_sensor, SensorEstimate};

@@ -169,13 +169,32 @@ pub struct RefinedPose {
     pub origin: usize,
 }
 
-/// The accepted poses, surest first, and which rules judged them.
+/// Why verification did not keep a pose: the rule (the [`RefineParams`] field that rejected
+/// it, or `"explains_nothing"`), the pose's value and the threshold it had to meet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rejection {
+    /// Index of the input pose.
+    pub origin: usize,
+    /// The rule: `min_seen`, `min_visible_fitness`, `max_contradiction`, `min_fitness`,
+    /// `min_relative_fitness` (the threshold is then that share of the best pose's fitness),
+    /// `max_slid_fitness`, `max_shared` (a duplicate of a surer pose) or `explains_nothing`.
+    pub rule: &'static str,
+    /// The pose's value of what the rule measures.
+    pub value: f64,
+    /// What it had to reach (a floor) or stay within (a ceiling).
+    pub threshold: f64,
+}
+
+/// The accepted poses, surest first, which rules judged them, and why each other pose was
+/// rejected.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Refined {
     pub poses: Vec<RefinedPose>,
     /// True when the poses were judged by what the sensor could see from the viewpoint;
     /// false when no viewpoint was given or the scan is not a single view from it.
     pub by_visibility: bool,
+    /// One per input pose not kept, by input order: the first rule it failed.
+    pub rejected: Vec<Rejection>,
 }
 
 /// Refines every pose by point-to-plane ICP against `target` (in parallel on the current rayon
@@ -312,24 +331,38 @@ impl RefineContext {
                 (refined, judged)
             })
             .collect();
-        let mut passes = pass_rules(&fitted, self.depth.is_some(), params);
+        let mut verdicts = pass_rules(&fitted, self.depth.is_some(), params);
         if params.max_slid_fitness < 1.0 {
-            let slid: Vec<bool> = fitted
+            let slid: Vec<Option<f64>> = fitted
                 .par_iter()
-                .zip(&passes)
-                .map(|((pose, j), &pass)| {
-                    pass && slid_fitness(source, pose, &self.index, &j.explained, params.fit_radius)
-                        > params.max_slid_fitness
+                .zip(&verdicts)
+                .map(|((pose, j), verdict)| {
+                    let pass = verdict.is_none();
+                    pass.then(|| {
+                        slid_fitness(source, pose, &self.index, &j.explained, params.fit_radius)
+                    })
+                    .filter(|&slid| slid > params.max_slid_fitness)
                 })
                 .collect();
-            for (p, s) in passes.iter_mut().zip(slid) {
-                *p &= !s;
+            for (k, (verdict, slid)) in verdicts.iter_mut().zip(slid).enumerate() {
+                if let Some(value) = slid {
+                    *verdict = Some(Rejection {
+                        origin: k,
+                        rule: "max_slid_fitness",
+                        value,
+                        threshold: params.max_slid_fitness,
+                    });
+                }
             }
         }
-        let kept = keep_surest(&fitted, &passes, target.len(), params);
+        let (kept, duplicates) = keep_surest(&fitted, &verdicts, target.len(), params);
+        let mut rejected: Vec<Rejection> = verdicts.into_iter().flatten().collect();
+        rejected.extend(duplicates);
+        rejected.sort_by_key(|r| r.origin);
         Ok(Refined {
             poses: kept,
             by_visibility: self.depth.is_some(),
+            rejected,
         })
     }
 
@@ -460,41 +493,72 @@ fn check_inputs(
     Ok(())
 }
 
-/// Which fitted poses pass the rules on what they explain and what the sensor saw (all but
-/// the slide, which is dearer and is only asked of these).
+/// Which fitted poses fail the rules on what they explain and what the sensor saw (all but
+/// the slide, which is dearer and is only asked of the others), and the first rule each fails.
 fn pass_rules(
     fitted: &[(RigidTransform, Judged)],
     by_visibility: bool,
     params: &RefineParams,
-) -> Vec<bool> {
-    let floor = if by_visibility {
-        0.0
-    } else {
-        let best = fitted.iter().map(|(_, j)| j.fitness).fold(0.0, f64::max);
-        params.min_fitness.max(params.min_relative_fitness * best)
-    };
+) -> Vec<Option<Rejection>> {
+    let best = fitted.iter().map(|(_, j)| j.fitness).fold(0.0, f64::max);
+    let relative = params.min_relative_fitness * best;
+    let floor = params.min_fitness.max(relative);
     fitted
         .iter()
-        .map(|(_, j)| {
+        .enumerate()
+        .map(|(origin, (_, j))| {
+            let fails = |rule, value, threshold| {
+                Some(Rejection {
+                    origin,
+                    rule,
+                    value,
+                    threshold,
+                })
+            };
             if by_visibility {
-                j.seen >= params.min_seen
-                    && j.visible_fitness >= params.min_visible_fitness
-                    && j.contradiction <= params.max_contradiction
+                if below(j.seen, params.min_seen) {
+                    fails("min_seen", j.seen, params.min_seen)
+                } else if below(j.visible_fitness, params.min_visible_fitness) {
+                    let v = j.visible_fitness;
+                    fails("min_visible_fitness", v, params.min_visible_fitness)
+                } else if above(j.contradiction, params.max_contradiction) {
+                    let v = j.contradiction;
+                    fails("max_contradiction", v, params.max_contradiction)
+                } else {
+                    None
+                }
+            } else if below(j.fitness, floor) {
+                if params.min_fitness >= relative {
+                    fails("min_fitness", j.fitness, params.min_fitness)
+                } else {
+                    fails("min_relative_fitness", j.fitness, relative)
+                }
             } else {
-                j.fitness >= floor
+                None
             }
         })
         .collect()
 }
 
-/// The fitted poses that pass (`passes`), surest first (ties: input order), each dropped when
-/// more than `max_shared` of the scan points it explains are claimed by a surer kept pose.
+/// Whether `value` misses the floor `threshold` (a NaN value misses every rule).
+fn below(value: f64, threshold: f64) -> bool {
+    value.is_nan() || value < threshold
+}
+
+/// Whether `value` exceeds the ceiling `threshold` (a NaN value misses every rule).
+fn above(value: f64, threshold: f64) -> bool {
+    value.is_nan() || value > threshold
+}
+
+/// The fitted poses that pass (no verdict), surest first (ties: input order), each dropped when
+/// it explains no scan point or more than `max_shared` of the scan points it explains are
+/// claimed by a surer kept pose; and the rejections of those dropped.
 fn keep_surest(
     fitted: &[(RigidTransform, Judged)],
-    passes: &[bool],
+    verdicts: &[Option<Rejection>],
     n_target: usize,
     params: &RefineParams,
-) -> Vec<RefinedPose> {
+) -> (Vec<RefinedPose>, Vec<Rejection>) {
     let mut order: Vec<usize> = (0..fitted.len()).collect();
     order.sort_by(|&a, &b| {
         fitted[b]
@@ -505,13 +569,29 @@ fn keep_surest(
     });
     let mut claimed = vec![false; n_target];
     let mut kept = Vec::new();
+    let mut dropped = Vec::new();
     for k in order {
         let (pose, j) = &fitted[k];
-        if !passes[k] || j.targets.is_empty() {
+        if verdicts[k].is_some() {
+            continue;
+        }
+        if j.targets.is_empty() {
+            dropped.push(Rejection {
+                origin: k,
+                rule: "explains_nothing",
+                value: 0.0,
+                threshold: 1.0,
+            });
             continue;
         }
         let shared = j.targets.iter().filter(|&&t| claimed[t]).count();
         if shared as f64 > params.max_shared * j.targets.len() as f64 {
+            dropped.push(Rejection {
+                origin: k,
+                rule: "max_shared",
+                value: shared as f64 / j.targets.len() as f64,
+                threshold: params.max_shared,
+            });
             continue;
         }
         for &t in &j.targets {
@@ -529,7 +609,7 @@ fn keep_surest(
             origin: k,
         });
     }
-    kept
+    (kept, dropped)
 }
 
 /// How far from a rotation a 3x3 block may be (`||R^T R - I||_F`) and still be taken for

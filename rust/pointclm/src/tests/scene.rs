@@ -156,3 +156,33 @@ fn the_scene_pipeline_finds_every_copy_of_a_distinctive_shape() {
     assert!(register_point_clouds(&model, &scan, &bad).is_err());
     assert!(register_point_clouds(&model[..2], &scan, &SceneOptions::default()).is_err());
 }
+
+#[test]
+fn verification_says_which_rule_rejected_each_pose() {
+    use crate::pointcloud::RefineContext;
+    let model: Vec<[f64; 3]> = (0..600)
+        .map(|i| {
+            let (th, ph) = (
+                i as f64 * 2.399_963,
+                (1.0 - 2.0 * (i as f64 + 0.5) / 600.0).acos(),
+            );
+            [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()]
+        })
+        .collect();
+    let far = RigidTransform {
+        translation: nalgebra::Vector3::new(10.0, 0.0, 0.0),
+        ..RigidTransform::identity()
+    };
+    let params = RefineParams {
+        icp: false,
+        ..RefineParams::for_voxel(0.1)
+    };
+    let context = RefineContext::new(&model, &model, None, None, &params).unwrap();
+    let poses = [RigidTransform::identity(), RigidTransform::identity(), far];
+    let out = context.refine(&poses, &params).unwrap();
+    assert_eq!(out.poses.len(), 1);
+    let rules: Vec<(usize, &str)> = out.rejected.iter().map(|r| (r.origin, r.rule)).collect();
+    assert_eq!(rules, [(1, "max_shared"), (2, "min_relative_fitness")]);
+    assert_eq!(out.rejected[0].value, 1.0);
+    assert_eq!(out.rejected[1].threshold, 0.8);
+}
