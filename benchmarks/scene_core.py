@@ -80,8 +80,8 @@ def main() -> None:
                         model, scan, viewpoint=view, heap=heap, num_threads=args.threads
                     )
                 best[path] = min(best[path], time.perf_counter() - t0)
-        poses, conf, _, n_passes, voxel, _ = rs
-        same_count = len(poses) == len(py.instances) and n_passes == len(py.passes)
+        poses = rs["transformations"]
+        same_count = len(poses) == len(py.instances) and rs["passes"] == len(py.passes)
         diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [

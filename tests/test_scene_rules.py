@@ -134,7 +134,7 @@ def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
     # The Rust crate's end-to-end path (a known viewpoint, no turns) against
     # `register_point_clouds` with the same choices, on a small bin of procedural boxes, as a
     # heap from the tenth copy on (the default) and said to be one (point pair voting): the
-    # same copies, passes and voxel, poses and confidences to rounding.
+    # same copies, passes and voxel, poses and confidences identical.
     from pointclm.datasets.bins import make_bin_scene
     from test_bins import SMALL
 
@@ -144,14 +144,12 @@ def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
         py = pointclm.register_point_clouds(
             scene.model_points, scene.scan, viewpoint=view, heap=heap, flips=False
         )
-        poses, confidence, passes, n_passes, voxel, judged = _core.register_scan(
-            scene.model_points, scene.scan, viewpoint=view, heap=heap
-        )
-        assert voxel == py.voxel_size and n_passes == len(py.passes) and judged
-        assert len(poses) == len(py.instances) >= 1
-        np.testing.assert_allclose(poses, py.transformations, atol=1e-12)
-        np.testing.assert_allclose(confidence, [i.confidence for i in py.instances], atol=1e-12)
-        assert passes == [i.pass_index for i in py.instances]
+        rs = _core.register_scan(scene.model_points, scene.scan, viewpoint=view, heap=heap)
+        assert rs["voxel_size"] == py.voxel_size and rs["passes"] == len(py.passes)
+        assert rs["by_visibility"] and len(rs["transformations"]) == len(py.instances) >= 1
+        np.testing.assert_array_equal(rs["transformations"], py.transformations)
+        np.testing.assert_array_equal(rs["confidence"], [i.confidence for i in py.instances])
+        assert rs["pass_index"] == [i.pass_index for i in py.instances]
     with pytest.raises(ConfigError, match="max_stray_share"):
         _core.register_scan(scene.model_points, scene.scan, scene={"max_stray_share": 2.0})
 

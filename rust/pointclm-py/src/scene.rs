@@ -91,9 +91,9 @@ pub fn stability_factor<'py>(
 }
 
 /// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
-/// `register_point_clouds(..., flips=False)`'s stages):
-/// the copies' poses (M, 4, 4) surest first, their confidences, the pass each came from, the
-/// number of passes, the voxel and whether the sensor judged them.
+/// `register_point_clouds(..., flips=False)`'s stages), as a dict: `transformations` (M, 4, 4)
+/// surest first, `confidence` (M,), `pass_index` (the pass each came from), `passes` (their
+/// number), `voxel_size` and `by_visibility` (whether the sensor judged them).
 #[pyfunction]
 #[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, scene=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -109,7 +109,7 @@ pub fn register_scan<'py>(
     heap_rank: usize,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
-) -> PyResult<ScanArrays<'py>> {
+) -> PyResult<Bound<'py, PyDict>> {
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
     let options = scene::SceneOptions {
@@ -130,24 +130,15 @@ pub fn register_scan<'py>(
     let mats: Vec<_> = out.candidates.iter().map(|c| c.pose.to_matrix()).collect();
     let confidence: Vec<f64> = out.candidates.iter().map(|c| c.confidence).collect();
     let passes: Vec<usize> = out.candidates.iter().map(|c| c.pass_index).collect();
-    Ok((
-        matrices4(py, &mats),
-        confidence.into_pyarray(py),
-        passes,
-        out.passes.len(),
-        out.voxel_size,
-        out.by_visibility,
-    ))
+    let d = PyDict::new(py);
+    d.set_item("transformations", matrices4(py, &mats))?;
+    d.set_item("confidence", confidence.into_pyarray(py))?;
+    d.set_item("pass_index", passes)?;
+    d.set_item("passes", out.passes.len())?;
+    d.set_item("voxel_size", out.voxel_size)?;
+    d.set_item("by_visibility", out.by_visibility)?;
+    Ok(d)
 }
-
-type ScanArrays<'py> = (
-    Bound<'py, numpy::PyArray3<f64>>,
-    Bound<'py, PyArray1<f64>>,
-    Vec<usize>,
-    usize,
-    f64,
-    bool,
-);
 
 /// The length of the bounding-box diagonal of `points` (the model's size every scene rule in
 /// model diagonals or radii is measured against).
