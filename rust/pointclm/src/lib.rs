@@ -28,8 +28,10 @@
 //! # Ok::<(), pointclm::Error>(())
 //! ```
 //!
-//! Starting from point clouds instead, [`pointcloud`] computes FPFH descriptors and
-//! [`matching`] turns them into correspondences.
+//! Starting from point clouds instead, [`scene::register_point_clouds`] runs the whole path
+//! (voxel, FPFH, matching, the correspondence stage, ICP and verification, peeling, ranking)
+//! and returns every copy's pose; its stages are public in [`scene`], [`pointcloud`] (FPFH,
+//! ICP, verification, point pair voting) and [`matching`].
 //!
 //! No Python, and no I/O beyond reading weight files in [`network`]: other crates can depend
 //! on this one directly.

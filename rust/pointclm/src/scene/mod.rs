@@ -7,6 +7,34 @@
 //! ([`crate::register`], and point pair voting in a heap, [`crate::pointcloud::PpfModel`]),
 //! verification ([`crate::pointcloud::RefineContext`]), peeling, flips, ranking. Every stage
 //! works against one index of the scan, the one its [`crate::pointcloud::RefineContext`] holds.
+//!
+//! ```
+//! use pointclm::kabsch::RigidTransform;
+//! use pointclm::scene::{register_point_clouds, SceneOptions};
+//!
+//! // A bumpy blob (distinctive for FPFH), and a scan of two copies of it, one moved.
+//! let model: Vec<[f64; 3]> = (0..2000)
+//!     .map(|i| {
+//!         let (th, z) = (i as f64 * 2.399_963, 1.0 - 2.0 * (i as f64 + 0.5) / 2000.0);
+//!         let r = (1.0 - z * z).sqrt();
+//!         let d = [r * th.cos(), r * th.sin(), z];
+//!         let bump = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
+//!         d.map(|v| v * bump)
+//!     })
+//!     .collect();
+//! let moved = RigidTransform {
+//!     translation: [4.0, 0.0, 0.0].into(),
+//!     ..RigidTransform::identity()
+//! };
+//! let mut scan = model.clone();
+//! scan.extend(model.iter().map(|&p| moved.apply(p)));
+//! let found = register_point_clouds(&model, &scan, &SceneOptions::default())?;
+//! assert_eq!(found.candidates.len(), 2);
+//! for copy in &found.candidates {
+//!     println!("confidence {:.2} at {:?}", copy.confidence, copy.pose.translation);
+//! }
+//! # Ok::<(), pointclm::Error>(())
+//! ```
 
 pub mod peeling;
 pub mod ranking;
