@@ -236,7 +236,7 @@ impl<T: FieldType> FieldType for Option<T> {
     }
 }
 
-/// A struct of parameters declared with [`config!`]: its fields described one by one
+/// A struct of parameters declared with `config!`: its fields described one by one
 /// ([`Declared::FIELDS`]) and read or written by name, which is what code that works by field
 /// name (the Python binding, the CLI, a file format) builds on, so that a field is declared in
 /// one place.

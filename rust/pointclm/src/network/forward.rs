@@ -29,7 +29,7 @@ pub(crate) const BLOCK_ROWS: usize = 128;
 /// on two cores at this size for the default network), so input whose consistent pairs are
 /// too many for the sparse attention and that has more rows is refused up front with
 /// [`Error::TooManyForDenseAttention`] instead of running for minutes. The sparse attention
-/// (consistent pairs at most 1/16 of all pairs and at most [`MAX_SPARSE_PAIRS`]) has no
+/// (consistent pairs at most 1/16 of all pairs and at most `MAX_SPARSE_PAIRS`) has no
 /// such bound.
 pub const MAX_DENSE_ATTENTION_ROWS: usize = 1 << 15;
 
