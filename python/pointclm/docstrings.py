@@ -1,4 +1,4 @@
-"""The parameter descriptions of the public registration functions, written once (issue 15).
+"""The parameter descriptions of the public registration functions, written once.
 
 `pointclm.register` and `pointclm.register_point_clouds` take many parameters, some of them
 the same (``num_threads``), and the point-cloud options are the ones `register_files` and the
@@ -175,7 +175,7 @@ PARAMETERS: dict[str, str] = _entries(
             of ``mutual_window="auto"``), so a part whose scene-wide passes stall below 10
             copies, or find none, gets the heap's matching too (not for a room scan: there it
             costs precision and time: realistic validation F1 0.880 -> 0.821 in three times the
-            time, stop 37). True also makes every peeling round propose poses voted by point pair
+            time). True also makes every peeling round propose poses voted by point pair
             features over the unexplained scan points (`HEAP_VOTED_POSES`, Drost et al. 2010),
             verified like the others: copies whose descriptor matches drown among their
             neighbours' are found, at several times the time. False: never.
@@ -211,10 +211,10 @@ PARAMETERS: dict[str, str] = _entries(
             own alternatives, the three most frequent), and keep a turned pose the scan supports
             better (:func:`pointclm.refinement.resolve_flips`): near-symmetric parts are often
             posed turned, and ICP and verification alone cannot tell. On the validation sets
-            (half turns, stop 33): realistic scenes F1 0.814 -> 0.871, bins precision 0.744 ->
+            (half turns): realistic scenes F1 0.814 -> 0.871, bins precision 0.744 ->
             0.754, at 1.13 and 1.04 times the time; quarter turns judged by the points that
-            tell the turns apart (stop 39): bins heap=True precision 0.646 -> 0.658, at the
-            same time; the scene's own alternatives (stop 40): bins heap=True first five right
+            tell the turns apart: bins heap=True precision 0.646 -> 0.658, at the
+            same time; the scene's own alternatives: bins heap=True first five right
             in 68 -> 69 of 72 validation scenes. False: the poses as verified.
         """,
     scene="""

@@ -174,7 +174,7 @@ def _within_reach(run: _Run, voted: np.ndarray, accepted: RefinedPoses) -> np.nd
     at 1.5 voxels. Refining a pose costs about as much as voting for all of them. On the
     validation bins this left out 44 % of the voted poses (85 % on the dragon) and 8 % of the
     time, for the same accepted copies but a few (ADD-S recall 0.885 -> 0.884; BENCHMARKS.md,
-    bins, stop 38)."""
+    bins)."""
     rows = np.arange(len(voted))
     if len(voted) == 0 or len(accepted.fitness) == 0:
         return rows

@@ -59,7 +59,7 @@ def _confirm_viewpoint(run: _Run, result: RegistrationResult) -> Verified:
     of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the origin
     looks like one view from it, and every pose fails there; a depth camera's frame keeps
     its surest copy. An estimate 10 degrees off costs about a twentieth of the realistic F1,
-    20 degrees a fifth (BENCHMARKS.md, stop 35). ICP does not depend on the viewpoint, so the
+    20 degrees a fifth (BENCHMARKS.md). ICP does not depend on the viewpoint, so the
     poses are refined once and judged both ways."""
     blind_run = replace(run, viewpoint=None, guessed_viewpoint=False, unconfirmed=run.viewpoint)
     fitted = blind_run.refiner.refine(

@@ -1,6 +1,6 @@
 """Bin-picking scenes: dozens of copies of one part heaped in a bin under a depth sensor.
 
-Why: the first use named for pointclm is a robot picking parts from a bin (issue 18). Such
+Why: the first use named for pointclm is a robot picking parts from a bin. Such
 a scan holds 20 to 80 copies of one part, many of them partly hidden by others, and the
 picking robot needs the least-hidden ones first. Each scene is built as follows (units:
 metres; the part is scaled to size, so every model gives the same scene geometry):

@@ -65,7 +65,7 @@ pub mod spectral;
 mod testing;
 pub mod validation;
 
-// The crate README's examples run with the doctests (issue 15) without becoming the crate's
+// The crate README's examples run with the doctests without becoming the crate's
 // rendered docs, whose relative links to examples/ and benches/ would not resolve there.
 #[cfg(doctest)]
 #[doc = include_str!("../README.md")]

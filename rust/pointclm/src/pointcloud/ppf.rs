@@ -4,7 +4,7 @@
 //! Why beside the descriptor matches: in a heap of identical parts a part's local shape is
 //! mostly its neighbours' (FPFH's radius takes in the copies around it), so few of a hidden
 //! copy's descriptor matches are true and the correspondence stage never proposes its pose
-//! (BENCHMARKS.md, issue 18). A point pair feature is the distance and three angles between
+//! (BENCHMARKS.md, bins). A point pair feature is the distance and three angles between
 //! two oriented points; two points of one copy give the model's feature wherever the copy
 //! lies, so a copy needs only its own visible points, not a clean neighbourhood.
 //!

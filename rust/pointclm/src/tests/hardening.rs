@@ -1,4 +1,4 @@
-//! Hardening of the entry points (issue 14): property tests that feed the weights reader,
+//! Hardening of the entry points: property tests that feed the weights reader,
 //! `Config::validate` and `register` arbitrary input and assert a typed error or a result,
 //! never a panic; and unit tests of cancellation, extreme magnitudes and size checks.
 //!
@@ -49,7 +49,7 @@ fn json_value() -> impl Strategy<Value = Value> {
     })
 }
 
-/// Sizes that probe the edges: tiny, plausible, and absurd (the depth of issue 14).
+/// Sizes that probe the edges: tiny, plausible, and absurd (the depth of the hardening tests).
 fn size() -> impl Strategy<Value = Value> {
     prop_oneof![
         (0u64..10).prop_map(Value::from),
