@@ -101,8 +101,6 @@ def test_no_module_is_over_500_lines_but_the_listed_ones() -> None:
 
 def test_the_package_speaks_to_its_users_not_of_development_rounds() -> None:
     # Round names ("stop 37", "issue 15") mean nothing to a user reading help() or the code.
-    import re
-
     rounds = re.compile(r"\b(stop|issue) \d+\b", re.IGNORECASE)
     crates = Path(__file__).resolve().parents[1] / "rust"
     files = [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.pyi"), *crates.rglob("*.rs")]
