@@ -17,6 +17,7 @@ from ..config import Config
 from ..datasets import make_scene
 from ..metrics import score_scene, summarize
 from ..registration import register
+from .banks import realistic_banks, training_bank, validation_bank
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import TrainConfig
 from .data import ShapeBank, make_batch
@@ -104,19 +105,6 @@ def stacked_by_size(samples: list[Group], size: int, rng: np.random.Generator) -
             )
         )
     return out
-
-
-def _scene_bank(path: str | None, out: Path, name: str, build: Any) -> SceneBank:
-    """A saved bank when given, else built once and saved in the run folder (a resumed run
-    finds it there)."""
-    if path:
-        return SceneBank.load(path)
-    cached = out / name
-    if cached.is_file():
-        return SceneBank.load(cached)
-    bank = build()
-    bank.save(cached)
-    return bank
 
 
 def validation_scenes(cfg: TrainConfig, bank: ShapeBank | None) -> list[Any]:
@@ -320,59 +308,6 @@ def _setup(cfg: TrainConfig, out: Path, device: str) -> tuple[ShapeBank | None, 
             )
         model.load_state_dict(init.state_dict())
     return bank, model
-
-
-def realistic_banks(
-    cfg: TrainConfig, out: Path, progress: bool
-) -> tuple[SceneBank | None, SceneBank | None]:
-    """The realistic training and validation banks (None, None without realistic data):
-    the saved ones the config names, else those of an earlier run in `out`, else built on
-    every core and saved in `out` as ``scene_bank.npz`` and ``val_scene_bank.npz``."""
-    if cfg.realistic_fraction <= 0:
-        return None, None
-    scenes = _scene_bank(
-        cfg.realistic_bank, out, "scene_bank.npz", lambda: training_bank(cfg, progress=progress)
-    )
-    val_real = _scene_bank(
-        cfg.val_realistic_bank,
-        out,
-        "val_scene_bank.npz",
-        lambda: validation_bank(cfg, progress=progress),
-    )
-    return scenes, val_real
-
-
-def training_bank(
-    cfg: TrainConfig, workers: int | None = None, progress: bool = False
-) -> SceneBank:
-    """The realistic training bank `cfg` describes: its data models and random procedural
-    shapes, built in `workers` processes (default: every core)."""
-    from ..datasets.procedural import procedural_family_names
-
-    shapes = procedural_family_names(cfg.procedural_shapes, cfg.seed)
-    return SceneBank.build(
-        [*cfg.realistic_models, *shapes],
-        [cfg.realistic_scenes_per_model] * len(cfg.realistic_models)
-        + [cfg.procedural_scenes_per_shape] * len(shapes),
-        cfg.seed,
-        cfg.data_dir,
-        workers,
-        progress=progress,
-    )
-
-
-def validation_bank(
-    cfg: TrainConfig, workers: int | None = None, progress: bool = False
-) -> SceneBank:
-    """The realistic validation bank: `cfg.val_shapes`, never trained on."""
-    return SceneBank.build(
-        cfg.val_shapes,
-        cfg.val_realistic_scenes_per_model,
-        cfg.seed + 1,
-        cfg.data_dir,
-        workers,
-        progress=progress,
-    )
 
 
 def _resume(out: Path, model: Any, opt: Any, device: str) -> tuple[int, Any, float]:
