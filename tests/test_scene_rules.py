@@ -29,15 +29,7 @@ def test_scene_rules_lines_match_the_core_schema() -> None:
 
 def test_module_constants_are_the_declared_defaults() -> None:
     rules = {f["name"]: f["default"] for f in _core.refine_params_schema()}
-    for name in (
-        "min_visible_fitness",
-        "max_contradiction",
-        "min_seen",
-        "min_fitness",
-        "min_relative_fitness",
-        "max_shared",
-        "max_slid_fitness",
-    ):
+    for name in refinement._RULES:
         assert getattr(refinement, name.upper()) == rules[name]
     assert refinement.MAX_RELATIVE_VISIBLE_RMSE == SCENE_DEFAULTS.max_relative_visible_rmse
     assert refinement.FLIP_EVIDENCE_RATIO == SCENE_DEFAULTS.flip_evidence_ratio

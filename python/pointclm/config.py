@@ -89,6 +89,14 @@ def _checked(
     return value  # a choice: the core checks the name
 
 
+def _unknown_keys(values: Mapping[str, Any], known: Any, what: str) -> None:
+    """ConfigError naming the keys of `values` that are not among `known`, and the valid ones
+    (`what`: the struct's name for its fields)."""
+    unknown = [k for k in values if k not in known]
+    if unknown:
+        raise ConfigError(f"unknown {what}(s) {unknown}; valid keys are {sorted(known)}")
+
+
 @dataclass(frozen=True)
 class Config:
     """Parameters of `pointclm.register`; checked by the Rust core when constructed.
@@ -150,10 +158,7 @@ class Config:
     def from_dict(cls, values: dict[str, Any]) -> Config:
         """A Config from a dict of some of its fields; unknown keys are a ConfigError naming
         them and the valid ones."""
-        known = set(cls.__dataclass_fields__)
-        unknown = [k for k in values if k not in known]
-        if unknown:
-            raise ConfigError(f"unknown config key(s) {unknown}; valid keys are {sorted(known)}")
+        _unknown_keys(values, cls.__dataclass_fields__, "config key")
         return cls(**values)
 
     def with_overrides(self, overrides: Mapping[str, Any] | None) -> Config:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from . import _core
-from .config import _attributes, _checked
+from .config import _attributes, _checked, _unknown_keys
 from .errors import ConfigError
 
 __all__ = ["SCENE_DEFAULTS", "SceneRules"]
@@ -79,12 +79,7 @@ class SceneRules:
     def from_dict(cls, values: Mapping[str, Any]) -> SceneRules:
         """SceneRules from a dict of some of its fields; unknown keys are a ConfigError naming
         them and the valid ones."""
-        known = set(cls.__dataclass_fields__)
-        unknown = [k for k in values if k not in known]
-        if unknown:
-            raise ConfigError(
-                f"unknown scene parameter(s) {unknown}; valid names are {sorted(known)}"
-            )
+        _unknown_keys(values, cls.__dataclass_fields__, "scene rule")
         return cls(**values)
 
     @classmethod
