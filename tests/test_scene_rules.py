@@ -172,3 +172,13 @@ def test_verification_names_the_rule_that_rejected_each_pose() -> None:
     assert [r.rule for r in loose] == ["max_shared", "explains_nothing"]
     with pytest.raises(ValueError, match="unknown rule"):
         context.rejections(poses, min_seeen=0.1)
+
+
+def test_the_thresholds_for_clouds_are_the_cores() -> None:
+    # Declared once, in the core: the Python config for refined poses on clouds is its.
+    from pointclm.point_clouds import cloud_base_config
+
+    core = _core.cloud_base_config()
+    python = cloud_base_config(refine=True).to_dict()
+    assert {k: python[k] for k in core} == core
+    assert core["max_nfa"] is None and core["tau_n"] == 1

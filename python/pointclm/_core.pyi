@@ -13,6 +13,9 @@ import numpy.typing as npt
 __all__ = [
     "__version__",
     "MAX_ROTATION_DEVIATION",
+    "SIGMA_D_VOXELS",
+    "INLIER_VOXELS",
+    "cloud_base_config",
     "Instance",
     "Network",
     "PpfModel",
@@ -57,6 +60,10 @@ __version__: str
 #: How far from a rotation a 3x3 block may be (``||R^T R - I||_F``) and still be taken for one
 #: (and replaced by the nearest rotation): rounding of poses written with 6-8 digits.
 MAX_ROTATION_DEVIATION: float
+#: Config.sigma_d on clouds, in voxels (``pointclm::scene::SIGMA_D_VOXELS``).
+SIGMA_D_VOXELS: float
+#: Config()'s inlier threshold on clouds, in voxels (``pointclm::scene::INLIER_VOXELS``).
+INLIER_VOXELS: float
 
 @final
 class Instance:
@@ -278,6 +285,7 @@ def register_scan(
     num_threads: int | None = None,
 ) -> dict[str, Any]: ...
 def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
+def cloud_base_config() -> dict[str, Any]: ...
 def default_voxel_size(
     model: npt.NDArray[np.float64],
     scan: npt.NDArray[np.float64] | None = None,

@@ -27,10 +27,12 @@ from .errors import ConfigError, InputError
 
 __all__ = ["INLIER_VOXELS", "SIGMA_D_VOXELS", "Config"]
 
-#: `Config.for_voxel`: sigma_d is this many voxels (see there why).
-SIGMA_D_VOXELS = 3.0
-#: `Config.for_voxel`: `Config()`'s inlier threshold becomes this many voxels (see there why).
-INLIER_VOXELS = 2.0
+#: `Config.for_voxel`: sigma_d is this many voxels (declared in the core,
+#: ``pointclm::scene::SIGMA_D_VOXELS``; see `for_voxel` why).
+SIGMA_D_VOXELS: float = _core.SIGMA_D_VOXELS
+#: `Config.for_voxel`: `Config()`'s inlier threshold becomes this many voxels (declared in the
+#: core, ``pointclm::scene::INLIER_VOXELS``).
+INLIER_VOXELS: float = _core.INLIER_VOXELS
 
 #: The Rust core's description of every field of `Config`, by name, in declaration order:
 #: kind ("float", "count", "bool", "choice"), choices, optional, default, length, doc.

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from . import _core
 from . import preprocessing as pp
 from .clouds.diagnosis import _diagnose
 from .clouds.peeling import _is_heap, _peel, unexplained_points
@@ -67,13 +68,13 @@ __all__ = [
 
 
 #: The training-free thresholds (synthetic units, scaled to the voxel) when the poses are
-#: refined and verified on the clouds, as `register_point_clouds` does by default. Verification
-#: rejects wrong poses far better than pruning does, so the correspondence stage should
-#: propose every plausible group: almost no density pruning (tau_n 1) and small clusters.
-#: Chosen on 200 realistic scenes of the five non-bunny models (armadillo, bed, dragon, happy,
-#: bathtub) by ``benchmarks/realistic_thresholds.py --refine`` (BENCHMARKS.md). Without
-#: refinement `Config()`'s thresholds stay: there every wrong pose is returned.
-REFINED_THRESHOLDS: dict[str, Any] = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
+#: refined and verified on the clouds, as `register_point_clouds` does by default: almost no
+#: density pruning and small clusters, since verification judges every proposal. Declared in
+#: the core (``pointclm::scene::cloud_base_config``, where the reason and the data they were
+#: chosen on are written). Without refinement `Config()`'s thresholds stay.
+REFINED_THRESHOLDS: dict[str, Any] = {
+    name: _core.cloud_base_config()[name] for name in ("tau_s", "tau_n", "min_cluster_size")
+}
 
 
 # The scene-wide rules' defaults, as the Rust core declares them (`pointclm::scene::SceneRules`,

@@ -296,6 +296,9 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
     m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::cloud_base_config, m)?)?;
+    m.add("SIGMA_D_VOXELS", pointclm::scene::SIGMA_D_VOXELS)?;
+    m.add("INLIER_VOXELS", pointclm::scene::INLIER_VOXELS)?;
     m.add_function(wrap_pyfunction!(scene::default_voxel_size, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::voxel_downsample, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::isolated_points, m)?)?;

@@ -167,3 +167,10 @@ pub fn default_voxel_size(
         scene::voxel::default_voxel_size(&m, s.as_deref(), &rules)
     })
 }
+
+/// The correspondence stage's thresholds for refined poses on clouds, in synthetic units
+/// (`pointclm::scene::cloud_base_config`), as a config dict.
+#[pyfunction]
+pub fn cloud_base_config(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    crate::config::to_dict(py, &scene::cloud_base_config(None))
+}

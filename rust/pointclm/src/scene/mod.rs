@@ -43,7 +43,8 @@ pub mod rules;
 pub mod voxel;
 
 pub use register::{
-    cloud_config, register_point_clouds, Candidate, Pass, SceneOptions, SceneRegistration,
+    cloud_base_config, cloud_config, config_for_voxel, register_point_clouds, Candidate, Pass,
+    SceneOptions, SceneRegistration, INLIER_VOXELS, SIGMA_D_VOXELS,
 };
 pub use rules::SceneRules;
 

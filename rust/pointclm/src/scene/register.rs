@@ -136,25 +136,47 @@ pub struct SceneRegistration {
     pub by_visibility: bool,
 }
 
-/// The correspondence stage's config for clouds described at `voxel`, before peeling's
-/// cluster level: verification on the clouds judges every proposal far better than a count of
-/// correspondences can, so the stage proposes every plausible group (`tau_s` 0.8, `tau_n` 1,
-/// clusters of 3, no a-contrario test), with sigma_d at 3 voxels (a right match lands within
-/// about a voxel of the true point on each side) and inliers within 2 voxels.
-pub fn cloud_config(voxel: f64, cluster_level: Option<f64>) -> Config {
-    let base = Config {
+/// `Config::sigma_d` on clouds, in voxels: a right descriptor match lands within about a voxel
+/// of the true point on each side, so pairwise length differences are off by up to about 2
+/// voxels; at 3 their consistency stays above 0.5.
+pub const SIGMA_D_VOXELS: f64 = 3.0;
+
+/// `Config::default()`'s inlier threshold on clouds, in voxels: the same voxel on each side
+/// bounds a right pose's residual (the synthetic ratio, twice sigma_d, lets a wrong pose
+/// collect as many chance inliers on a dense scan as a right one; chosen on the validation
+/// models: MF 17.6 -> 20.5).
+pub const INLIER_VOXELS: f64 = 2.0;
+
+/// The correspondence stage's thresholds for poses that verification on the clouds judges next,
+/// in the synthetic units of [`Config::default`]: verification judges every proposal far
+/// better than a count of correspondences can, so the stage proposes every plausible group
+/// (`tau_s` 0.8, `tau_n` 1: almost no density pruning; clusters of 3; no a-contrario test).
+/// Chosen on 200 realistic scenes of the five non-bunny models (BENCHMARKS.md).
+pub fn cloud_base_config(cluster_level: Option<f64>) -> Config {
+    Config {
         tau_s: 0.8,
         tau_n: 1,
         min_cluster_size: 3,
         max_nfa: None,
         cluster_level,
         ..Config::default()
-    };
-    let defaults = Config::default();
-    let mut scaled = base.scaled(3.0 * voxel / base.sigma_d);
-    let per_unit = 2.0 * voxel / defaults.inlier_threshold;
+    }
+}
+
+/// `base` (synthetic units) in the units of clouds described at `voxel`: sigma_d at
+/// [`SIGMA_D_VOXELS`] voxels, the affinity in its ratio to sigma_d, and the inlier threshold at
+/// [`INLIER_VOXELS`] voxels for `Config::default()`'s (others in proportion).
+pub fn config_for_voxel(base: &Config, voxel: f64) -> Config {
+    let mut scaled = base.scaled(SIGMA_D_VOXELS * voxel / base.sigma_d);
+    let per_unit = INLIER_VOXELS * voxel / Config::default().inlier_threshold;
     scaled.inlier_threshold = base.inlier_threshold * per_unit;
     scaled
+}
+
+/// The correspondence stage's config for clouds described at `voxel`:
+/// [`cloud_base_config`] scaled by [`config_for_voxel`].
+pub fn cloud_config(voxel: f64, cluster_level: Option<f64>) -> Config {
+    config_for_voxel(&cloud_base_config(cluster_level), voxel)
 }
 
 /// Finds every copy of `model` (a complete object) in `scan`; see the module documentation.
