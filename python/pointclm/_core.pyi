@@ -16,6 +16,7 @@ __all__ = [
     "SIGMA_D_VOXELS",
     "INLIER_VOXELS",
     "cloud_base_config",
+    "scan_scales",
     "Instance",
     "Network",
     "PpfModel",
@@ -286,6 +287,9 @@ def register_scan(
 ) -> dict[str, Any]: ...
 def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
 def cloud_base_config() -> dict[str, Any]: ...
+def scan_scales(
+    points: npt.NDArray[np.float64], scale: float | None = None
+) -> tuple[float, float]: ...
 def default_voxel_size(
     model: npt.NDArray[np.float64],
     scan: npt.NDArray[np.float64] | None = None,

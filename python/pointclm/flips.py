@@ -26,7 +26,7 @@ from .refinement import (
 )
 from .scene_rules import SCENE_DEFAULTS, SceneRules
 
-__all__ = ["explained_scan_points", "flip_turns", "quarter_turns", "resolve_flips"]
+__all__ = ["flip_turns", "quarter_turns", "resolve_flips"]
 
 
 def flip_turns(
@@ -268,16 +268,6 @@ class _TurnEvidence:
             for only, pose in ((only_first, first), (only_second, second))
         )
         return own, other
-
-
-def explained_scan_points(
-    scan_tree: Any, source: np.ndarray, pose: np.ndarray, radius: float
-) -> np.ndarray:
-    """The scan points (indices into `scan_tree`'s, distinct) within `radius` of `source` at
-    `pose` (4 x 4, T_target_source): what a pose explains, as verification counts it at 1.5
-    voxels."""
-    dist, idx = scan_tree.query(source @ pose[:3, :3].T + pose[:3, 3], distance_upper_bound=radius)
-    return np.unique(idx[np.isfinite(dist)])
 
 
 def _decisive(more: int, fewer: int, scene: SceneRules = SCENE_DEFAULTS) -> bool:

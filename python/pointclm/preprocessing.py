@@ -252,33 +252,21 @@ def estimate_viewpoint(
 
 def point_spacing(points: ArrayLike) -> float:
     """The median distance from a point to its nearest other point (0 for fewer than 2), over
-    at most 5000 evenly strided points. About 50 ms for a 240,000-point frame: the tree must
+    at most 5000 evenly strided points. About 50 ms for a 240,000-point frame: the index must
     hold every point, since a sample's spacing depends on how the cloud was sampled (a
-    random fifth of a grid is spaced 0.47 x sqrt(5) grid steps, not sqrt(5))."""
-    p = as_points(points, "points")
-    return _spacing(_tree(p), p) if len(p) >= 2 else 0.0
+    random fifth of a grid is spaced 0.47 x sqrt(5) grid steps, not sqrt(5)). Computed by the
+    core (``pointclm::scene::voxel::point_spacing``), as the default voxel is."""
+    return scan_scales(points)[0]
 
 
-def scan_scales(points: ArrayLike, scale: float) -> tuple[float, float]:
+def scan_scales(points: ArrayLike, scale: float | None = None) -> tuple[float, float]:
     """:func:`point_spacing` and :func:`noise_level` (at `scale`) of one cloud, over one
-    k-d tree (which dominates both for a large frame)."""
+    index (which dominates both for a large frame)."""
     p = as_points(points, "points")
-    scale = as_positive(scale, "scale")
-    if len(p) < 2:
-        return 0.0, 0.0
-    tree = _tree(p)
-    return _spacing(tree, p), _noise(tree, p, scale) if len(p) >= 8 else 0.0
-
-
-def _tree(p: np.ndarray) -> Any:
-    from scipy.spatial import cKDTree
-
-    return cKDTree(p, balanced_tree=False, compact_nodes=False)
-
-
-def _spacing(tree: Any, p: np.ndarray) -> float:
-    d, _ = tree.query(p[:: max(1, len(p) // 5000)], k=2)
-    return float(np.median(d[:, 1]))
+    if scale is not None:
+        scale = as_positive(scale, "scale")
+    spacing, noise = _core.scan_scales(p, scale)
+    return float(spacing), float(noise)
 
 
 #: :func:`noise_level`'s neighbourhoods without a scale: planes fitted to each sampled point's
@@ -299,37 +287,8 @@ def noise_level(points: ArrayLike, scale: float | None = None) -> float:
     mixes noise with curvature (on the benchmark scans the curvature term is as large as the
     sensor's noise), and a neighbourhood as small as the noise fits a blob instead of a plane.
     Why a scale: on a sparse cloud a fixed count spans the object, beyond what curvature's
-    fourth power describes."""
-    p = as_points(points, "points")
-    if scale is not None:
-        scale = as_positive(scale, "scale")
-    return _noise(_tree(p), p, scale) if len(p) >= 8 else 0.0
-
-
-def _noise(tree: Any, p: np.ndarray, scale: float | None) -> float:
-    queries = p[:: max(1, len(p) // 500)]
-    k1 = NOISE_NEIGHBOURS
-    if scale is not None:
-        spacing = float(np.median(tree.query(queries, k=2)[0][:, 1]))
-        k1 = int(np.clip(round(np.pi * (scale / max(spacing, 1e-300)) ** 2), 8, 48))
-    k2 = min(4 * k1, len(p))
-    k1 = max(4, k2 // 4)
-    _, idx = tree.query(queries, k=k2)
-    fits = []
-    for k in (k1, k2):
-        nb = p[idx[:, :k]]
-        centred = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("mki,mkj->mij", centred, centred)
-        radius2 = np.einsum("mki,mki->m", centred, centred) / k
-        # A plane fitted to k points takes 3 of their degrees of freedom.
-        fits.append((np.linalg.eigvalsh(cov)[:, 0] / (k - 3), radius2))
-    (v1, r1), (v2, r2) = fits
-    span = r2**2 - r1**2
-    ok = span > 0.0
-    if not ok.any():
-        return float(np.sqrt(max(np.median(v1), 0.0)))
-    variance = (v1[ok] * r2[ok] ** 2 - v2[ok] * r1[ok] ** 2) / span[ok]
-    return float(np.sqrt(max(np.median(variance), 0.0)))
+    fourth power describes. Computed by the core (``pointclm::scene::voxel::noise_level``)."""
+    return scan_scales(points, scale)[1]
 
 
 def orient_towards(points: ArrayLike, normals: ArrayLike, viewpoint: ArrayLike) -> np.ndarray:

@@ -48,8 +48,7 @@ from .scene_rules import SCENE_DEFAULTS
 
 #: The core's declaration of `RefineParams` (lengths in voxels): every rule's default, read
 #: here so that it is stated once, in Rust (`pointclm::pointcloud::RefineParams`).
-_RULE_SCHEMA: dict[str, dict[str, Any]] = {f["name"]: f for f in _core.refine_params_schema()}
-_RULE_DEFAULTS: dict[str, Any] = {name: f["default"] for name, f in _RULE_SCHEMA.items()}
+_RULE_DEFAULTS: dict[str, Any] = {f["name"]: f["default"] for f in _core.refine_params_schema()}
 
 __all__ = [
     "MAX_CONTRADICTION",
@@ -248,14 +247,24 @@ class RefinementContext:
         unknown = sorted(set(rules) - set(_RULES))
         if unknown:
             raise ValueError(f"unknown rule(s) {unknown}; the rules are {list(_RULES)}")
-        named = {name: _number(v, name) for name, v in rules.items()}
-        *_, rejected = self._core.refine(
+        *_, rejected = self._judged(transformations, icp, rules, num_threads)
+        return [Rejection(*r) for r in rejected]
+
+    def _judged(
+        self,
+        transformations: ArrayLike,
+        icp: bool,
+        rules: dict[str, float],
+        num_threads: int | None,
+    ) -> Any:
+        """The core's refinement of `transformations` under `rules` (by name; the others at
+        their defaults): its arrays, verdict and rejections, as it returns them."""
+        return self._core.refine(
             _as_poses(transformations),
             pp.as_flag(icp, "icp"),
-            named,
+            {name: _number(v, name) for name, v in rules.items()},
             num_threads=as_threads(num_threads),
         )
-        return [Rejection(*r) for r in rejected]
 
     def near_shares(
         self,
@@ -296,16 +305,12 @@ class RefinementContext:
             min_seen,
             min_fitness,
             min_relative_fitness,
+            max_shared,
+            max_slid_fitness,
         )
-        named = {
-            name: _number(v, name)
-            for v, name in zip((*rules, max_shared, max_slid_fitness), _RULES, strict=True)
-        }
-        mats, columns, origin, by_visibility, _ = self._core.refine(
-            _as_poses(transformations),
-            pp.as_flag(icp, "icp"),
-            named,
-            num_threads=as_threads(num_threads),
+        named = dict(zip(_RULES, rules, strict=True))
+        mats, columns, origin, by_visibility, _ = self._judged(
+            transformations, icp, named, num_threads
         )
         confidence, fitness, visible, contradiction, seen, rmse, visible_rmse = columns
         return RefinedPoses(
@@ -464,7 +469,6 @@ def _values(values: ArrayLike) -> np.ndarray:
 
 # The turned alternatives of a pose live in their own module; these names stay reachable here.
 from .flips import (  # noqa: E402, F401
-    explained_scan_points,
     flip_turns,
     quarter_turns,
     resolve_flips,

@@ -297,6 +297,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
     m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;
     m.add_function(wrap_pyfunction!(scene::cloud_base_config, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::scan_scales, m)?)?;
     m.add("SIGMA_D_VOXELS", pointclm::scene::SIGMA_D_VOXELS)?;
     m.add("INLIER_VOXELS", pointclm::scene::INLIER_VOXELS)?;
     m.add_function(wrap_pyfunction!(scene::default_voxel_size, m)?)?;

@@ -54,7 +54,8 @@ pub fn unexplained_points<'py>(
     Ok(out.into_pyarray(py))
 }
 
-fn finite_or_nan(values: &PyReadonlyArray1<'_, f64>) -> Vec<f64> {
+/// A 1-D array's values (NaN: unknown).
+fn values(values: &PyReadonlyArray1<'_, f64>) -> Vec<f64> {
     values.as_array().iter().copied().collect()
 }
 
@@ -66,8 +67,7 @@ pub fn loose_poses<'py>(
     max_relative: f64,
     min_poses: usize,
 ) -> Bound<'py, PyArray1<bool>> {
-    scene::ranking::loose_poses(&finite_or_nan(&visible_rmse), max_relative, min_poses)
-        .into_pyarray(py)
+    scene::ranking::loose_poses(&values(&visible_rmse), max_relative, min_poses).into_pyarray(py)
 }
 
 /// Each pose's tightness factor (`scene::ranking::fit_tightness`).
@@ -77,7 +77,7 @@ pub fn fit_tightness<'py>(
     visible_rmse: PyReadonlyArray1<'py, f64>,
     min_poses: usize,
 ) -> Bound<'py, PyArray1<f64>> {
-    scene::ranking::fit_tightness(&finite_or_nan(&visible_rmse), min_poses).into_pyarray(py)
+    scene::ranking::fit_tightness(&values(&visible_rmse), min_poses).into_pyarray(py)
 }
 
 /// Each pose's stability factor (`scene::ranking::stability_factor`).
@@ -87,7 +87,7 @@ pub fn stability_factor<'py>(
     stability: PyReadonlyArray1<'py, f64>,
     min_poses: usize,
 ) -> Bound<'py, PyArray1<f64>> {
-    scene::ranking::stability_factor(&finite_or_nan(&stability), min_poses).into_pyarray(py)
+    scene::ranking::stability_factor(&values(&stability), min_poses).into_pyarray(py)
 }
 
 /// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
@@ -173,4 +173,18 @@ pub fn default_voxel_size(
 #[pyfunction]
 pub fn cloud_base_config(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     crate::config::to_dict(py, &scene::cloud_base_config(None))
+}
+
+/// The median distance from a point of `points` to its nearest other point, and the standard
+/// deviation of the points about their surface (at `scale`, or a fixed neighbour count
+/// without one): `pointclm::scene::voxel::scan_scales`.
+#[pyfunction]
+#[pyo3(signature = (points, scale=None))]
+pub fn scan_scales(
+    py: Python<'_>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+    scale: Option<f64>,
+) -> PyResult<(f64, f64)> {
+    let p = rows3(&points, "points")?;
+    guarded(py, None, move || scene::voxel::scan_scales(&p, scale))
 }

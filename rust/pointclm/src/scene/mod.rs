@@ -48,6 +48,35 @@ pub use register::{
 };
 pub use rules::SceneRules;
 
+/// The mean of `points` (a plain sum then one division, as numpy's `mean(axis=0)` rounds it, so
+/// that the Python and Rust pipelines orient and turn about the same centre). `points` must
+/// not be empty.
+pub(crate) fn mean_point(points: &[[f64; 3]]) -> [f64; 3] {
+    let mut sum = [0.0; 3];
+    for p in points {
+        for (s, v) in sum.iter_mut().zip(p) {
+            *s += v;
+        }
+    }
+    let n = points.len() as f64;
+    sum.map(|s| s / n)
+}
+
+/// The median of `values` (the mean of the middle two for an even count; 0 for none); sorts
+/// them.
+pub(crate) fn median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f64::total_cmp);
+    let mid = values.len() / 2;
+    if values.len() % 2 == 1 {
+        values[mid]
+    } else {
+        (values[mid - 1] + values[mid]) / 2.0
+    }
+}
+
 #[cfg(test)]
 #[path = "../tests/scene.rs"]
 mod tests;

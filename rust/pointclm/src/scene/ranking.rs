@@ -6,6 +6,7 @@
 use nalgebra::{Matrix6, Vector3};
 use rayon::prelude::*;
 
+use super::{mean_point, median};
 use crate::error::Result;
 use crate::kabsch::RigidTransform;
 use crate::pointcloud::{check_normals, check_points, check_positive, PointIndex};
@@ -17,13 +18,7 @@ pub fn relative_to_median(values: &[f64], min_poses: usize) -> Vec<f64> {
     if known.len() < min_poses.max(1) {
         return vec![f64::NAN; values.len()];
     }
-    known.sort_by(f64::total_cmp);
-    let mid = known.len() / 2;
-    let median = if known.len() % 2 == 1 {
-        known[mid]
-    } else {
-        (known[mid - 1] + known[mid]) / 2.0
-    };
+    let median = median(&mut known);
     values
         .iter()
         .map(|&v| if v.is_finite() { v / median } else { f64::NAN })
@@ -97,14 +92,7 @@ pub fn pose_stability(
         "model normals (one per model point)",
     )?;
     check_positive("radius", radius)?;
-    let n = model.len() as f64;
-    let mut sum = [0.0; 3];
-    for p in model {
-        for (s, v) in sum.iter_mut().zip(p) {
-            *s += v;
-        }
-    }
-    let centre = Vector3::new(sum[0] / n, sum[1] / n, sum[2] / n);
+    let centre = Vector3::from(mean_point(model));
     let scale = model
         .iter()
         .map(|p| (Vector3::from(*p) - centre).norm())

@@ -22,8 +22,9 @@ use crate::pointcloud::{
 
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
-use super::voxel::{default_voxel_size, median};
+use super::voxel::default_voxel_size;
 use super::SceneRules;
+use super::{mean_point, median};
 
 /// How [`register_point_clouds`] runs; [`SceneOptions::default`] is the Python package's
 /// defaults for this path.
@@ -269,14 +270,7 @@ impl<'o> Run<'o> {
         voxel: f64,
         options: &'o SceneOptions,
     ) -> Result<Self> {
-        let n = model.len() as f64;
-        let mut sum = [0.0; 3];
-        for p in model {
-            for (s, v) in sum.iter_mut().zip(p) {
-                *s += v;
-            }
-        }
-        let centre = sum.map(|s| s / n);
+        let centre = mean_point(model);
         let source = describe(
             model,
             None,
@@ -389,11 +383,11 @@ impl<'o> Run<'o> {
     fn rank_mutual(&mut self, rows: &[usize]) -> Result<Vec<usize>> {
         let rank = self.options.heap_rank.unwrap_or(1);
         let k = rank.max(WINDOW_CANDIDATES).min(self.target.points.len());
-        if self.targets_of_sources.as_ref().is_none_or(|n| n.k < k) {
-            let near = nearest_sources(&self.target.descriptors, &self.source.descriptors, k)?;
-            self.targets_of_sources = Some(near);
-        }
-        let near = self.targets_of_sources.as_ref().expect("set above");
+        // `heap_rank` is fixed for a call, so the candidates are found once.
+        let near = match self.targets_of_sources.take() {
+            Some(near) => near,
+            None => nearest_sources(&self.target.descriptors, &self.source.descriptors, k)?,
+        };
         let mut taking_part = vec![false; self.target.points.len()];
         for &r in rows {
             taking_part[r] = true;
@@ -407,6 +401,7 @@ impl<'o> Run<'o> {
                 }
             }
         }
+        self.targets_of_sources = Some(near);
         kept.sort_unstable();
         kept.dedup();
         Ok(kept)
@@ -415,21 +410,20 @@ impl<'o> Run<'o> {
     /// Poses voted by point pairs among the scan points `rows`, most voted first (the
     /// references start at `round`, so that each round votes from other points).
     fn voted(&mut self, rows: &[usize], round: usize) -> Result<Vec<RigidTransform>> {
-        if self.voter.is_none() {
-            let diameter = super::voxel::diagonal(&self.source.points);
-            let params = PpfParams {
-                max_poses: self.options.scene.heap_voted_poses.max(1),
-                ..PpfParams::for_diameter(diameter)
-            };
-            self.voter = Some(PpfModel::new(
-                &self.source.points,
-                &self.source.normals,
-                params,
-            )?);
-        }
-        let voter = self.voter.as_ref().expect("set above");
-        let poses = voter.poses(&self.target.points, &self.target.normals, rows, round)?;
-        Ok(poses.into_iter().map(|p| handed(p.transform)).collect())
+        let voter = match self.voter.take() {
+            Some(voter) => voter,
+            None => {
+                let diameter = super::voxel::diagonal(&self.source.points);
+                let params = PpfParams {
+                    max_poses: self.options.scene.heap_voted_poses.max(1),
+                    ..PpfParams::for_diameter(diameter)
+                };
+                PpfModel::new(&self.source.points, &self.source.normals, params)?
+            }
+        };
+        let poses = voter.poses(&self.target.points, &self.target.normals, rows, round);
+        self.voter = Some(voter);
+        Ok(poses?.into_iter().map(|p| handed(p.transform)).collect())
     }
 
     /// The rows of `voted` worth refining: those already bringing `voted_min_relative_fitness`

@@ -6,7 +6,7 @@ use nalgebra::Matrix3;
 use crate::error::Result;
 use crate::pointcloud::{check_points, PointIndex};
 
-use super::SceneRules;
+use super::{median, SceneRules};
 
 /// The model's bounding-box diagonal over `voxels_per_diagonal`, raised (with a scan) to at
 /// least `min_voxel_spacings` times the scan's point spacing ([`point_spacing`]) and
@@ -22,17 +22,7 @@ pub fn default_voxel_size(
     let Some(scan) = scan else {
         return Ok(voxel);
     };
-    check_points(scan, "scan points", 0)?;
-    if scan.len() < 2 {
-        return Ok(voxel);
-    }
-    let index = PointIndex::new(scan)?;
-    let spacing = point_spacing(scan, &index);
-    let noise = if scan.len() >= 8 {
-        noise_level(scan, &index, params.noise_scale_voxels * voxel)
-    } else {
-        0.0
-    };
+    let (spacing, noise) = scan_scales(scan, Some(params.noise_scale_voxels * voxel))?;
     Ok(voxel
         .max(params.min_voxel_spacings * spacing)
         .max(params.min_voxel_noises * noise))
@@ -54,6 +44,22 @@ pub fn diagonal(points: &[[f64; 3]]) -> f64 {
     ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
 }
 
+/// [`point_spacing`] and [`noise_level`] of one cloud, over one index: 0 for a spacing of
+/// fewer than 2 points and a noise of fewer than 8. Errors: a non-finite coordinate.
+pub fn scan_scales(points: &[[f64; 3]], scale: Option<f64>) -> Result<(f64, f64)> {
+    check_points(points, "scan points", 0)?;
+    if points.len() < 2 {
+        return Ok((0.0, 0.0));
+    }
+    let index = PointIndex::new(points)?;
+    let noise = if points.len() >= 8 {
+        noise_level(points, &index, scale)
+    } else {
+        0.0
+    };
+    Ok((point_spacing(points, &index), noise))
+}
+
 /// The median distance from a point to its nearest other point, over at most about 5000
 /// evenly strided points (the index holds them all: a sample's spacing depends on how the
 /// cloud was sampled).
@@ -67,17 +73,27 @@ pub fn point_spacing(points: &[[f64; 3]], index: &PointIndex) -> f64 {
     median(&mut d)
 }
 
+/// Neighbours of [`noise_level`]'s smaller planes without a scale.
+pub const NOISE_NEIGHBOURS: usize = 24;
+
 /// The standard deviation of the points about their surface, at (at most) about 500 evenly
 /// strided points: planes fitted to each one's nearest points (as many as a surface holds
-/// within `scale` at the cloud's spacing, 8 to 48) and to 4 times as many; each residual
-/// variance is the noise's plus a curvature term growing with the fourth power of the radius,
-/// so the two sizes separate them; the median over the points.
-pub fn noise_level(points: &[[f64; 3]], index: &PointIndex, scale: f64) -> f64 {
+/// within `scale` at the cloud's spacing, 8 to 48; [`NOISE_NEIGHBOURS`] without a scale) and
+/// to 4 times as many; each residual variance is the noise's plus a curvature term growing
+/// with the fourth power of the radius, so the two sizes separate them; the median over the
+/// points. Why a scale: on a sparse cloud a fixed count spans the object, beyond what
+/// curvature's fourth power describes. `points` must hold at least 8 points.
+pub fn noise_level(points: &[[f64; 3]], index: &PointIndex, scale: Option<f64>) -> f64 {
     let queries: Vec<&[f64; 3]> = points.iter().step_by((points.len() / 500).max(1)).collect();
-    let mut spacings: Vec<f64> = queries.iter().map(|p| second_nearest(index, p)).collect();
-    let spacing = median(&mut spacings);
-    let k1 = (std::f64::consts::PI * (scale / spacing.max(1e-300)).powi(2)).round();
-    let k1 = (k1.clamp(8.0, 48.0)) as usize;
+    let k1 = match scale {
+        None => NOISE_NEIGHBOURS,
+        Some(scale) => {
+            let mut spacings: Vec<f64> = queries.iter().map(|p| second_nearest(index, p)).collect();
+            let spacing = median(&mut spacings);
+            let k1 = (std::f64::consts::PI * (scale / spacing.max(1e-300)).powi(2)).round();
+            k1.clamp(8.0, 48.0) as usize
+        }
+    };
     let k2 = (4 * k1).min(points.len());
     let k1 = (k2 / 4).max(4);
     let mut v1 = Vec::new();
@@ -133,18 +149,4 @@ fn plane_fit(points: &[[f64; 3]], rows: &[usize]) -> (f64, f64) {
 fn second_nearest(index: &PointIndex, p: &[f64; 3]) -> f64 {
     let near = index.nearest_k(p, 2);
     near.get(1).map_or(0.0, |&(_, d2)| d2.sqrt())
-}
-
-/// The median of `values` (the mean of the middle two for an even count; 0 for none).
-pub(crate) fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    values.sort_by(f64::total_cmp);
-    let mid = values.len() / 2;
-    if values.len() % 2 == 1 {
-        values[mid]
-    } else {
-        (values[mid - 1] + values[mid]) / 2.0
-    }
 }
