@@ -27,7 +27,7 @@ pub use refine::{
     RefinedPose, Rejection, MAX_ROTATION_DEVIATION,
 };
 pub use search::{isolated_points, Neighbourhoods, PointIndex};
-pub use sensor::{estimate_sensor, SensorEstimate};
+pub use sensor::{estimate_sensor, estimate_viewpoint, SensorEstimate, VIEWPOINT_SAMPLE};
 pub use voxel::voxel_downsample;
 
 use crate::error::{Error, Result};

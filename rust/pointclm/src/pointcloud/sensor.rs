@@ -97,6 +97,73 @@ pub fn estimate_sensor(scan: &[[f64; 3]], voxel: f64, towards: [f64; 3]) -> Resu
     })
 }
 
+/// Points scored per candidate eye by [`estimate_viewpoint`] (a stride through the cloud):
+/// enough for a stable tenth percentile, and the cost stays bounded on large scans.
+pub const VIEWPOINT_SAMPLE: usize = 2000;
+
+/// A point from which one sign rule orients every normal consistently.
+///
+/// Unoriented normals get their sign from a line of sight; the sign of a normal seen edge-on
+/// is a coin toss. The eye chosen sees the fewest normals edge-on: the highest tenth
+/// percentile of `|cos|` between normal and line of sight ([`edge_on_scores`]). Candidates:
+/// the origin (sensor frames put the sensor there), the cloud's centroid (inside a closed or
+/// convex surface, which every normal faces), and points 2, 8 and 1000 cloud radii from the
+/// centroid in `n_directions` directions (a Fibonacci lattice: a sensor near, at a usual
+/// distance, and as good as at infinity). A single range scan is seen head-on from its
+/// sensor, so the result is that sensor or a point that orients like it, up to one global
+/// sign (its mirror image behind the surface, or the inside of a convex object): which side is
+/// outside is left to the caller. Errors: no points, a length mismatch, non-finite input,
+/// no directions.
+pub fn estimate_viewpoint(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    n_directions: usize,
+) -> Result<[f64; 3]> {
+    check_points(points, "points", 1)?;
+    super::check_normals(normals, points.len(), "normals", "normals (one per point)")?;
+    if n_directions == 0 {
+        return Err(Error::InvalidParameter {
+            name: "n_directions",
+            value: "0".into(),
+            reason: "must be at least 1",
+        });
+    }
+    let step = points.len().div_ceil(VIEWPOINT_SAMPLE).max(1);
+    let p: Vec<[f64; 3]> = points.iter().step_by(step).copied().collect();
+    let n: Vec<[f64; 3]> = normals.iter().step_by(step).copied().collect();
+    let centre = crate::scene::mean_point(&p);
+    let radius = p
+        .iter()
+        .map(|q| {
+            ((q[0] - centre[0]).powi(2) + (q[1] - centre[1]).powi(2) + (q[2] - centre[2]).powi(2))
+                .sqrt()
+        })
+        .fold(f64::NEG_INFINITY, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let golden = std::f64::consts::PI * (1.0 + 5.0f64.sqrt());
+    let dirs: Vec<[f64; 3]> = (0..n_directions)
+        .map(|k| {
+            let i = k as f64 + 0.5;
+            let z = 1.0 - 2.0 * i / n_directions as f64;
+            let r = (1.0 - z * z).sqrt();
+            let a = golden * i;
+            [r * a.cos(), r * a.sin(), z]
+        })
+        .collect();
+    let mut eyes = vec![[0.0; 3], centre];
+    for scale in [2.0, 8.0, 1e3] {
+        let reach = scale * radius;
+        eyes.extend(
+            dirs.iter()
+                .map(|d| [0, 1, 2].map(|k| centre[k] + reach * d[k])),
+        );
+    }
+    let scores = super::edge_on_scores(&p, &n, &eyes, (p.len() - 1) / 10)?;
+    // The first of the best, as numpy's argmax.
+    let best = (0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b });
+    Ok(eyes[best])
+}
+
 /// The nearest distance (from `NEAREST_RADII` to `FARTHEST_RADII` scan radii, `DISTANCES`
 /// log-spaced values) whose share `cost` lies within two standard errors of the lowest (a
 /// share of `n` points): beyond the sensor the count barely moves, so the farther distances

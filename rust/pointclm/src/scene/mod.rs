@@ -40,6 +40,7 @@ pub mod peeling;
 pub mod ranking;
 pub mod register;
 pub mod rules;
+pub mod sensor;
 pub mod voxel;
 
 pub use register::{
@@ -47,6 +48,7 @@ pub use register::{
     SceneOptions, SceneRegistration, INLIER_VOXELS, SIGMA_D_VOXELS,
 };
 pub use rules::SceneRules;
+pub use sensor::{describe_scan, DescribedScan};
 
 /// The mean of `points` (a plain sum then one division, as numpy's `mean(axis=0)` rounds it, so
 /// that the Python and Rust pipelines orient and turn about the same centre). `points` must

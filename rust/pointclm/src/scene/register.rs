@@ -16,12 +16,13 @@ use crate::matching::{match_features_given, nearest_sources, MatchingConfig, Nea
 use crate::pipeline::{register, Registration};
 use crate::pointcloud::{
     check_points, check_positive, describe, isolated_points, nearest_rotation, voxel_downsample,
-    DescribeParams, Described, FpfhVariant, Orientation, PpfModel, PpfParams, RefineContext,
-    RefineParams, Refined, RefinedPose,
+    DescribeParams, Described, Orientation, PpfModel, PpfParams, RefineContext, RefineParams,
+    Refined, RefinedPose,
 };
 
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
+use super::sensor::describe_scan;
 use super::voxel::default_voxel_size;
 use super::SceneRules;
 use super::{mean_point, median};
@@ -33,8 +34,9 @@ pub struct SceneOptions {
     /// The voxel the clouds are described at; `None`: [`default_voxel_size`].
     pub voxel_size: Option<f64>,
     /// The position of the sensor that took the scan (one view): the scan's normals face it,
-    /// and verification judges each pose by what the sensor could see of it. `None`: the
-    /// normals face the origin and poses are judged by the share of the model explained.
+    /// and verification judges each pose by what the sensor could see of it. `None`: guessed
+    /// from the scan ([`describe_scan`]) and confirmed by the first pass, else poses are
+    /// judged by the share of the model explained.
     pub viewpoint: Option<[f64; 3]>,
     /// Matching of every pass: the `top_k` most similar mutual matches, `n_samples` of them
     /// drawn at random.
@@ -117,6 +119,10 @@ pub struct Pass {
     pub added: usize,
     /// Poses proposed by point pair voting over `scan_points` (in a scan said to be a heap).
     pub voted: Vec<RigidTransform>,
+    /// Poses of this pass that passed verification on a copy already accepted (peeling's
+    /// duplicate check): their rotations relative to that copy's pose are the scene's own
+    /// alternatives for the turned-alternatives stage.
+    pub duplicates: Vec<RigidTransform>,
 }
 
 /// The result of [`register_point_clouds`].
@@ -135,6 +141,13 @@ pub struct SceneRegistration {
     pub config: Config,
     /// Whether the poses were judged by what the sensor could see from the viewpoint.
     pub by_visibility: bool,
+    /// The sensor position the poses were judged by (given, or a guess the first pass
+    /// confirmed); `None`: none.
+    pub viewpoint: Option<[f64; 3]>,
+    /// A guessed sensor position the first pass did not confirm.
+    pub unconfirmed_viewpoint: Option<[f64; 3]>,
+    /// How the scan's normals were oriented, in words.
+    pub orientation: String,
 }
 
 /// `Config::sigma_d` on clouds, in voxels: a right descriptor match lands within about a voxel
@@ -219,7 +232,11 @@ pub fn register_point_clouds(
         .matched(&everything, options.seed, heap)?
         .map_err(|got| Error::TooFewCorrespondences { got, min: 3 })?;
     let registration = register(&corr, None, &config, options.seed)?;
-    let first = run.refine(&poses_of(&registration), &run.rules.clone())?;
+    let first = if run.guessed {
+        run.confirm_viewpoint(&poses_of(&registration))?
+    } else {
+        run.refine(&poses_of(&registration), &run.rules.clone())?
+    };
     let mut accepted = Accepted::from_pass(first, 0);
     let added = accepted.len();
     run.passes.push(Pass {
@@ -228,6 +245,7 @@ pub fn register_point_clouds(
         scan_points: everything,
         added,
         voted: Vec::new(),
+        duplicates: Vec::new(),
     });
     if options.peel && !accepted.is_empty() {
         accepted = run.peel(accepted, &config)?;
@@ -237,6 +255,9 @@ pub fn register_point_clouds(
         candidates,
         passes: run.passes,
         by_visibility: run.by_visibility,
+        viewpoint: run.viewpoint,
+        unconfirmed_viewpoint: run.unconfirmed,
+        orientation: run.orientation,
         source: run.source,
         target: run.target,
         voxel_size: voxel,
@@ -259,6 +280,13 @@ struct Run<'o> {
     options: &'o SceneOptions,
     passes: Vec<Pass>,
     by_visibility: bool,
+    /// The sensor position verification judges by.
+    viewpoint: Option<[f64; 3]>,
+    /// Whether `viewpoint` is a guess the first pass must confirm.
+    guessed: bool,
+    /// A guess the first pass did not confirm.
+    unconfirmed: Option<[f64; 3]>,
+    orientation: String,
 }
 
 impl<'o> Run<'o> {
@@ -280,26 +308,15 @@ impl<'o> Run<'o> {
             },
         )?;
         let points = without_strays(voxel_downsample(scan, voxel)?, voxel, &options.scene)?;
-        let target = describe(
-            &points,
-            None,
-            &DescribeParams {
-                voxel_size: None,
-                normal_radius: 2.0 * voxel,
-                normal_max_nn: 30,
-                feature_radius: 5.0 * voxel,
-                feature_max_nn: 100,
-                variant: FpfhVariant::Open3d,
-                orientation: Orientation::Towards(options.viewpoint.unwrap_or([0.0; 3])),
-            },
-        )?;
+        let scan = describe_scan(&points, voxel, options.viewpoint, &source, &options.scene)?;
+        let target = scan.cloud;
         let nearest = nearest_sources(&source.descriptors, &target.descriptors, 1)?;
         let rules = RefineParams::for_voxel(voxel);
         let context = RefineContext::new(
             &source.points,
             &target.points,
             Some(&target.normals),
-            options.viewpoint,
+            scan.viewpoint,
             &rules,
         )?;
         Ok(Self {
@@ -314,7 +331,75 @@ impl<'o> Run<'o> {
             options,
             passes: Vec::new(),
             by_visibility: false,
+            viewpoint: scan.viewpoint,
+            guessed: scan.guessed,
+            unconfirmed: None,
+            orientation: scan.orientation,
         })
+    }
+
+    /// Pass 0's poses refined and verified when the viewpoint is a guess (the origin of a
+    /// scan in its sensor's frame, or the sensor position estimated from the scan): judged
+    /// from there when that keeps the pose the model share ranks first, else without a
+    /// viewpoint, which the run then keeps.
+    ///
+    /// Why: a scan looks like one view from many points near its sensor (at most 12 % of it
+    /// hidden from there), which is enough to orient normals but not to judge poses, where 1 %
+    /// of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the
+    /// origin looks like one view from it, and every pose fails there; a depth camera's frame
+    /// keeps its surest copy. An estimate 10 degrees off costs about a twentieth of the
+    /// realistic F1, 20 degrees a fifth (BENCHMARKS.md). ICP does not depend on the
+    /// viewpoint, so the poses are refined once and judged both ways.
+    fn confirm_viewpoint(&mut self, poses: &[RigidTransform]) -> Result<Refined> {
+        let blind = RefineContext::new(
+            &self.source.points,
+            &self.target.points,
+            Some(&self.target.normals),
+            None,
+            &self.rules,
+        )?;
+        let keep_all = RefineParams {
+            min_fitness: 0.0,
+            min_relative_fitness: 0.0,
+            min_visible_fitness: 0.0,
+            max_contradiction: 1.0,
+            min_seen: 0.0,
+            max_slid_fitness: 1.0,
+            max_shared: 1.0,
+            ..self.rules.clone()
+        };
+        let mut fitted = blind.refine(poses, &keep_all)?.poses;
+        // Back in the input order, so that both verdicts break ties as one refinement would.
+        fitted.sort_by_key(|r| r.origin);
+        let refitted: Vec<RigidTransform> = fitted.iter().map(|r| handed(r.pose)).collect();
+        let source: Vec<usize> = fitted.iter().map(|r| r.origin).collect();
+        let judge = RefineParams {
+            icp: false,
+            ..self.rules.clone()
+        };
+        let in_input = |mut judged: Refined| {
+            for r in &mut judged.poses {
+                r.origin = source[r.origin];
+            }
+            judged
+        };
+        let seen = in_input(self.context.refine(&refitted, &judge)?);
+        let without = in_input(blind.refine(&refitted, &judge)?);
+        let kept: Vec<usize> = seen.poses.iter().map(|r| r.origin).collect();
+        let confirmed = !kept.is_empty()
+            && without
+                .poses
+                .first()
+                .is_none_or(|best| kept.contains(&best.origin));
+        if confirmed {
+            self.by_visibility = seen.by_visibility;
+            return Ok(seen);
+        }
+        // Nothing either way confirms nothing: the run goes on (and explains) without one.
+        self.unconfirmed = self.viewpoint.take();
+        self.context = blind;
+        self.by_visibility = without.by_visibility;
+        Ok(without)
     }
 
     /// Correspondences between the model and the scan points `rows` (mutual, sampled with
@@ -503,6 +588,7 @@ impl<'o> Run<'o> {
             }
             let new =
                 self.without_weak_votes(Accepted::from_pass(new, round), clustered, &accepted);
+            let mut duplicates = Vec::new();
             if !new.is_empty() && self.by_visibility {
                 let mut taken: Vec<bool> = free.iter().map(|f| !f).collect();
                 let keep = not_duplicates(
@@ -514,6 +600,10 @@ impl<'o> Run<'o> {
                     &mut taken,
                 )?;
                 let kept = new.take(&keep);
+                duplicates = (0..new.len())
+                    .filter(|i| !keep.contains(i))
+                    .map(|i| new.rows[i].pose)
+                    .collect();
                 let explained = self.unexplained(&kept)?;
                 for (f, e) in free.iter_mut().zip(explained) {
                     *f &= e;
@@ -538,6 +628,7 @@ impl<'o> Run<'o> {
                 scan_points: rows,
                 added,
                 voted,
+                duplicates,
             });
             empty = if added > 0 { 0 } else { empty + 1 };
             let patience = if heap {
