@@ -51,21 +51,6 @@ pub fn quarter_turns(
     Ok(Shape::new(model, fit_radius(voxel)?)?.quarter_turns(min_change, max_change))
 }
 
-/// The turns [`resolve_flips`] tries for poses judged `by_visibility` (or not): half turns
-/// first, then quarter turns, then the scene's own from `rotations` (already checked
-/// rotations); and how many are half turns.
-pub fn candidate_turns(
-    model: &[[f64; 3]],
-    voxel: f64,
-    by_visibility: bool,
-    rotations: &[Matrix3<f64>],
-    rules: &SceneRules,
-) -> Result<(Vec<RigidTransform>, usize)> {
-    check_rules(rules)?;
-    let rotations = checked_rotations(rotations)?;
-    Ok(Shape::new(model, fit_radius(voxel)?)?.turns(by_visibility, &rotations, rules))
-}
-
 /// Verified `poses` (of the context's model in its scan, as [`RefineContext::refine`] returns
 /// them) with each replaced by a turned alternative the scan supports better, surest first,
 /// and for each the row of `poses.poses` it came from.

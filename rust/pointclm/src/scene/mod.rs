@@ -44,7 +44,7 @@ pub mod register;
 pub mod rules;
 pub mod voxel;
 
-pub use flips::{candidate_turns, flip_turns, quarter_turns, resolve_flips};
+pub use flips::{flip_turns, quarter_turns, resolve_flips};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds, Candidate, Pass,
     SceneOptions, SceneRegistration, INLIER_VOXELS, SIGMA_D_VOXELS,
