@@ -421,35 +421,6 @@ def test_a_pose_a_quarter_turn_off_about_a_near_symmetry_is_turned_back() -> Non
     assert unsure.confidence[0] <= alone.confidence[0] / 2
 
 
-def test_a_turn_carried_onto_another_poses_copy_is_put_back() -> None:
-    # Two copies of the slab; one pose on each. If ICP carried the second pose's turn onto the
-    # first copy, the turned pose would duplicate the first: the second pose is put back. Poses
-    # that shared their copy before the turn (duplicates given on purpose) keep their turns.
-    from pointclm.flips import _Shape, _TurnEvidence, _undo_turns_onto_other_copies
-
-    src = _slab_with_a_block()
-    voxel = 0.04
-    first, second = _pose([0, 0, 1], 0.0, [0, 0, 0]), _pose([0, 0, 1], 30.0, [3.0, 0, 0])
-    scan = np.concatenate([_apply(first, src), _apply(second, src)])
-    poses = pointclm.refine_poses(src, scan, [first, second], voxel, icp=False)
-    assert len(poses.origin) == 2
-    evidence = _TurnEvidence(_Shape(src, voxel), scan)
-
-    def turned_onto_first() -> dict[str, np.ndarray]:
-        fields = {f: getattr(poses, f).copy() for f in poses._fields if f != "by_visibility"}
-        fields["transformations"][1] = fields["transformations"][0]
-        return fields
-
-    fields = turned_onto_first()
-    _undo_turns_onto_other_copies(poses, fields, [1], evidence)
-    np.testing.assert_array_equal(fields["transformations"][1], poses.transformations[1])
-
-    both_on_first = poses._replace(transformations=poses.transformations[[0, 0]])
-    fields = turned_onto_first()
-    _undo_turns_onto_other_copies(both_on_first, fields, [1], evidence)
-    np.testing.assert_array_equal(fields["transformations"][1], poses.transformations[0])
-
-
 def test_register_point_clouds_flips_argument_is_checked() -> None:
     src = _blob()
     with pytest.raises(ValueError, match="flips"):
@@ -511,45 +482,11 @@ def test_a_context_counts_what_each_pose_holds_before_icp() -> None:
         context.near_shares(poses[:, :3], sample, 0.2)
 
 
-def test_the_scenes_own_alternatives_are_grouped_and_the_most_frequent_tried() -> None:
-    # resolve_flips' `rotations`: grouped within SCENE_TURN_DEG, none near the identity or a
-    # principal-axis turn already tried, the largest groups first (ties: the first found), at
-    # most MAX_SCENE_TURNS, each a turn about the centroid.
-    from pointclm.flips import _shape
-    from pointclm.refinement import MAX_SCENE_TURNS, SCENE_TURN_DEG
-
-    src = _blob()
-    shape = _shape(src, 0.05)
-    tried = shape.half_turns(0.01)
-    assert len(tried) and MAX_SCENE_TURNS == 3
-    a, b, c, d = (
-        _rot(axis, deg)
-        for axis, deg in (
-            ([1, 1, 0], 120.0),
-            ([0, 1, 1], 100.0),
-            ([1, 0, 1], 70.0),
-            ([1, -1, 0], 140.0),
-        )
-    )
-    near_a = _rot([1, 1, 0], 120.0 + 0.5 * SCENE_TURN_DEG)
-    small = _rot([0, 0, 1], 0.5 * SCENE_TURN_DEG)
-    rotations = [np.eye(3), small, tried[0][:3, :3], b, a, near_a, a, c, c, c, d]
-    turns = shape.scene_turns(np.array(rotations), tried, 0.01)
-    assert len(turns) == 3
-    for got, want in zip(turns, (a, c, b), strict=True):
-        np.testing.assert_allclose(got[:3, :3], want, atol=1e-12)
-    centre = src.mean(0)
-    for turn in turns:
-        np.testing.assert_allclose(turn[:3, :3] @ centre + turn[:3, 3], centre, atol=1e-12)
-
-
-def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_scenes_own(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # The slab posed a quarter turn off, with the principal-axis quarter turns withheld: the
+def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_scenes_own() -> None:
+    # The slab posed a quarter turn off, the principal-axis quarter turns withheld (a zero
+    # max_quarter_turn_change): the
     # pose stays wrong, unless the turn comes in `rotations` (as a duplicate on the same copy
     # at the right rotation would give it).
-    from pointclm import flips
     from pointclm.refinement import quarter_turns, resolve_flips
 
     src = _slab_with_a_block()
@@ -566,11 +503,11 @@ def test_a_pose_turned_where_no_principal_turn_reaches_is_turned_back_by_the_sce
         min_fitness=0.0,
         min_relative_fitness=0.0,
     )
-    monkeypatch.setattr(flips._Shape, "quarter_turns", lambda self, *_: np.empty((0, 4, 4)))
-    stays, _ = resolve_flips(src, scan, refined, voxel)
+    no_quarters = {"max_quarter_turn_change": 0.0}
+    stays, _ = resolve_flips(src, scan, refined, voxel, scene=no_quarters)
     assert rotation_error_deg(stays.transformations[:, :3, :3], truth[:3, :3])[0] > 80.0
     back = np.linalg.inv(turn)[None, :3, :3]
-    fixed, _ = resolve_flips(src, scan, refined, voxel, rotations=back)
+    fixed, _ = resolve_flips(src, scan, refined, voxel, rotations=back, scene=no_quarters)
     from scipy.spatial import cKDTree
 
     dist, _ = cKDTree(scan).query(_apply(fixed.transformations[0], src))

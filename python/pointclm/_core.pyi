@@ -41,6 +41,8 @@ __all__ = [
     "fit_tightness",
     "stability_factor",
     "register_scan",
+    "flip_turns",
+    "quarter_turns",
     "bounding_diagonal",
     "default_voxel_size",
     "voxel_downsample",
@@ -156,6 +158,25 @@ class RefineContext:
         taken: npt.NDArray[np.bool_],
         num_threads: int | None = None,
     ) -> tuple[list[int], npt.NDArray[np.bool_]]: ...
+    def resolve_flips(
+        self,
+        transformations: npt.NDArray[np.float64],
+        columns: list[npt.NDArray[np.float64]],
+        origin: npt.NDArray[np.int64],
+        by_visibility: bool,
+        rotations: npt.NDArray[np.float64],
+        scene: dict[str, Any] | None = None,
+        num_threads: int | None = None,
+    ) -> tuple[
+        tuple[
+            npt.NDArray[np.float64],
+            list[npt.NDArray[np.float64]],
+            npt.NDArray[np.int64],
+            bool,
+            list[tuple[int, str, float, float]],
+        ],
+        npt.NDArray[np.int64],
+    ]: ...
 
 @final
 class PpfModel:
@@ -272,6 +293,12 @@ def loose_poses(
 ) -> npt.NDArray[np.bool_]: ...
 def fit_tightness(
     visible_rmse: npt.NDArray[np.float64], min_poses: int
+) -> npt.NDArray[np.float64]: ...
+def flip_turns(
+    points: npt.NDArray[np.float64], voxel_size: float, min_change: float
+) -> npt.NDArray[np.float64]: ...
+def quarter_turns(
+    points: npt.NDArray[np.float64], voxel_size: float, min_change: float, max_change: float
 ) -> npt.NDArray[np.float64]: ...
 def register_scan(
     model: npt.NDArray[np.float64],

@@ -494,6 +494,36 @@ impl PyRefineContext {
         Ok(refined_arrays(py, &out))
     }
 
+    /// Verified poses (as `refine` returns them: `transformations`, the seven `columns` in its
+    /// order, `origin`, `by_visibility`) with each replaced by a turned alternative the scan
+    /// supports better (`pointclm::scene::flips::resolve_flips`, the scene's own turns
+    /// `rotations` (K, 3, 3), `scene` rules by name), surest first; `refine`'s returns and the
+    /// row of the input each came from.
+    #[pyo3(signature = (transformations, columns, origin, by_visibility, rotations, scene=None, num_threads=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn resolve_flips<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        columns: Vec<PyReadonlyArray1<'py, f64>>,
+        #[pyo3(from_py_with = args::rows)] origin: Vec<usize>,
+        by_visibility: bool,
+        rotations: PyReadonlyArray3<'py, f64>,
+        scene: Option<Bound<'py, PyDict>>,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<(RefinedArrays<'py>, Bound<'py, PyArray1<i64>>)> {
+        let poses = refined_from_arrays(&transformations, &columns, &origin, by_visibility)?;
+        let turns = rotation_blocks(&rotations)?;
+        let rules = declared_from_dict(scene::SceneRules::default(), scene.as_ref(), "scene")?;
+        let params = RefineParams::for_voxel(self.voxel_size);
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let (out, order) = guarded(py, threads, move || {
+            scene::resolve_flips(&inner, &params, &poses, &turns, &rules)
+        })?;
+        Ok((refined_arrays(py, &out), indices(py, &order)))
+    }
+
     /// The share of `points` (source frame) each of `transformations` puts strictly within
     /// `radius` of a scan point.
     #[pyo3(signature = (transformations, points, radius, num_threads=None))]
@@ -609,6 +639,65 @@ impl PyRefineContext {
         })?;
         Ok((keep, marks.into_pyarray(py)))
     }
+}
+
+/// `refine`'s poses back from its arrays (`columns`: confidence, fitness, visible fitness,
+/// contradiction, seen, inlier RMSE, visible RMSE), each rotation block kept as given (it must
+/// be a rotation up to rounding): a pose that comes back unchanged comes back bit for bit.
+fn refined_from_arrays(
+    transformations: &PyReadonlyArray3<'_, f64>,
+    columns: &[PyReadonlyArray1<'_, f64>],
+    origin: &[usize],
+    by_visibility: bool,
+) -> PyResult<pointcloud::Refined> {
+    let mut poses = rigid_poses(transformations)?;
+    let m = transformations.as_array();
+    for (k, pose) in poses.iter_mut().enumerate() {
+        pose.rotation = Matrix3::from_fn(|i, j| m[(k, i, j)]);
+    }
+    let n = poses.len();
+    let columns: Vec<Vec<f64>> = columns.iter().map(|c| c.as_array().to_vec()).collect();
+    if columns.len() != 7 || columns.iter().any(|c| c.len() != n) || origin.len() != n {
+        return Err(InputError::new_err(format!(
+            "poses need 7 score columns and an origin of {n} values each (one per \
+             transformation), got {} columns",
+            columns.len()
+        )));
+    }
+    let poses = poses
+        .into_iter()
+        .enumerate()
+        .map(|(k, pose)| pointcloud::RefinedPose {
+            pose,
+            confidence: columns[0][k],
+            fitness: columns[1][k],
+            visible_fitness: columns[2][k],
+            contradiction: columns[3][k],
+            seen: columns[4][k],
+            inlier_rmse: columns[5][k],
+            visible_rmse: columns[6][k],
+            origin: origin[k],
+        })
+        .collect();
+    Ok(pointcloud::Refined {
+        poses,
+        by_visibility,
+        rejected: Vec::new(),
+    })
+}
+
+/// (K, 3, 3) matrices (the core checks that they are rotations).
+fn rotation_blocks(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<Matrix3<f64>>> {
+    let v = a.as_array();
+    if v.shape()[1..] != [3, 3] {
+        return Err(InputError::new_err(format!(
+            "rotations must have shape (K, 3, 3), got {:?}",
+            v.shape()
+        )));
+    }
+    Ok((0..v.shape()[0])
+        .map(|k| Matrix3::from_fn(|i, j| v[(k, i, j)]))
+        .collect())
 }
 
 /// `refine_poses`' result as arrays (see its documentation).

@@ -1,7 +1,9 @@
 //! The scene's declared parameters and its scene-wide stages (`pointclm::scene`): schemas for
 //! the Python side, what accepted copies leave unexplained, and the final ranking factors.
 
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+};
 use pointclm::pointcloud::RefineParams;
 use pointclm::scene::{self, SceneRules};
 use pyo3::prelude::*;
@@ -187,4 +189,41 @@ pub fn scan_scales(
 ) -> PyResult<(f64, f64)> {
     let p = rows3(&points, "points")?;
     guarded(py, None, move || scene::voxel::scan_scales(&p, scale))
+}
+
+/// (F, 4, 4) half turns of `points` (a model downsampled at `voxel_size`) about its principal
+/// axes through its centroid that move at least `min_change` of it farther than 1.5 voxels.
+#[pyfunction]
+#[pyo3(signature = (points, voxel_size, min_change))]
+pub fn flip_turns<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+    min_change: f64,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let p = rows3(&points, "points")?;
+    let turns = guarded(py, None, move || {
+        scene::flip_turns(&p, voxel_size, min_change)
+    })?;
+    let mats: Vec<_> = turns.iter().map(|t| t.to_matrix()).collect();
+    Ok(matrices4(py, &mats))
+}
+
+/// (Q, 4, 4) quarter turns of `points` either way about its principal axes through its
+/// centroid that move from `min_change` to `max_change` of it farther than 1.5 voxels.
+#[pyfunction]
+#[pyo3(signature = (points, voxel_size, min_change, max_change))]
+pub fn quarter_turns<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+    min_change: f64,
+    max_change: f64,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let p = rows3(&points, "points")?;
+    let turns = guarded(py, None, move || {
+        scene::quarter_turns(&p, voxel_size, min_change, max_change)
+    })?;
+    let mats: Vec<_> = turns.iter().map(|t| t.to_matrix()).collect();
+    Ok(matrices4(py, &mats))
 }

@@ -5,7 +5,8 @@
 //! The stages run in this order for each call: the scan's sensor and viewpoint, description
 //! (normals and FPFH, [`crate::pointcloud`]), matching ([`crate::matching`]), proposals
 //! ([`crate::register`], and point pair voting in a heap, [`crate::pointcloud::PpfModel`]),
-//! verification ([`crate::pointcloud::RefineContext`]), peeling, flips, ranking. Every stage
+//! verification ([`crate::pointcloud::RefineContext`]), peeling, turned alternatives
+//! ([`flips`]), ranking. Every stage
 //! works against one index of the scan, the one its [`crate::pointcloud::RefineContext`] holds.
 //!
 //! ```
@@ -36,6 +37,7 @@
 //! # Ok::<(), pointclm::Error>(())
 //! ```
 
+pub mod flips;
 pub mod peeling;
 pub mod ranking;
 pub mod register;
@@ -43,6 +45,7 @@ pub mod rules;
 pub mod sensor;
 pub mod voxel;
 
+pub use flips::{flip_turns, quarter_turns, resolve_flips};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds, Candidate, Pass,
     SceneOptions, SceneRegistration, INLIER_VOXELS, SIGMA_D_VOXELS,
