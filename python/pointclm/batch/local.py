@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 from collections import Counter, deque
-from collections.abc import Iterator
+from collections.abc import Generator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -28,7 +28,7 @@ MAX_ATTEMPTS = 3
 
 #: (position in the scan list, scan path, picture name)
 Task = tuple[int, str, str]
-Done = Iterator[tuple[int, dict[str, Any]]]
+Done = Generator[tuple[int, dict[str, Any]], None, None]
 
 
 def run_in_process(job: BatchJob, model_points: np.ndarray, tasks: list[Task]) -> Done:
@@ -44,28 +44,48 @@ def run_in_pool(job: BatchJob, model_points: np.ndarray, tasks: list[Task], work
     todo = deque(tasks)
     attempts: Counter[int] = Counter()
     context = multiprocessing.get_context("spawn")
+    started, failed_starts = False, 0
     while todo:
         pool = ProcessPoolExecutor(
             workers, mp_context=context, initializer=init_process, initargs=(job, model_points)
         )
         try:
-            _check_started(pool)
-            yield from _drain(pool, todo, 2 * workers, attempts, job)
+            if _started(pool):
+                started, failed_starts = True, 0
+                yield from _drain(pool, todo, 2 * workers, attempts, job)
+            else:
+                failed_starts += 1
+                _check_restart(started, failed_starts)
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _check_started(pool: ProcessPoolExecutor) -> None:
-    """Stop here if the workers cannot start at all: otherwise every scan would be tried
-    three times and recorded as failed for what is not the scan's fault."""
+def _started(pool: ProcessPoolExecutor) -> bool:
+    """Whether the pool's workers start and run a task."""
     try:
         pool.submit(int).result()
     except BrokenProcessPool:
+        return False
+    return True
+
+
+def _check_restart(started: bool, failed_starts: int) -> None:
+    """Stop if the workers cannot start at all: otherwise every scan would be tried three
+    times and recorded as failed for what is not the scan's fault. A pool that ran before
+    gets `MAX_ATTEMPTS` tries to start again (a worker killed as it started is no reason to
+    give up)."""
+    if not started:
         raise PointclmError(
             "the batch's worker processes could not start (their error is above); a script "
             "that runs a batch with workers > 1 must do so under "
             "`if __name__ == '__main__':` (worker processes are spawned and import it)"
-        ) from None
+        )
+    if failed_starts >= MAX_ATTEMPTS:
+        raise PointclmError(
+            f"the batch's worker processes died {failed_starts} times in a row while starting "
+            "again after a worker died; the lines written are whole: run it again with "
+            "--resume (resume=True) to add the rest"
+        )
 
 
 def _drain(

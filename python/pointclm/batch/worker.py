@@ -1,5 +1,7 @@
 """One scan of a batch, as every engine runs it: load, register, optional pictures, and one
-record (the result or the error) — never an exception, so one bad scan never stops a batch.
+record (the result or the error), so one bad scan never stops a batch. The one exception
+raised is :class:`~pointclm.batch.results.OutputWriteError`: a picture or cloud that cannot
+be written (a full disk) is no fault of the scan, and every later scan would fail alike.
 
 Worker processes (process pool or Ray) keep the model's points and the loaded network in
 this module between scans: both are loaded once per process, not once per scan.
@@ -8,6 +10,7 @@ this module between scans: both are loaded once per process, not once per scan.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -16,6 +19,7 @@ import numpy as np
 
 from .options import BatchJob, scan_viewpoint
 from .records import error_record, registration_record
+from .results import OutputWriteError, output_error
 
 __all__ = [
     "CRASH_ENV",
@@ -31,6 +35,9 @@ __all__ = [
 #: MARKER; once MARKER exists the scan runs). The tests use it to check that a batch outlives
 #: a dead worker; never acted on in the caller's own process.
 CRASH_ENV = "POINTCLM_TEST_CRASH_ONCE"
+
+#: How often a pool worker looks whether the batch that started it is still alive.
+PARENT_POLL_S = 0.5
 
 #: Per worker process: the networks loaded so far, by name or path.
 _NETWORKS: dict[str, Any] = {}
@@ -51,9 +58,24 @@ def resolve_cached(model: str | None) -> Any:
 
 def init_process(job: BatchJob, model_points: np.ndarray) -> None:
     """Process-pool initializer: what every scan of this worker shares, loaded once."""
+    _exit_with_parent()
     _PROCESS.update(
         job=job, model_points=model_points, embedding=resolve_cached(job.options["model"])
     )
+
+
+def _exit_with_parent() -> None:
+    """Ends this worker process when the batch process that spawned it is gone. A pool's
+    workers wait on a queue whose writing end they hold themselves, so a batch killed with
+    SIGKILL would otherwise leave them running (and registering) forever."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="pointclm-parent-watch", daemon=True).start()
 
 
 def process_scan(scan: str, picture: str) -> dict[str, Any]:
@@ -70,6 +92,8 @@ def run_scan(
     t0 = time.perf_counter()
     try:
         body = _register_scan(job, model_points, embedding, scan, picture)
+    except OutputWriteError:
+        raise  # the batch stops: not this scan's fault
     except Exception as e:  # recorded for this scan; the batch goes on
         body = {"status": "error", **error_record(e)}
     return {**_head(job, scan), **body, "seconds": time.perf_counter() - t0}
@@ -122,15 +146,25 @@ def _pictures(job: BatchJob, reg: Any, scan: str, picture: str) -> dict[str, str
     if job.png_dir is not None:
         path = os.path.join(job.png_dir, picture + ".png")
         title = f"{Path(job.model_file).name} in {Path(scan).name}"
-        with atomic_path(path) as tmp:
-            save_registration_png(tmp, reg, title=title)
+        try:
+            with atomic_path(path) as tmp:
+                save_registration_png(tmp, reg, title=title)
+        except OSError as e:
+            raise output_error(e, path) from None
         written["png"] = path
     if job.ply_dir is not None:
         path = os.path.join(job.ply_dir, picture + ".ply")
-        with atomic_path(path) as tmp:
-            save_ply(
-                tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
-            )
+        try:
+            with atomic_path(path) as tmp:
+                save_ply(
+                    tmp,
+                    reg.target_points,
+                    reg.source_points,
+                    reg.transformations,
+                    1.5 * reg.voxel_size,
+                )
+        except OSError as e:
+            raise output_error(e, path) from None
         written["ply"] = path
     return written
 
