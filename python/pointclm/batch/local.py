@@ -9,6 +9,7 @@ recorded as failed, so one scan that crashes its worker cannot stop the batch.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections import Counter, deque
 from collections.abc import Generator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -47,7 +48,10 @@ def run_in_pool(job: BatchJob, model_points: np.ndarray, tasks: list[Task], work
     started, failed_starts = False, 0
     while todo:
         pool = ProcessPoolExecutor(
-            workers, mp_context=context, initializer=init_process, initargs=(job, model_points)
+            workers,
+            mp_context=context,
+            initializer=init_process,
+            initargs=(job, model_points, os.getpid()),
         )
         try:
             if _started(pool):
@@ -70,22 +74,23 @@ def _started(pool: ProcessPoolExecutor) -> bool:
 
 
 def _check_restart(started: bool, failed_starts: int) -> None:
-    """Stop if the workers cannot start at all: otherwise every scan would be tried three
-    times and recorded as failed for what is not the scan's fault. A pool that ran before
-    gets `MAX_ATTEMPTS` tries to start again (a worker killed as it started is no reason to
-    give up)."""
+    """Stop once the workers failed to start `MAX_ATTEMPTS` times in a row: otherwise every
+    scan would be tried three times and recorded as failed for what is not the scan's
+    fault. Fewer failures are tried again: a worker killed as it started is no reason to
+    give up."""
+    if failed_starts < MAX_ATTEMPTS:
+        return
     if not started:
         raise PointclmError(
-            "the batch's worker processes could not start (their error is above); a script "
-            "that runs a batch with workers > 1 must do so under "
-            "`if __name__ == '__main__':` (worker processes are spawned and import it)"
+            f"the batch's worker processes died {failed_starts} times as they started (their "
+            "error, if any, is above); a script that runs a batch with workers > 1 must do so "
+            "under `if __name__ == '__main__':` (worker processes are spawned and import it)"
         )
-    if failed_starts >= MAX_ATTEMPTS:
-        raise PointclmError(
-            f"the batch's worker processes died {failed_starts} times in a row while starting "
-            "again after a worker died; the lines written are whole: run it again with "
-            "--resume (resume=True) to add the rest"
-        )
+    raise PointclmError(
+        f"the batch's worker processes died {failed_starts} times in a row while starting "
+        "again after a worker died; the lines written are whole: run it again with "
+        "--resume (resume=True) to add the rest"
+    )
 
 
 def _drain(

@@ -56,19 +56,21 @@ def resolve_cached(model: str | None) -> Any:
     return _NETWORKS[model]
 
 
-def init_process(job: BatchJob, model_points: np.ndarray) -> None:
-    """Process-pool initializer: what every scan of this worker shares, loaded once."""
-    _exit_with_parent()
+def init_process(job: BatchJob, model_points: np.ndarray, parent: int | None = None) -> None:
+    """Process-pool initializer: what every scan of this worker shares, loaded once.
+    `parent`: the batch process's pid; this worker exits when that process is gone."""
+    if parent is not None:
+        _exit_with_parent(parent)
     _PROCESS.update(
         job=job, model_points=model_points, embedding=resolve_cached(job.options["model"])
     )
 
 
-def _exit_with_parent() -> None:
-    """Ends this worker process when the batch process that spawned it is gone. A pool's
-    workers wait on a queue whose writing end they hold themselves, so a batch killed with
-    SIGKILL would otherwise leave them running (and registering) forever."""
-    parent = os.getppid()
+def _exit_with_parent(parent: int) -> None:
+    """Ends this worker process when the batch process `parent` is gone. A pool's workers
+    wait on a queue whose writing end they hold themselves, so a batch killed with SIGKILL
+    would otherwise leave them running (and registering) forever. The pid is the caller's,
+    not read here: a batch killed while this worker started has already handed it on."""
 
     def watch() -> None:
         while os.getppid() == parent:

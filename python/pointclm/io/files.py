@@ -124,7 +124,7 @@ def check_output_path(path: str | os.PathLike[str], what: str = "output") -> Pat
 
 
 def _why_not(folder: Path) -> str:
-    """" (a read-only filesystem)" where that is why `folder` cannot be written to."""
+    """ " (a read-only filesystem)" where that is why `folder` cannot be written to."""
     try:
         read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
     except (OSError, AttributeError):  # no statvfs (Windows): the plain message
