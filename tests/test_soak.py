@@ -60,7 +60,7 @@ def inputs() -> dict[str, Any]:
     return {"corrs": corrs, "scans": scans}
 
 
-def _round(inputs: dict[str, Any], calls: int) -> None:
+def _mixed_calls(inputs: dict[str, Any], calls: int) -> None:
     """`calls` register calls (some learned, some refused, mixed thread counts) and a
     register_point_clouds call every 25."""
     rng = random.Random(0)
@@ -79,14 +79,14 @@ def _round(inputs: dict[str, Any], calls: int) -> None:
 
 def test_repeated_calls_leak_no_memory_descriptors_or_threads(inputs: dict[str, Any]) -> None:
     # Warm-up: the pools, the network, and the allocator's per-thread arenas, which take a
-    # few hundred calls with mixed thread counts to settle (then about +-2 % from round to
-    # round; a leak grows with every round).
+    # few hundred calls with mixed thread counts to settle (then about +-2 % from one 200
+    # calls to the next; a leak grows with every 200).
     for _ in range(2):
-        _round(inputs, 200)
+        _mixed_calls(inputs, 200)
     gc.collect()
     rss, fds, threads = _rss(), _fds(), _threads()
     for _ in range(2):
-        _round(inputs, 200)
+        _mixed_calls(inputs, 200)
     gc.collect()
     grown = (_rss() - rss) / rss
     assert grown < 0.05, f"resident memory grew {100 * grown:.1f} % over 400 calls"
