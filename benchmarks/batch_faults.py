@@ -328,9 +328,8 @@ def fault_worker_kills(model, scans, tmp, reference, kills) -> dict[str, Any]:
     t.join()
     lines, cut = read_out(out)
     crashed = [x for x in lines if x.get("error") == "WorkerCrashedError"]
-    kept = [x for x in lines if x.get("error") != "WorkerCrashedError"]
-    ref = {x["scan"]: x for x in reference}
-    same = [x["scan"] for x in lines] == list(ref) and all(ref[x["scan"]] == x for x in kept)
+    # Each death is charged to the scan its worker ran: none reaches three tries here.
+    same = lines == reference
     return {
         "fault": f"a worker of 2 killed again and again ({done[0]} kills)",
         "exit": proc.returncode,

@@ -19,6 +19,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections import Counter, deque
+from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +29,8 @@ import numpy as np
 import pointclm
 import pytest
 from pointclm.batch import without_timings
+from pointclm.batch.local import MAX_ATTEMPTS, Task, _requeue
+from pointclm.batch.options import BatchJob
 from pointclm.batch.results import OrderedWriter, OutputWriteError
 from pointclm.datasets import load_shape
 from pointclm.io import write_ply
@@ -249,11 +254,27 @@ def test_a_worker_killed_again_and_again(data: dict[str, Any], tmp_path: Path) -
     thread.join()
     assert proc.returncode == 0, err
     assert kills, "the batch ended before a worker could be killed"
-    lines, torn = _read(out)
-    assert [x["scan"] for x in lines] == [x["scan"] for x in data["reference"]] and not torn
-    # A scan whose worker died under it three times is recorded so; the others ran again.
-    kept = [(x, r) for x, r in zip(lines, data["reference"], strict=True)]
-    assert all(x == r for x, r in kept if x.get("error") != "WorkerCrashedError")
+    # Each death is charged to the scan its worker ran, not to those that ended with the
+    # pool or waited in its queue: no scan reaches three tries, every one runs to the end.
+    assert _read(out) == (data["reference"], False)
+
+
+def test_a_worker_death_is_charged_to_its_own_scan() -> None:
+    def lost(position: int) -> tuple[Future[dict[str, Any]], Task]:
+        future: Future[dict[str, Any]] = Future()
+        future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+        return future, (position, f"s{position}.ply", f"s{position}")
+
+    job = BatchJob("model.ply")
+    for named, charged in (({3}, {3: 1}), (set(), {2: 1, 3: 1, 4: 1})):
+        running, todo, attempts = dict(lost(p) for p in (2, 3, 4)), deque[Task](), Counter[int]()
+        assert list(_requeue(running, todo, attempts, job, lambda n=named: n)) == []
+        assert attempts == charged and [t[0] for t in todo] == [2, 3, 4]
+    attempts = Counter({3: MAX_ATTEMPTS - 1})
+    running, todo = dict(lost(p) for p in (2, 3)), deque[Task]()
+    [(position, record)] = _requeue(running, todo, attempts, job, lambda: {3})
+    assert position == 3 and record["error"] == "WorkerCrashedError"
+    assert [t[0] for t in todo] == [2] and attempts[2] == 0
 
 
 def test_a_scan_truncated_while_the_batch_runs(data: dict[str, Any], tmp_path: Path) -> None:

@@ -56,11 +56,21 @@ def resolve_cached(model: str | None) -> Any:
     return _NETWORKS[model]
 
 
-def init_process(job: BatchJob, model_points: np.ndarray, parent: int | None = None) -> None:
+def init_process(
+    job: BatchJob, model_points: np.ndarray, parent: int | None = None, slots: Any = None
+) -> None:
     """Process-pool initializer: what every scan of this worker shares, loaded once.
-    `parent`: the batch process's pid; this worker exits when that process is gone."""
+    `parent`: the batch process's pid; this worker exits when that process is gone.
+    `slots`: a shared array of (pid, position) pairs, one per worker, where this worker
+    records the scan it is running (so a worker's death is charged to its own scan)."""
     if parent is not None:
         _exit_with_parent(parent)
+    if slots is not None:
+        with slots.get_lock():
+            free = [i for i in range(0, len(slots), 2) if slots[i] == 0]
+            if free:
+                slots[free[0]], slots[free[0] + 1] = os.getpid(), -1
+                _PROCESS["slot"] = (slots, free[0] + 1)
     _PROCESS.update(
         job=job, model_points=model_points, embedding=resolve_cached(job.options["model"])
     )
@@ -80,10 +90,19 @@ def _exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="pointclm-parent-watch", daemon=True).start()
 
 
-def process_scan(scan: str, picture: str) -> dict[str, Any]:
-    """`run_scan` in a pool worker, with what `init_process` loaded."""
+def process_scan(scan: str, picture: str, position: int = -1) -> dict[str, Any]:
+    """`run_scan` in a pool worker, with what `init_process` loaded; `position` (the scan's
+    in the batch) stays in this worker's slot while it runs, and after, if the process dies."""
+    slots, at = _PROCESS.get("slot", (None, 0))
+    if slots is not None:
+        slots[at] = position
     crash_for_tests(scan)
-    return run_scan(_PROCESS["job"], _PROCESS["model_points"], _PROCESS["embedding"], scan, picture)
+    record = run_scan(
+        _PROCESS["job"], _PROCESS["model_points"], _PROCESS["embedding"], scan, picture
+    )
+    if slots is not None:
+        slots[at] = -1
+    return record
 
 
 def run_scan(
