@@ -185,7 +185,7 @@ class _DyingPool:
     def __init__(self, runs: int) -> None:
         self.runs = runs
 
-    def submit(self, fn: Any, scan: str, picture: str) -> Future[dict[str, Any]]:
+    def submit(self, fn: Any, scan: str, picture: str, position: int) -> Future[dict[str, Any]]:
         if self.runs == 0:
             raise BrokenProcessPool("a child process terminated abruptly")
         self.runs -= 1

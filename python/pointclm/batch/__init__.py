@@ -17,18 +17,24 @@ Design decisions
 - **A bad scan is a line, not a stop**: every exception of one scan is recorded with its
   class and message; a worker process that dies has its scans run again (three tries).
   Bad *options*, a bad model file or an unreadable output stop the batch before any scan.
+- **Faults stop the batch, never corrupt it**: an output that cannot be written (a full disk,
+  a file-size limit, a read-only folder) raises :class:`OutputWriteError` naming the file,
+  with every whole line kept, so ``resume`` continues it; worker processes exit when the
+  batch process is killed.
 - **Ray is optional** (``pip install 'pointclm[ray]'``), imported only for ``engine="ray"``.
 """
 
 from __future__ import annotations
 
 from .records import TIMING_FIELDS, registration_record, without_timings
+from .results import OutputWriteError
 from .run import BatchSummary, register_files, run_batch
 from .scans import expand_scans
 
 __all__ = [
     "TIMING_FIELDS",
     "BatchSummary",
+    "OutputWriteError",
     "expand_scans",
     "register_files",
     "registration_record",

@@ -17,6 +17,7 @@ import numpy as np
 
 from .local import MAX_ATTEMPTS, Done, Task
 from .options import BatchJob
+from .results import OutputWriteError
 from .worker import crash_for_tests, failed_record, resolve_cached, run_scan
 
 __all__ = ["run_on_ray"]
@@ -72,6 +73,11 @@ def _stream(ray: Any, job: BatchJob, model_ref: Any, tasks: list[Task]) -> Itera
             position, scan, _ = running.pop(ref)
             try:
                 yield position, ray.get(ref)
+            except ray.exceptions.RayTaskError as e:
+                if isinstance(e.cause, OutputWriteError):
+                    raise e.cause from None  # the batch stops, as in the local engine
+                message = f"Ray could not run this scan ({MAX_ATTEMPTS} tries): {e}"
+                yield position, failed_record(job, scan, type(e).__name__, message)
             except ray.exceptions.RayError as e:
                 message = f"Ray could not run this scan ({MAX_ATTEMPTS} tries): {e}"
                 yield position, failed_record(job, scan, type(e).__name__, message)

@@ -141,8 +141,9 @@ def run_batch(
     writer = OrderedWriter(fh, [t[0] for t in tasks])
     counts = {"ok": 0, "error": 0}
     bar = tqdm(total=len(tasks), desc="batch", unit="scan", disable=not (progress and tasks))
+    done = _engine(engine, job, model_points, tasks, workers, ray_address)
     try:
-        for position, record in _engine(engine, job, model_points, tasks, workers, ray_address):
+        for position, record in done:
             if diagnosis is not None and "diagnosis" in record:
                 record["diagnosis"] = diagnosis(record["diagnosis"])
             writer.add(position, record)
@@ -150,6 +151,8 @@ def run_batch(
             bar.set_postfix(failed=counts["error"], refresh=False)
             bar.update()
     finally:
+        # On an error the engine's workers stop now, not whenever the generator is collected.
+        done.close()
         bar.close()
         writer.close()
     skipped = len(scan_list) - len(tasks)

@@ -1,5 +1,7 @@
 """One scan of a batch, as every engine runs it: load, register, optional pictures, and one
-record (the result or the error) — never an exception, so one bad scan never stops a batch.
+record (the result or the error), so one bad scan never stops a batch. The one exception
+raised is :class:`~pointclm.batch.results.OutputWriteError`: a picture or cloud that cannot
+be written (a full disk) is no fault of the scan, and every later scan would fail alike.
 
 Worker processes (process pool or Ray) keep the model's points and the loaded network in
 this module between scans: both are loaded once per process, not once per scan.
@@ -8,6 +10,7 @@ this module between scans: both are loaded once per process, not once per scan.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -16,6 +19,7 @@ import numpy as np
 
 from .options import BatchJob, scan_viewpoint
 from .records import error_record, registration_record
+from .results import OutputWriteError, output_error
 
 __all__ = [
     "CRASH_ENV",
@@ -31,6 +35,9 @@ __all__ = [
 #: MARKER; once MARKER exists the scan runs). The tests use it to check that a batch outlives
 #: a dead worker; never acted on in the caller's own process.
 CRASH_ENV = "POINTCLM_TEST_CRASH_ONCE"
+
+#: How often a pool worker looks whether the batch that started it is still alive.
+PARENT_POLL_S = 0.5
 
 #: Per worker process: the networks loaded so far, by name or path.
 _NETWORKS: dict[str, Any] = {}
@@ -49,17 +56,53 @@ def resolve_cached(model: str | None) -> Any:
     return _NETWORKS[model]
 
 
-def init_process(job: BatchJob, model_points: np.ndarray) -> None:
-    """Process-pool initializer: what every scan of this worker shares, loaded once."""
+def init_process(
+    job: BatchJob, model_points: np.ndarray, parent: int | None = None, slots: Any = None
+) -> None:
+    """Process-pool initializer: what every scan of this worker shares, loaded once.
+    `parent`: the batch process's pid; this worker exits when that process is gone.
+    `slots`: a shared array of (pid, position) pairs, one per worker, where this worker
+    records the scan it is running (so a worker's death is charged to its own scan)."""
+    if parent is not None:
+        _exit_with_parent(parent)
+    if slots is not None:
+        with slots.get_lock():
+            free = [i for i in range(0, len(slots), 2) if slots[i] == 0]
+            if free:
+                slots[free[0]], slots[free[0] + 1] = os.getpid(), -1
+                _PROCESS["slot"] = (slots, free[0] + 1)
     _PROCESS.update(
         job=job, model_points=model_points, embedding=resolve_cached(job.options["model"])
     )
 
 
-def process_scan(scan: str, picture: str) -> dict[str, Any]:
-    """`run_scan` in a pool worker, with what `init_process` loaded."""
+def _exit_with_parent(parent: int) -> None:
+    """Ends this worker process when the batch process `parent` is gone. A pool's workers
+    wait on a queue whose writing end they hold themselves, so a batch killed with SIGKILL
+    would otherwise leave them running (and registering) forever. The pid is the caller's,
+    not read here: a batch killed while this worker started has already handed it on."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="pointclm-parent-watch", daemon=True).start()
+
+
+def process_scan(scan: str, picture: str, position: int = -1) -> dict[str, Any]:
+    """`run_scan` in a pool worker, with what `init_process` loaded; `position` (the scan's
+    in the batch) stays in this worker's slot while it runs, and after, if the process dies."""
+    slots, at = _PROCESS.get("slot", (None, 0))
+    if slots is not None:
+        slots[at] = position
     crash_for_tests(scan)
-    return run_scan(_PROCESS["job"], _PROCESS["model_points"], _PROCESS["embedding"], scan, picture)
+    record = run_scan(
+        _PROCESS["job"], _PROCESS["model_points"], _PROCESS["embedding"], scan, picture
+    )
+    if slots is not None:
+        slots[at] = -1
+    return record
 
 
 def run_scan(
@@ -70,6 +113,8 @@ def run_scan(
     t0 = time.perf_counter()
     try:
         body = _register_scan(job, model_points, embedding, scan, picture)
+    except OutputWriteError:
+        raise  # the batch stops: not this scan's fault
     except Exception as e:  # recorded for this scan; the batch goes on
         body = {"status": "error", **error_record(e)}
     return {**_head(job, scan), **body, "seconds": time.perf_counter() - t0}
@@ -122,15 +167,25 @@ def _pictures(job: BatchJob, reg: Any, scan: str, picture: str) -> dict[str, str
     if job.png_dir is not None:
         path = os.path.join(job.png_dir, picture + ".png")
         title = f"{Path(job.model_file).name} in {Path(scan).name}"
-        with atomic_path(path) as tmp:
-            save_registration_png(tmp, reg, title=title)
+        try:
+            with atomic_path(path) as tmp:
+                save_registration_png(tmp, reg, title=title)
+        except OSError as e:
+            raise output_error(e, path) from None
         written["png"] = path
     if job.ply_dir is not None:
         path = os.path.join(job.ply_dir, picture + ".ply")
-        with atomic_path(path) as tmp:
-            save_ply(
-                tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
-            )
+        try:
+            with atomic_path(path) as tmp:
+                save_ply(
+                    tmp,
+                    reg.target_points,
+                    reg.source_points,
+                    reg.transformations,
+                    1.5 * reg.voxel_size,
+                )
+        except OSError as e:
+            raise output_error(e, path) from None
         written["ply"] = path
     return written
 

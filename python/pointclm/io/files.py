@@ -117,10 +117,19 @@ def check_output_path(path: str | os.PathLike[str], what: str = "output") -> Pat
     if not parent.is_dir():
         raise ValueError(f"{what} {file}: the folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{what} {file}: the folder {parent} is not writable")
+        raise ValueError(f"{what} {file}: the folder {parent} is not writable{_why_not(parent)}")
     if file.exists() and not os.access(file, os.W_OK):
         raise ValueError(f"{what} {file} exists and is not writable")
     return file
+
+
+def _why_not(folder: Path) -> str:
+    """ " (a read-only filesystem)" where that is why `folder` cannot be written to."""
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except (OSError, AttributeError):  # no statvfs (Windows): the plain message
+        return ""
+    return " (a read-only filesystem)" if read_only else ""
 
 
 @contextlib.contextmanager

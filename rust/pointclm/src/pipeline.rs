@@ -350,3 +350,7 @@ mod tests;
 #[cfg(test)]
 #[path = "tests/hardening.rs"]
 mod hardening;
+
+#[cfg(test)]
+#[path = "tests/fuzz.rs"]
+mod fuzz;

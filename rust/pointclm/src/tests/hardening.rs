@@ -17,7 +17,7 @@ use crate::testing::random_scene;
 /// Cases per property (proptest's default is 256; these run every `cargo test`).
 const CASES: u32 = 64;
 
-fn shipped_weights() -> (Vec<u8>, String) {
+pub(super) fn shipped_weights() -> (Vec<u8>, String) {
     let dir = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../python/pointclm/weights/"
@@ -162,7 +162,7 @@ fn only_regular_files_are_read_as_weights() {
 
 // ---- Config::validate ----
 
-fn count() -> impl Strategy<Value = usize> {
+pub(super) fn count() -> impl Strategy<Value = usize> {
     prop_oneof![
         0usize..64,
         any::<usize>(),
@@ -182,7 +182,7 @@ fn length() -> impl Strategy<Value = f64> {
 }
 
 prop_compose! {
-    fn arbitrary_config()(
+    pub(super) fn arbitrary_config()(
         lengths in (length(), length(), length()),
         thresholds in (any::<f64>(), any::<f64>(), any::<f64>(), -1.0f64..1.0),
         counts in (count(), count(), count(), count(), count(), count()),
@@ -295,7 +295,7 @@ fn every_count_has_a_bound_named_in_the_message() {
 // ---- register on arbitrary arrays ----
 
 /// Coordinates across f64's whole range, non-finite values included.
-fn coordinate() -> impl Strategy<Value = f64> {
+pub(super) fn coordinate() -> impl Strategy<Value = f64> {
     prop_oneof![
         4 => -10.0f64..10.0,
         2 => any::<f64>(),
