@@ -159,11 +159,9 @@ def refine_poses(
 
     Parameters
     ----------
-    source_points, target_points : (N, 3), (M, 3) array_like, or Open3D geometries
-        The model and the scan, downsampled at `voxel_size` (as
-        :func:`pointclm.register_point_clouds` returns them); an Open3D ``PointCloud`` or
-        ``TriangleMesh`` is read as :mod:`pointclm.interop.open3d` says, and a target's
-        normals serve as `target_normals` when that is omitted.
+    source_points, target_points : (N, 3), (M, 3) array_like, or Open3D clouds or meshes
+        The model and the scan, downsampled at `voxel_size`; an Open3D target's normals
+        serve as `target_normals` when those are omitted (:mod:`pointclm.interop.open3d`).
     transformations : (K, 4, 4) array_like
         Candidate poses ``T_target_source``. A rotation block off by rounding
         (``||R^T R - I||_F <= 1e-3``, positive determinant) is replaced by the nearest

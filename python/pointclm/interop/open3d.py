@@ -115,21 +115,15 @@ def from_open3d(
     points, normals, colors, triangles = arrays
     if len(points) == 0:
         raise InputError(f"{label} has no points")
-    if triangles is not None and len(triangles):
-        finite = np.isfinite(points).all(axis=1)
-        if not finite.any():
-            raise InputError(f"{label} has no vertex with finite coordinates")
-        try:
+    try:
+        if triangles is not None and len(triangles):
             cloud = sample_mesh(points, triangles, n_samples, seed, colors)
-        except ValueError as e:
-            raise InputError(f"{label}: {e}") from None
-        dropped = int((~finite).sum())
-    else:
-        try:
+            dropped = int((~np.isfinite(points).all(axis=1)).sum())
+        else:
             cloud = finite_cloud(points, normals, colors)
-        except ValueError as e:
-            raise InputError(f"{label}: {e}") from None
-        dropped = cloud.dropped
+            dropped = cloud.dropped
+    except ValueError as e:
+        raise InputError(f"{label}: {e}") from None
     if dropped:
         warnings.warn(
             f"{label}: dropped {dropped} {'point' if dropped == 1 else 'points'} with NaN/inf "
