@@ -158,6 +158,12 @@ def test_normals_and_colours_come_with_the_points() -> None:
     np.testing.assert_array_equal(read.colors, np.ones((50, 3)))
     back = pointclm.io.to_open3d(read)
     np.testing.assert_array_equal(np.asarray(back.normals), read.normals)
+    # A tensor of points is an array, checked as one.
+    np.testing.assert_array_equal(
+        pointclm.preprocessing.as_points(t.point.positions, "p"), read.points
+    )
+    with pytest.raises(InputError, match="p must"):
+        pointclm.preprocessing.as_points(o3d.core.Tensor(np.ones((4, 2))), "p")
 
 
 def test_a_mesh_is_sampled_as_a_mesh_file_is() -> None:

@@ -17,7 +17,8 @@ Points with NaN/inf coordinates are dropped with a
 :class:`~pointclm.io.NonFinitePointsWarning` giving the count, as the file readers drop a
 scanner's missing returns: an Open3D cloud is data read from somewhere, like a file. Numpy
 arrays passed to pointclm are never cleaned (a NaN raises). A tensor cloud on a GPU is
-copied to the host. The caller's object is only read, never changed.
+copied to the host, as is an ``open3d.core.Tensor`` of points (then checked as an array is).
+The caller's object is only read, never changed.
 """
 
 from __future__ import annotations
@@ -61,9 +62,13 @@ def is_open3d_geometry(obj: Any) -> bool:
 
 
 def open3d_points(obj: Any, name: str = "points") -> Any:
-    """The (N, 3) float64 points of an Open3D geometry (:func:`from_open3d`); anything else
-    is returned as it is, for the usual checks of arrays."""
+    """The (N, 3) float64 points of an Open3D geometry (:func:`from_open3d`), or the host
+    array of an ``open3d.core.Tensor``; anything else is returned as it is, for the usual
+    checks of arrays (which a tensor's array gets too)."""
     if _open3d_kind(obj) is None:
+        module = getattr(type(obj), "__module__", None) or ""
+        if module.startswith("open3d.") and type(obj).__name__ == "Tensor":
+            return _host(obj)
         return obj
     return from_open3d(obj, name=name).points
 
