@@ -87,8 +87,9 @@ def test_claim_matching_fails_on_a_wrong_claim():
 def _skip_reason(block: str) -> str | None:
     if "../shared/data" in block and not DATA.is_dir():
         return f"the block reads ../shared/data: {DATA_HINT}"
-    if re.search(r"^\s*import torch", block, re.M) and importlib.util.find_spec("torch") is None:
-        return "the block needs torch (pip install '.[train]')"
+    for module, extra in (("torch", "train"), ("open3d", "test"), ("jsonschema", "test")):
+        if re.search(rf"^\s*import {module}", block, re.M) and not importlib.util.find_spec(module):
+            return f"the block needs {module} (pip install '.[{extra}]')"
     return None
 
 

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from .errors import InputError
+from .interop.open3d import open3d_points
 from .registration import as_matrix, as_threads
 
 __all__ = [
@@ -92,7 +93,8 @@ def as_point(value: ArrayLike, name: str) -> tuple[float, float, float]:
 
 
 def as_points(x: ArrayLike, name: str) -> np.ndarray:
-    a = as_matrix(x, name, 3)
+    # Open3D clouds and meshes are read where every entry point first checks its points.
+    a = as_matrix(open3d_points(x, name), name, 3)
     if len(a) == 0:
         raise InputError(f"{name} is empty: need at least one point")
     return a

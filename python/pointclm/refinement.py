@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
+from .interop.open3d import with_open3d_normals
 from .registration import as_threads
 from .scene_rules import SCENE_DEFAULTS
 
@@ -158,9 +159,9 @@ def refine_poses(
 
     Parameters
     ----------
-    source_points, target_points : (N, 3), (M, 3) array_like
-        The model and the scan, downsampled at `voxel_size` (as
-        :func:`pointclm.register_point_clouds` returns them).
+    source_points, target_points : (N, 3), (M, 3) array_like, or Open3D clouds or meshes
+        The model and the scan, downsampled at `voxel_size`; an Open3D target's normals
+        serve as `target_normals` when those are omitted (:mod:`pointclm.interop.open3d`).
     transformations : (K, 4, 4) array_like
         Candidate poses ``T_target_source``. A rotation block off by rounding
         (``||R^T R - I||_F <= 1e-3``, positive determinant) is replaced by the nearest
@@ -219,6 +220,7 @@ class RefinementContext:
         num_threads: int | None = None,
     ) -> None:
         src = pp.as_points(source_points, "source_points")
+        target_points, target_normals = with_open3d_normals(target_points, target_normals)
         tgt = pp.as_points(target_points, "target_points")
         #: How many scan points the context indexes.
         self.target_size = len(tgt)

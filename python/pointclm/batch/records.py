@@ -6,7 +6,18 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["TIMING_FIELDS", "error_record", "registration_record", "without_timings"]
+__all__ = [
+    "FORMAT_VERSION",
+    "TIMING_FIELDS",
+    "error_record",
+    "registration_record",
+    "without_timings",
+]
+
+#: The version of the JSON `register --out` and `batch` write, their first field:
+#: MAJOR.MINOR, the minor one raised when fields are added, the major one when a field is
+#: renamed, removed or changes meaning. `pointclm/schemas/result.schema.json` describes it.
+FORMAT_VERSION = "1.0"
 
 #: The fields of a batch line that change from run to run; everything else is fixed by the
 #: scan, the model, the options and the seed.

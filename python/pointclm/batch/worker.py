@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from .options import BatchJob, scan_viewpoint
-from .records import error_record, registration_record
+from .records import FORMAT_VERSION, error_record, registration_record
 from .results import OutputWriteError, output_error
 
 __all__ = [
@@ -133,6 +133,7 @@ def failed_record(job: BatchJob, scan: str, error: str, message: str) -> dict[st
 
 def _head(job: BatchJob, scan: str) -> dict[str, Any]:
     return {
+        "format_version": FORMAT_VERSION,
         "scan": scan,
         "model": job.model_file,
         "network": job.options.get("model"),

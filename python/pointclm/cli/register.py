@@ -13,6 +13,7 @@ import numpy as np
 
 from ..batch import registration_record
 from ..batch.options import scan_viewpoint
+from ..batch.records import FORMAT_VERSION
 from ..config import Config
 from ..io.files import atomic_path, check_output_path
 from .args import (
@@ -27,6 +28,7 @@ from .args import (
     _write_json,
     flag_names,
 )
+from .bop import _add_bop_flags, _check_bop_args, _write_bop
 
 #: The benchmarks' rule for a found copy: RE < 15 deg and TE < 10 % of the model's diagonal.
 MATCH_DEG = 15.0
@@ -190,6 +192,7 @@ def cmd_register(args: argparse.Namespace) -> int:
     _report(reg, truth)
     if args.out:
         _write_json(args.out, _register_json(args, reg, truth))
+    _write_bop(args, reg)
     return 0
 
 
@@ -199,6 +202,7 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
     for flag in ("out", "png", "ply"):
         if getattr(args, flag):
             check_output_path(getattr(args, flag), f"--{flag}")
+    _check_bop_args(args)
     if args.png:
         try:
             import matplotlib  # noqa: F401
@@ -278,6 +282,7 @@ def _register_json(
         for entry, j in zip(record["instances"], truth["instance_truth"], strict=True):
             entry["true_pose"] = j
     return {
+        "format_version": FORMAT_VERSION,
         "model": args.model_file,
         "scene": args.scene_file,
         **record,
@@ -324,6 +329,7 @@ def _add_register_parser(sub: Any) -> None:
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
     r.add_argument("--ply", help="coloured point cloud of the result")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_bop_flags(r)
     _add_method_flags(r)
     r.set_defaults(func=cmd_register)
 

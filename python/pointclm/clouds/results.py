@@ -4,17 +4,29 @@ stage, and the whole registration."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .._core import Instance, RegistrationResult
 from ..config import Config
+from ..poses import PoseForms
+
+#: A model point is explained within this many voxels of a scan point: the radius of
+#: ``fitness`` and ``inlier_rmse`` (:func:`pointclm.refine_poses`).
+FITNESS_VOXELS = 1.5
 
 
 @dataclass(frozen=True)
-class CloudInstance:
+class CloudInstance(PoseForms):
     """One copy of the model in the scan, refined and verified on the clouds.
+
+    ``transformation`` is ``T_target_source`` (4 x 4); ``quaternion(order="xyzw")`` (or
+    ``"wxyz"``, unit norm, sign canonical ``w >= 0``), ``rotation`` and ``translation`` give
+    it in other forms (:mod:`pointclm.poses`). ``transformation``, ``fitness``,
+    ``inlier_rmse`` and ``correspondence_set`` are named and defined as in Open3D's
+    ``RegistrationResult``.
 
     ``fitness`` and ``inlier_rmse`` follow Open3D's ``evaluate_registration``: the share of the
     (downsampled) model's points with a scan point within 1.5 voxels, and their RMS distance.
@@ -48,6 +60,29 @@ class CloudInstance:
     contradiction: float = float("nan")
     pass_index: int = 0
     visible_rmse: float = float("nan")
+    # The registration's clouds and voxel, set by `PointCloudRegistration`, for
+    # `correspondence_set`: computed on demand, since few callers want the pairs.
+    _clouds: tuple[np.ndarray, np.ndarray, float] | None = field(
+        default=None, init=False, repr=False, compare=False
+    )
+
+    @property
+    def correspondence_set(self) -> np.ndarray | None:
+        """(K, 2) int64 pairs (model point, its nearest scan point) within 1.5 voxels under
+        ``transformation``, as Open3D's ``evaluate_registration`` reports them: rows of
+        ``PointCloudRegistration.source_points`` and ``target_points``. ``K / len(
+        source_points)`` is ``fitness`` and the pairs' RMS distance ``inlier_rmse``. None for
+        an instance not taken from a :class:`PointCloudRegistration`."""
+        if self._clouds is None:
+            return None
+        from scipy.spatial import cKDTree
+
+        source, target, voxel = self._clouds
+        posed = source @ self.rotation.T + self.translation
+        radius = FITNESS_VOXELS * voxel
+        dist, nearest = cKDTree(target).query(posed, distance_upper_bound=radius)
+        near = np.flatnonzero(dist < radius)
+        return np.stack([near, nearest[near]], axis=1).astype(np.int64)
 
     @property
     def inliers(self) -> np.ndarray:
@@ -114,6 +149,7 @@ class PointCloudRegistration:
     ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
     ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
     empty or doubtful result and what to try ("" when there is nothing to say).
+    :meth:`to_open3d` gives the scan and each copy as Open3D clouds.
     """
 
     result: RegistrationResult
@@ -129,12 +165,34 @@ class PointCloudRegistration:
     orientation: str = ""
     diagnosis: str = ""
 
+    def __post_init__(self) -> None:
+        clouds = (self.source_points, self.target_points, self.voxel_size)
+        for inst in self.instances:
+            if isinstance(inst, CloudInstance):
+                object.__setattr__(inst, "_clouds", clouds)
+
     @property
     def transformations(self) -> np.ndarray:
         """(M, 4, 4) T_target_source of every instance found."""
         if not self.instances:
             return np.zeros((0, 4, 4))
         return np.stack([inst.transformation for inst in self.instances])
+
+    def to_open3d(self) -> list[Any]:
+        """``[scan, copy 0, copy 1, ...]`` as ``open3d.geometry.PointCloud`` objects, ready
+        for ``open3d.visualization.draw_geometries``: the scan (``target_points``) in grey,
+        then for each of ``instances`` (same order, surest first) the model
+        (``source_points``) placed by its ``transformation``, each in its own colour (those
+        of :func:`pointclm.visualize.palette`, as the PNG and PLY draw them). Imports
+        Open3D (``pip install open3d-cpu`` or ``open3d``)."""
+        from ..interop.open3d import to_open3d
+        from ..visualize import GREY, palette
+
+        clouds = [to_open3d(self.target_points, colors=GREY)]
+        for inst, colour in zip(self.instances, palette(len(self.instances)), strict=True):
+            posed = self.source_points @ inst.rotation.T + inst.translation
+            clouds.append(to_open3d(posed, colors=colour))
+        return clouds
 
     def __repr__(self) -> str:
         # A summary, not the arrays: what was found, how it was judged, where time went.

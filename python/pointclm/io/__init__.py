@@ -7,7 +7,10 @@
 
 Formats: PLY (ASCII, binary little/big endian), PCD (ascii, binary, binary_compressed),
 OFF, ``.xyz``/``.txt``/``.pts`` text, ``.npy``/``.npz``; plus Open3D's feature ``.bin``
-files (:func:`read_open3d_feature`).
+files (:func:`read_open3d_feature`). Open3D's own clouds and meshes are read in memory
+(:func:`from_open3d`, and :func:`read_point_cloud` given one; Open3D is never imported for
+that) and written with :func:`to_open3d`. Poses go out and back in the BOP challenge's CSV
+(:func:`write_bop_csv`, :func:`read_bop_csv`).
 
 Design decisions
 ----------------
@@ -56,6 +59,8 @@ Design decisions
 
 from __future__ import annotations
 
+from ..interop.open3d import from_open3d, to_open3d
+from .bop import BopEstimate, read_bop_csv, write_bop_csv
 from .features import read_open3d_feature
 from .mesh import Mesh, sample_mesh
 from .ply import write_ply
@@ -65,13 +70,18 @@ from .reader import MESH_SUFFIXES, SUPPORTED_SUFFIXES, load_points, read_mesh, r
 __all__ = [
     "MESH_SUFFIXES",
     "SUPPORTED_SUFFIXES",
+    "BopEstimate",
     "Mesh",
     "NonFinitePointsWarning",
     "PointCloud",
+    "from_open3d",
     "load_points",
+    "read_bop_csv",
     "read_mesh",
     "read_open3d_feature",
     "read_point_cloud",
     "sample_mesh",
+    "to_open3d",
+    "write_bop_csv",
     "write_ply",
 ]

@@ -12,10 +12,12 @@ import struct
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import PathNotFoundError
+from ..interop.open3d import from_open3d, is_open3d_geometry
 from .arrays import parse_npy, parse_npz, read_npy, read_npz_members
 from .files import as_path, read_checked
 from .mesh import Mesh, check_n_samples
@@ -52,15 +54,17 @@ _TRIMESH_SUFFIXES = (".obj", ".stl")
 
 
 def read_point_cloud(
-    path: str | os.PathLike[str], *, n_samples: int | None = None, seed: int | None = 0
+    path: str | os.PathLike[str] | Any, *, n_samples: int | None = None, seed: int | None = 0
 ) -> PointCloud:
     """Read a point cloud or mesh file into a :class:`PointCloud` of finite points.
 
     Parameters
     ----------
-    path : str or os.PathLike
+    path : str or os.PathLike, or an Open3D geometry
         A ``.ply``, ``.pcd``, ``.off``, ``.xyz``/``.txt``/``.pts``, ``.npy`` or ``.npz``
-        file (the extension picks the reader).
+        file (the extension picks the reader); or an Open3D ``PointCloud`` or
+        ``TriangleMesh`` (legacy or tensor), read as a file of that format would be
+        (:func:`pointclm.io.from_open3d`).
     n_samples : int, optional
         Points to draw from a mesh's surface (PLY or OFF with faces); default
         ``max(10_000, number of vertices)``. Point clouds return all their finite points
@@ -95,6 +99,8 @@ def read_point_cloud(
         isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0
     ):
         raise ValueError(f"seed must be a non-negative int or None, got {seed!r}")
+    if is_open3d_geometry(path):
+        return from_open3d(path, n_samples=n_samples, seed=seed)
     file, raw = _open(path)
     suffix = file.suffix.lower()
     try:
@@ -122,7 +128,7 @@ def _warn_dropped(file: Path, cloud: PointCloud) -> None:
 
 
 def load_points(
-    path: str | os.PathLike[str], *, n_samples: int | None = None, seed: int | None = 0
+    path: str | os.PathLike[str] | Any, *, n_samples: int | None = None, seed: int | None = 0
 ) -> np.ndarray:
     """Just the (N, 3) float64 points of :func:`read_point_cloud` (same arguments)."""
     return read_point_cloud(path, n_samples=n_samples, seed=seed).points

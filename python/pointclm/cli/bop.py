@@ -1,0 +1,46 @@
+"""`pointclm register --bop-csv`: the poses found in the BOP challenge's CSV."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from .args import _finite_float, _int_at_least
+
+
+def _add_bop_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--bop-csv",
+        metavar="FILE",
+        help="also write the poses in the BOP challenge's CSV (scene_id,im_id,obj_id,score,"
+        "R,t,time; score: confidence, t in mm, time: the registration's seconds)",
+    )
+    p.add_argument("--scene-id", type=_int_at_least(0), default=0, help="BOP scene id (default 0)")
+    p.add_argument("--im-id", type=_int_at_least(0), default=0, help="BOP image id (default 0)")
+    p.add_argument("--obj-id", type=_int_at_least(0), default=1, help="BOP object id (default 1)")
+    p.add_argument(
+        "--unit-to-mm",
+        type=_finite_float,
+        default=1000.0,
+        metavar="MM",
+        help="millimetres in one unit of the files, for --bop-csv (default 1000: metres; 1 "
+        "for files in millimetres such as BOP's own models)",
+    )
+
+
+def _check_bop_args(args: argparse.Namespace) -> None:
+    from ..io.files import check_output_path
+
+    if args.bop_csv:
+        check_output_path(args.bop_csv, "--bop-csv")
+        if args.unit_to_mm <= 0:
+            raise ValueError(f"--unit-to-mm must be positive, got {args.unit_to_mm:g}")
+
+
+def _write_bop(args: argparse.Namespace, reg: Any) -> None:
+    from ..io.bop import write_bop_csv
+
+    if args.bop_csv:
+        write_bop_csv(
+            reg, args.bop_csv, args.scene_id, args.im_id, args.obj_id, unit_to_mm=args.unit_to_mm
+        )
