@@ -3,7 +3,9 @@ stage, and the whole registration."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -135,6 +137,19 @@ class PointCloudRegistration:
         if not self.instances:
             return np.zeros((0, 4, 4))
         return np.stack([inst.transformation for inst in self.instances])
+
+    def to_html(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        ground_truth: ArrayLike | None = None,
+        title: str = "",
+    ) -> Path:
+        """Write one self-contained page to turn the result around in a browser (plotly,
+        ``pip install 'pointclm[viz]'``); see :func:`pointclm.html_page.write_html`."""
+        from ..html_page import write_html
+
+        return write_html(path, self, ground_truth=ground_truth, title=title)
 
     def __repr__(self) -> str:
         # A summary, not the arrays: what was found, how it was judged, where time went.
