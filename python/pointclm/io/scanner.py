@@ -75,9 +75,11 @@ def read_scanner_file(path: str | os.PathLike[str]) -> tuple[Path, PointCloud]:
     reader = _read_e57 if suffix == ".e57" else _read_las
     try:
         return file, reader(file, size)
-    except (ImportError, ValueError):
+    except ImportError:
         raise
     except Exception as err:  # noqa: BLE001 - the libraries' own errors become ValueErrors
+        if isinstance(err, ValueError) and str(err).startswith(str(file)):
+            raise  # ours, already naming the file
         raise ValueError(
             f"{file}: cannot read it as {suffix[1:].upper()} "
             f"({type(err).__name__}: {_first_line(err)}); "

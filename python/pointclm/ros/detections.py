@@ -159,7 +159,10 @@ def _maker(output: str, typestore: Any) -> tuple[Make, Callable[[np.ndarray], An
 
 
 def _ros_available() -> bool:
-    return all(importlib.util.find_spec(m) is not None for m in ("rclpy", "vision_msgs"))
+    try:
+        return all(importlib.util.find_spec(m) is not None for m in ("rclpy", "vision_msgs"))
+    except (ImportError, ValueError):  # a broken or half-installed ROS environment
+        return False
 
 
 def _get(obj: Any, key: str, default: Any) -> Any:
