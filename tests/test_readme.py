@@ -89,7 +89,19 @@ def _skip_reason(block: str) -> str | None:
         return f"the block reads ../shared/data: {DATA_HINT}"
     if re.search(r"^\s*import torch", block, re.M) and importlib.util.find_spec("torch") is None:
         return "the block needs torch (pip install '.[train]')"
+    for marker, module, extra in _OPTIONAL:
+        if marker in block and importlib.util.find_spec(module) is None:
+            return f"the block needs {module} (pip install '.[{extra}]')"
     return None
+
+
+#: What a block uses that an extra provides: (text in the block, module, extra).
+_OPTIONAL = (
+    (".to_html(", "plotly", "viz"),
+    ("import laspy", "laspy", "io"),
+    ("import pye57", "pye57", "io"),
+    ("from rosbags", "rosbags", "io"),
+)
 
 
 @pytest.mark.parametrize("k", range(len(PY_BLOCKS)), ids=lambda k: f"python-{k}")
