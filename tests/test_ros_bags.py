@@ -135,6 +135,13 @@ def test_sqlite_bags_bare_mcap_files_and_ros1_bags(tmp_path):
         names = bag_scans(source)
         assert names == [f"{source}#/cloud@5"]
         np.testing.assert_array_equal(read_bag_scan(names[0]).points, pts)
+    # A glob matching bag files expands each into its messages, as a folder of files would.
+    from pointclm.batch import expand_scans
+
+    assert expand_scans([str(mcap_dir / "*.mcap"), str(bag)]) == [
+        f"{bare}#/cloud@5",
+        f"{bag}#/cloud@5",
+    ]
 
 
 def test_pointclm_batch_registers_each_message_of_a_bag(tmp_path, capsys):

@@ -318,7 +318,8 @@ def _add_register_parser(sub: Any) -> None:
     r = sub.add_parser(
         "register",
         help="find every copy of a model in a scene (point cloud or mesh files)",
-        description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz), compute FPFH, "
+        description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz; .las .laz .e57 "
+        "with pointclm[io]), compute FPFH, "
         "match, and print one line per instance found (or why none was).",
     )
     r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
