@@ -87,10 +87,22 @@ def test_claim_matching_fails_on_a_wrong_claim():
 def _skip_reason(block: str) -> str | None:
     if "../shared/data" in block and not DATA.is_dir():
         return f"the block reads ../shared/data: {DATA_HINT}"
-    for module, extra in (("torch", "train"), ("open3d", "test"), ("jsonschema", "test")):
-        if re.search(rf"^\s*import {module}", block, re.M) and not importlib.util.find_spec(module):
+    for marker, module, extra in _OPTIONAL:
+        if marker in block and importlib.util.find_spec(module) is None:
             return f"the block needs {module} (pip install '.[{extra}]')"
     return None
+
+
+#: What a block uses that an extra provides: (text in the block, module, extra).
+_OPTIONAL = (
+    ("import torch", "torch", "train"),
+    ("import open3d", "open3d", "test"),
+    ("import jsonschema", "jsonschema", "test"),
+    (".to_html(", "plotly", "viz"),
+    ("import laspy", "laspy", "io"),
+    ("import pye57", "pye57", "io"),
+    ("from rosbags", "rosbags", "io"),
+)
 
 
 @pytest.mark.parametrize("k", range(len(PY_BLOCKS)), ids=lambda k: f"python-{k}")

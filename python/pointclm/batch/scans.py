@@ -1,5 +1,6 @@
 """The scans of a batch: files, folders and glob patterns expanded into one list, in a fixed
-order (the order given; a folder's and a pattern's files sorted by name), without repeats."""
+order (the order given; a folder's and a pattern's files sorted by name), without repeats.
+A ROS bag (:mod:`pointclm.ros.bags`) gives one scan per PointCloud2 message."""
 
 from __future__ import annotations
 
@@ -8,10 +9,12 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from ..errors import InputError
-from ..io import SUPPORTED_SUFFIXES
+import numpy as np
 
-__all__ = ["expand_scans", "picture_names"]
+from ..errors import InputError
+from ..io import SUPPORTED_SUFFIXES, load_points
+
+__all__ = ["expand_scans", "load_scan_points", "picture_names"]
 
 
 def _is_pattern(text: str) -> bool:
@@ -33,13 +36,17 @@ def _folder_files(folder: str) -> list[str]:
 
 
 def _expand_one(item: str) -> list[str]:
+    from ..ros.bags import bag_scans, is_bag
+
+    if is_bag(item) or is_bag(item.rpartition("#")[0] or item):
+        return bag_scans(item)
     if os.path.isdir(item):
         return _folder_files(item)
     if _is_pattern(item) and not os.path.exists(item):
         found = sorted(p for p in glob.glob(item, recursive=True) if os.path.isfile(p))
         if not found:
             raise InputError(f"scans: the pattern {item!r} matches no file")
-        return found
+        return [s for p in found for s in (bag_scans(p) if is_bag(p) else [p])]
     # A plain path is taken as given even when missing: its line records the error, and
     # the batch goes on (a list of thousands should not stop at one stale name).
     return [item]
@@ -63,6 +70,16 @@ def expand_scans(scans: str | os.PathLike[str] | Iterable[str | os.PathLike[str]
                 seen.add(key)
                 out.append(path)
     return out
+
+
+def load_scan_points(scan: str) -> np.ndarray:
+    """The (N, 3) points of one scan: a file (:func:`pointclm.io.load_points`) or a bag's
+    message (:func:`pointclm.ros.bags.read_bag_scan`)."""
+    from ..ros.bags import is_bag_message, read_bag_scan
+
+    if is_bag_message(scan):
+        return read_bag_scan(scan).points
+    return load_points(scan)
 
 
 def picture_names(scans: list[str]) -> list[str]:

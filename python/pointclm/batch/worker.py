@@ -144,11 +144,11 @@ def _head(job: BatchJob, scan: str) -> dict[str, Any]:
 def _register_scan(
     job: BatchJob, model_points: np.ndarray, embedding: Any, scan: str, picture: str
 ) -> dict[str, Any]:
-    from ..io import load_points
     from ..point_clouds import register_point_clouds
+    from .scans import load_scan_points
 
     t0 = time.perf_counter()
-    points = load_points(scan)
+    points = load_scan_points(scan)
     options = {**job.options, "model": embedding}
     options["viewpoint"] = scan_viewpoint(options.get("viewpoint"), scan)
     t_load = time.perf_counter() - t0

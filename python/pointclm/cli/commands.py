@@ -286,14 +286,17 @@ def _add_batch_parser(sub: Any) -> None:
         "batch",
         help="register one model in many scans: one JSON line per scan, resumable",
         description="Find the copies of MODEL in every scan of SCANS (files, folders of "
-        "point-cloud files, or quoted glob patterns) and write one JSON line per scan to "
+        "point-cloud files, quoted glob patterns, or ROS bags: one scan per PointCloud2 "
+        "message) and write one JSON line per scan to "
         "--out as each completes, in the order of SCANS: its instances, diagnosis and "
         "timings as `pointclm register --out` writes them, or the error for that scan (the "
         "batch goes on). Every scan gets the same --seed, so its poses are the same whichever "
         "worker or engine ran it.",
     )
     b.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
-    b.add_argument("scans", metavar="SCANS", nargs="+", help="scan files, folders or globs")
+    b.add_argument(
+        "scans", metavar="SCANS", nargs="+", help="scan files, folders, globs or ROS bags"
+    )
     b.add_argument("--out", required=True, help="the JSON Lines file of results")
     b.add_argument(
         "--resume",

@@ -177,7 +177,7 @@ def cmd_register(args: argparse.Namespace) -> int:
     from ..io import load_points
 
     ground_truth = _check_register_args(args)
-    stages = ["load", "register", *(["png"] if args.png else []), *(["ply"] if args.ply else [])]
+    stages = ["load", "register", *(f for f in ("png", "ply", "html") if getattr(args, f))]
     bar = tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet, leave=False)
     with bar:
         bar.set_postfix_str("loading")
@@ -199,10 +199,15 @@ def cmd_register(args: argparse.Namespace) -> int:
 def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
     """Everything that can be checked before the (long) work: outputs, extras, the ground
     truth (read now, so a bad file costs nothing)."""
-    for flag in ("out", "png", "ply"):
+    for flag in ("out", "png", "ply", "html"):
         if getattr(args, flag):
             check_output_path(getattr(args, flag), f"--{flag}")
     _check_bop_args(args)
+    if args.html:
+        try:
+            import plotly  # noqa: F401
+        except ImportError:
+            raise ImportError("--html needs plotly: pip install 'pointclm[viz]'") from None
     if args.png:
         try:
             import matplotlib  # noqa: F401
@@ -268,6 +273,11 @@ def _write_pictures(
                 tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
             )
         bar.update()
+    if args.html:
+        bar.set_postfix_str("html")
+        title = f"{Path(args.model_file).name} in {Path(args.scene_file).name}"
+        reg.to_html(args.html, ground_truth=ground_truth, title=title)
+        bar.update()
 
 
 def _register_json(
@@ -313,7 +323,8 @@ def _add_register_parser(sub: Any) -> None:
     r = sub.add_parser(
         "register",
         help="find every copy of a model in a scene (point cloud or mesh files)",
-        description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz), compute FPFH, "
+        description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz; .las .laz .e57 "
+        "with pointclm[io]), compute FPFH, "
         "match, and print one line per instance found (or why none was).",
     )
     r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
@@ -323,11 +334,15 @@ def _add_register_parser(sub: Any) -> None:
         metavar="FILE",
         help="true T_target_source poses (.npy of (G, 4, 4), or a JSON list of 4x4): the "
         "report says which were found (RE < 15 deg, TE < 10%% of the model's diagonal) and the "
-        "picture draws the missed ones",
+        "picture and page draw the missed ones",
     )
     r.add_argument("--out", help="write instances, diagnosis and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")
     r.add_argument("--ply", help="coloured point cloud of the result")
+    r.add_argument(
+        "--html",
+        help="one self-contained page to turn the result around in a browser (needs plotly)",
+    )
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_bop_flags(r)
     _add_method_flags(r)

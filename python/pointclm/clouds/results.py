@@ -3,7 +3,9 @@ stage, and the whole registration."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -193,6 +195,19 @@ class PointCloudRegistration:
             posed = self.source_points @ inst.rotation.T + inst.translation
             clouds.append(to_open3d(posed, colors=colour))
         return clouds
+
+    def to_html(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        ground_truth: ArrayLike | None = None,
+        title: str = "",
+    ) -> Path:
+        """Write one self-contained page to turn the result around in a browser (plotly,
+        ``pip install 'pointclm[viz]'``); see :func:`pointclm.html_page.write_html`."""
+        from ..html_page import write_html
+
+        return write_html(path, self, ground_truth=ground_truth, title=title)
 
     def __repr__(self) -> str:
         # A summary, not the arrays: what was found, how it was judged, where time went.

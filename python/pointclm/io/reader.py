@@ -25,6 +25,7 @@ from .off import off_mesh, parse_off
 from .pcd import parse_pcd
 from .ply import parse_ply, ply_mesh
 from .pointcloud import NonFinitePointsWarning, PointCloud
+from .scanner import SCANNER_SUFFIXES, read_scanner_file
 from .text import parse_text
 
 __all__ = ["MESH_SUFFIXES", "SUPPORTED_SUFFIXES", "load_points", "read_mesh", "read_point_cloud"]
@@ -45,7 +46,7 @@ _CLOUD_READERS: dict[str, Callable[[bytes], PointCloud]] = {
 }
 
 #: File extensions :func:`read_point_cloud` reads (matched case-insensitively).
-SUPPORTED_SUFFIXES: tuple[str, ...] = (*_MESH_READERS, *_CLOUD_READERS)
+SUPPORTED_SUFFIXES: tuple[str, ...] = (*_MESH_READERS, *_CLOUD_READERS, *SCANNER_SUFFIXES)
 
 #: File extensions :func:`read_mesh` reads: PLY, OFF and numpy arrays here, OBJ and STL with
 #: trimesh (an optional dependency, imported only for them).
@@ -62,7 +63,8 @@ def read_point_cloud(
     ----------
     path : str or os.PathLike, or an Open3D geometry
         A ``.ply``, ``.pcd``, ``.off``, ``.xyz``/``.txt``/``.pts``, ``.npy`` or ``.npz``
-        file (the extension picks the reader); or an Open3D ``PointCloud`` or
+        file (the extension picks the reader); ``.las``/``.laz`` and ``.e57`` scanner files
+        with the ``[io]`` extra (:mod:`pointclm.io.scanner`); or an Open3D ``PointCloud`` or
         ``TriangleMesh`` (legacy or tensor), read as a file of that format would be
         (:func:`pointclm.io.from_open3d`).
     n_samples : int, optional
@@ -101,6 +103,19 @@ def read_point_cloud(
         raise ValueError(f"seed must be a non-negative int or None, got {seed!r}")
     if is_open3d_geometry(path):
         return from_open3d(path, n_samples=n_samples, seed=seed)
+    if as_path(path).suffix.lower() in SCANNER_SUFFIXES:
+        # Read by their libraries from the path, not from bytes: their errors name the file.
+        file, cloud = read_scanner_file(path)
+    else:
+        file, cloud = _read_bytes(path, n_samples, seed)
+    if cloud.dropped:
+        _warn_dropped(file, cloud)
+    return cloud
+
+
+def _read_bytes(
+    path: str | os.PathLike[str], n_samples: int | None, seed: int | None
+) -> tuple[Path, PointCloud]:
     file, raw = _open(path)
     suffix = file.suffix.lower()
     try:
@@ -110,9 +125,7 @@ def read_point_cloud(
             cloud = _CLOUD_READERS[suffix](raw)
     except (ValueError, struct.error, EOFError) as exc:
         raise ValueError(f"{file}: {exc}") from exc
-    if cloud.dropped:
-        _warn_dropped(file, cloud)
-    return cloud
+    return file, cloud
 
 
 def _warn_dropped(file: Path, cloud: PointCloud) -> None:
