@@ -210,11 +210,26 @@ def _splat(
         # A pixel whose ray meets the tangent plane far from the sample (a face seen nearly
         # edge-on, past its silhouette) is not covered by this sample.
         hit = np.column_stack([rx * d, ry * d, d]) - pts[idx]
-        near = np.einsum("ij,ij->i", hit, hit) <= (2.0 * z[idx] / cam.fx) ** 2
+        near = np.einsum("ij,ij->i", hit, hit) <= (1.25 * z[idx] / cam.fx) ** 2
         ds.append(d[near])
         ps.append(((v[idx] + pad) * span + (u[idx] + pad))[near])
         ss.append(idx[near])
     return np.concatenate(ds), np.concatenate(ps), np.concatenate(ss)
+
+
+def _alone(
+    cam: Camera, d: np.ndarray, p: np.ndarray, depth: np.ndarray
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """Pixels a group's splats (unbounded indices `p`) would cover alone: in front of the
+    rectangles' `depth` where on the image, anywhere off it; and per splat its image pixel
+    and whether it is on the image in front of the rectangles."""
+    pad = 4 * max(cam.width, cam.height)
+    span = cam.width + 2 * pad
+    u, v = p % span - pad, p // span - pad
+    on = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    pix = np.where(on, v * cam.width + u, 0)
+    front = ~on | (d < depth[pix])
+    return len(np.unique(p[front])), pix, on & front
 
 
 def render(
@@ -239,15 +254,7 @@ def render(
         pc = pts @ inv[:3, :3].T + inv[:3, 3]
         nc = nrm @ inv[:3, :3].T
         d, p, s = _splat(cam, pc, nc, bounded=False)
-        # Alone: in front of the rectangles where on the image, anywhere off it.
-        pad = 4 * max(cam.width, cam.height)
-        span = cam.width + 2 * pad
-        u, v = p % span - pad, p // span - pad
-        on = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-        pix = np.where(on, v * cam.width + u, 0)
-        front = ~on | (d < depth[pix])
-        alone[g] = len(np.unique(p[front]))
-        keep = on & front
+        alone[g], pix, keep = _alone(cam, d, p, depth)
         all_d.append(d[keep])
         all_p.append(pix[keep])
         all_g.append(np.full(int(keep.sum()), g))

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .cameras import CAMERAS, Camera, look_at, render
-from .layouts import CLUTTER, FLOOR, LAYOUTS, WALL, make_layout
+from .layouts import CLUTTER, FLOOR, LAYOUTS, WALL, Layout, make_layout
 from .parts import MODEL_FORMS, PARTS, Part, load_part, model_form, surface_samples
 from .scenes import default_data_dir
 from .sensor_effects import SENSORS, SensorModel, frame_points, sense
@@ -155,18 +155,14 @@ def _samples_needed(part: Part, cam: Camera, nearest: float) -> int:
     return int(np.clip(1.5 * part.area / per_pixel, 2000, 300_000))
 
 
-def make_sensed_scene(seed: int = 0, params: SensedSceneParams | None = None) -> SensedScene:
-    """Build one seeded sensed scene (module documentation)."""
-    params = params or SensedSceneParams()
-    rng = _scene_rng(params, seed)
-    data_dir = params.data_dir or default_data_dir()
-    dd = str(data_dir) if data_dir else None
-    parts = [load_part(name, dd) for name in params.parts]
-    clutter = _clutter_parts(params, dd) if params.layout == "room" else []
-    layout, placed_clutter = make_layout(params.layout, rng, parts, params.copies, clutter)
-    cam0 = CAMERAS[params.camera] if isinstance(params.camera, str) else params.camera
-    sensor = SENSORS[params.sensor] if isinstance(params.sensor, str) else params.sensor
-    cam = look_at(cam0, layout.target, layout.direction)
+def _groups(
+    layout: Layout,
+    parts: list[Part],
+    clutter: list[tuple[Part, np.ndarray]],
+    cam: Camera,
+    seed: int,
+) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], list[int]]:
+    """Dense world samples, normals and albedo of every copy (then the clutter), with labels."""
     inv = np.linalg.inv(cam.world_from_camera)
     centres = layout.poses[:, :3, 3] @ inv[:3, :3].T + inv[:3, 3]
     depth_of = np.maximum(
@@ -188,10 +184,27 @@ def make_sensed_scene(seed: int = 0, params: SensedSceneParams | None = None) ->
         groups.append((pts @ rot.T + pose[:3, 3], nrm @ rot.T, parts[prod].albedo))
         labels.append(k)
     nearest = float(depth_of.min()) if len(depth_of) else 1.0
-    for part, pose in placed_clutter:
+    for part, pose in clutter:
         pts, nrm = surface_samples(part, _samples_needed(part, cam, nearest), seed + 13)
         groups.append((pts @ pose[:3, :3].T + pose[:3, 3], nrm @ pose[:3, :3].T, part.albedo))
         labels.append(CLUTTER)
+    return groups, labels
+
+
+def make_sensed_scene(seed: int = 0, params: SensedSceneParams | None = None) -> SensedScene:
+    """Build one seeded sensed scene (module documentation)."""
+    params = params or SensedSceneParams()
+    rng = _scene_rng(params, seed)
+    data_dir = params.data_dir or default_data_dir()
+    dd = str(data_dir) if data_dir else None
+    parts = [load_part(name, dd) for name in params.parts]
+    clutter = _clutter_parts(params, dd) if params.layout == "room" else []
+    layout, placed_clutter = make_layout(params.layout, rng, parts, params.copies, clutter)
+    cam0 = CAMERAS[params.camera] if isinstance(params.camera, str) else params.camera
+    sensor = SENSORS[params.sensor] if isinstance(params.sensor, str) else params.sensor
+    cam = look_at(cam0, layout.target, layout.direction)
+    inv = np.linalg.inv(cam.world_from_camera)
+    groups, labels = _groups(layout, parts, placed_clutter, cam, seed)
     frame = render(cam, groups, layout.rects, labels)
     depth = sense(frame, cam, sensor, rng)
     xyz = frame_points(depth, cam)
