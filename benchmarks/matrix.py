@@ -393,12 +393,14 @@ def table(results: dict) -> str:
             )
     for row, s in results["pooled"].items():
         v, t, a = s["validation"], s["test"], s["all"]
+        if row == "exact":
+            keep = f"{_fmt(v['recall30'])} / {_fmt(t['recall30'])}"
+            lines.append(f"| **pooled** | | exact poses | - | - | - | - | {keep} | - |")
+            continue
         lines.append(
             f"| **pooled** | | {row} | {_fmt(v['recall30'])} / {_fmt(t['recall30'])} | "
             f"{_fmt(a['recall50'])} | {_fmt(v['precision'])} / {_fmt(t['precision'])} | "
-            f"{_fmt(v['f1'])} / {_fmt(t['f1'])} | "
-            + (f"{_fmt(v['recall30'])} / {_fmt(t['recall30'])}" if row == "exact" else "-")
-            + f" | {a['seconds_per_call']:.1f} |"
+            f"{_fmt(v['f1'])} / {_fmt(t['f1'])} | - | {a['seconds_per_call']:.1f} |"
         )
     return "\n".join(lines) + "\n"
 
