@@ -8,7 +8,10 @@ matching), which duplicates cannot inflate.
 
 A prediction matches a ground-truth pose if the rotation error
 ``RE = arccos((tr(R^T R*) - 1) / 2) < 15 deg`` and the translation error ``TE = ||t - t*|| < 0.1``
-(synthetic units).
+(synthetic units). For a part with proper symmetries ``S`` (4 x 4 transforms with
+``model = S model``, the BOP ``symmetries_discrete``), every ``T* @ S`` is the same pose: pass
+``symmetries=`` and the errors are the smallest over them, so every equivalent pose scores
+the same.
 
 Conventions for empty scenes (both scores):
 
@@ -36,6 +39,7 @@ __all__ = [
     "rotation_error_deg",
     "score_scene",
     "summarize",
+    "symmetric_errors",
     "translation_error",
 ]
 
@@ -85,11 +89,56 @@ def _as_poses(poses: ArrayLike) -> np.ndarray:
     return arr.reshape(-1, 4, 4)
 
 
+def _as_symmetries(symmetries: ArrayLike | None) -> np.ndarray:
+    if symmetries is None:
+        return np.eye(4)[None]
+    sym = np.asarray(symmetries, dtype=np.float64)
+    if sym.ndim != 3 or sym.shape[1:] != (4, 4) or len(sym) == 0:
+        raise ValueError(f"symmetries must be (S, 4, 4) transforms, S >= 1, got shape {sym.shape}")
+    if not np.isfinite(sym).all():
+        raise ValueError("symmetries must be finite")
+    return sym
+
+
+def symmetric_errors(
+    pred: ArrayLike, gt: ArrayLike, symmetries: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (degrees) and translation errors of every prediction against every ground
+    truth, each the smallest over the part's symmetries (both taken at the same symmetry:
+    the one of least rotation error, ties broken by translation).
+
+    Parameters
+    ----------
+    pred, gt : array_like
+        (P, 4, 4) and (G, 4, 4) poses ``T_target_source``.
+    symmetries : array_like, optional
+        (S, 4, 4) proper symmetries of the source (``T @ S`` looks like ``T``); None: the
+        identity alone.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        (P, G) rotation errors in degrees and (P, G) translation errors.
+    """
+    p, g = _as_poses(pred), _as_poses(gt)
+    sym = _as_symmetries(symmetries)
+    eq = g[:, None] @ sym[None]  # (G, S, 4, 4): every pose equivalent to each truth
+    re = rotation_error_deg(p[:, None, None, :3, :3], eq[None, :, :, :3, :3])
+    te = translation_error(p[:, None, None, :3, 3], eq[None, :, :, :3, 3])
+    if re.size == 0:
+        return re[..., 0], te[..., 0]
+    # Lexicographic: least rotation error first, then least translation error.
+    pick = np.lexsort((te, re), axis=-1)[..., :1]
+    return np.take_along_axis(re, pick, -1)[..., 0], np.take_along_axis(te, pick, -1)[..., 0]
+
+
 def pose_match_matrix(
     pred: ArrayLike,
     gt: ArrayLike,
     max_rotation_deg: float = 15.0,
     max_translation: float = 0.1,
+    *,
+    symmetries: ArrayLike | None = None,
 ) -> np.ndarray:
     """Which predictions register which ground-truth instances.
 
@@ -101,6 +150,9 @@ def pose_match_matrix(
         (G, 4, 4) ground-truth poses.
     max_rotation_deg, max_translation : float
         Strict thresholds: a match needs ``RE < max_rotation_deg`` and ``TE < max_translation``.
+    symmetries : array_like, optional
+        (S, 4, 4) proper symmetries of the source: a prediction matches when it matches any
+        ``gt @ S`` (:func:`symmetric_errors`).
 
     Returns
     -------
@@ -108,6 +160,12 @@ def pose_match_matrix(
         (P, G) bool.
     """
     p, g = _as_poses(pred), _as_poses(gt)
+    if symmetries is not None:
+        sym = _as_symmetries(symmetries)
+        eq = g[:, None] @ sym[None]
+        re = rotation_error_deg(p[:, None, None, :3, :3], eq[None, :, :, :3, :3])
+        te = translation_error(p[:, None, None, :3, 3], eq[None, :, :, :3, 3])
+        return np.asarray(((re < max_rotation_deg) & (te < max_translation)).any(axis=-1))
     re = rotation_error_deg(p[:, None, :3, :3], g[None, :, :3, :3])
     te = translation_error(p[:, None, :3, 3], g[None, :, :3, 3])
     return (re < max_rotation_deg) & (te < max_translation)
@@ -202,6 +260,8 @@ def score_scene(
     gt: ArrayLike,
     max_rotation_deg: float = 15.0,
     max_translation: float = 0.1,
+    *,
+    symmetries: ArrayLike | None = None,
 ) -> SceneScore:
     """Score the predicted poses of one scene against its ground truth.
 
@@ -213,13 +273,15 @@ def score_scene(
         (G, 4, 4) ground-truth poses.
     max_rotation_deg, max_translation : float
         Match thresholds (15 degrees, 0.1 in synthetic units).
+    symmetries : array_like, optional
+        (S, 4, 4) proper symmetries of the source (:func:`pose_match_matrix`).
 
     Returns
     -------
     SceneScore
         Any-match and strict scores, with the module's empty-scene conventions.
     """
-    match = pose_match_matrix(pred, gt, max_rotation_deg, max_translation)
+    match = pose_match_matrix(pred, gt, max_rotation_deg, max_translation, symmetries=symmetries)
     n_pred, n_gt = match.shape
     precision, recall = _pr(
         int(match.any(axis=1).sum()), int(match.any(axis=0).sum()), n_pred, n_gt

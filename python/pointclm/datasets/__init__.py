@@ -17,6 +17,7 @@ from .procedural import (
     procedural_family_names,
     procedural_mesh,
 )
+from .sensed import SensedScene, SensedSceneParams, make_packed_boxes, make_sensed_scene
 from .shapes import (
     MESH_SUFFIXES,
     available_shapes,
@@ -40,6 +41,8 @@ __all__ = [
     "MESH_SUFFIXES",
     "PROCEDURAL_FAMILIES",
     "PROCEDURAL_SHAPES",
+    "SensedScene",
+    "SensedSceneParams",
     "SyntheticScene",
     "available_shapes",
     "is_procedural",
@@ -47,9 +50,11 @@ __all__ = [
     "load_mesh",
     "load_shape",
     "make_bin_scene",
+    "make_packed_boxes",
     "make_planted_scene",
     "make_scene",
     "make_scenes",
+    "make_sensed_scene",
     "modelnet40_shapes",
     "normalize_unit_sphere",
     "procedural_family_names",
