@@ -1,14 +1,15 @@
 """The Rust crate's end-to-end scene pipeline against the Python `register_point_clouds` on the
 same choices: the same copies, passes and voxel, poses to rounding, and the time of each.
 
-    python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--out FILE]
+    python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--no-flips] [--out FILE]
 
 Scenes: bins of the validation models' parts (procedural boxes, fandisk, dragon; 20-30 copies,
 the bin's sensor as viewpoint), each with the default heap rule (ranked matching from the tenth
 copy on) and said to be a heap (``heap=True``: point pair voting too), and realistic scenes of
-the held-out models with their sensor. Both paths run with a known viewpoint and no turned
-alternatives (``flips=False``: what the crate's path covers). Each round runs every scene with
-each path in turn (alternating which goes first); the table takes each scene's fastest call.
+the held-out models with their sensor given and without it (estimated from the scan). Both
+paths try turned alternatives (``flips=True``, the default; ``--no-flips`` turns them off in
+both). Each round runs every scene with each path in turn (alternating which goes first); the
+table takes each scene's fastest call.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-Job = tuple[str, np.ndarray, np.ndarray, tuple[float, float, float], bool | None]
+Job = tuple[str, np.ndarray, np.ndarray, tuple[float, float, float] | None, bool | None]
 
 
 def scenes(seeds: int) -> list[Job]:
@@ -47,6 +48,8 @@ def scenes(seeds: int) -> list[Job]:
                 view = _view(sc.viewpoint)
                 name = f"realistic {model} {seed}"
                 out.append((name, sc.source_points, sc.target_points, view, None))
+                name = f"realistic {model} {seed} no viewpoint"
+                out.append((name, sc.source_points, sc.target_points, None, None))
     return out
 
 
@@ -62,6 +65,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--no-flips", action="store_true", help="no turned alternatives")
     ap.add_argument("--out", help="write the report here (default: print it)")
     args = ap.parse_args()
     rows = []
@@ -72,13 +76,14 @@ def main() -> None:
                 t0 = time.perf_counter()
                 if path == "python":
                     py = pointclm.register_point_clouds(
-                        model, scan, viewpoint=view, heap=heap, flips=False,
+                        model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
                         num_threads=args.threads,
                     )  # fmt: skip
                 else:
                     rs = _core.register_scan(
-                        model, scan, viewpoint=view, heap=heap, num_threads=args.threads
-                    )
+                        model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
+                        num_threads=args.threads,
+                    )  # fmt: skip
                 best[path] = min(best[path], time.perf_counter() - t0)
         poses = rs["transformations"]
         same_count = len(poses) == len(py.instances) and rs["passes"] == len(py.passes)
@@ -86,7 +91,7 @@ def main() -> None:
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [
         f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.machine()}, "
-        f"{args.threads} threads)",
+        f"{args.threads} threads, flips={not args.no_flips})",
         "",
         "| scene | copies (Python) | copies (Rust) | same copies and passes | max pose diff "
         "| Python s | Rust s | Rust / Python |",

@@ -123,25 +123,33 @@ def test_a_bad_scene_flag_is_a_usage_error(bad: str, capsys: pytest.CaptureFixtu
 
 
 def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses() -> None:
-    # The Rust crate's end-to-end path (a known viewpoint, no turns) against
-    # `register_point_clouds` with the same choices, on a small bin of procedural boxes, as a
-    # heap from the tenth copy on (the default) and said to be one (point pair voting): the
-    # same copies, passes and voxel, poses and confidences identical.
+    # The Rust crate's end-to-end path against `register_point_clouds` with the same choices,
+    # on a small bin of procedural boxes: with the bin's sensor as viewpoint, as a heap from
+    # the tenth copy on (the default) and said to be one (point pair voting), with and without
+    # turned alternatives; and with no viewpoint (estimated from the scan, confirmed by the
+    # first pass). The same copies, passes, voxel and sensor; poses and confidences to
+    # rounding (numpy and nalgebra multiply the 3 x 3 turns in different orders).
     from pointclm.datasets.bins import make_bin_scene
     from test_bins import SMALL
 
-    for seed, heap in ((0, None), (1, False), (2, True)):
+    cases = ((0, None, True, True), (1, False, False, True), (2, True, True, True))
+    for seed, heap, flips, given in (*cases, (3, None, True, False)):
         scene = make_bin_scene(seed, SMALL)
-        view = tuple(float(v) for v in scene.sensor)
+        view = tuple(float(v) for v in scene.sensor) if given else None
         py = pointclm.register_point_clouds(
-            scene.model_points, scene.scan, viewpoint=view, heap=heap, flips=False
+            scene.model_points, scene.scan, viewpoint=view, heap=heap, flips=flips
         )
-        rs = _core.register_scan(scene.model_points, scene.scan, viewpoint=view, heap=heap)
+        rs = _core.register_scan(
+            scene.model_points, scene.scan, viewpoint=view, heap=heap, flips=flips
+        )
         assert rs["voxel_size"] == py.voxel_size and rs["passes"] == len(py.passes)
         assert rs["by_visibility"] and len(rs["transformations"]) == len(py.instances) >= 1
-        np.testing.assert_array_equal(rs["transformations"], py.transformations)
-        np.testing.assert_array_equal(rs["confidence"], [i.confidence for i in py.instances])
+        np.testing.assert_allclose(rs["transformations"], py.transformations, rtol=0, atol=1e-12)
+        confidence = [i.confidence for i in py.instances]
+        np.testing.assert_allclose(rs["confidence"], confidence, rtol=1e-9, atol=0)
         assert rs["pass_index"] == [i.pass_index for i in py.instances]
+        np.testing.assert_array_equal(rs["viewpoint"], py.viewpoint)
+        assert rs["orientation"] == py.orientation
     with pytest.raises(ConfigError, match="max_stray_share"):
         _core.register_scan(scene.model_points, scene.scan, scene={"max_stray_share": 2.0})
 

@@ -309,6 +309,7 @@ def register_scan(
     peel: bool = True,
     heap: bool | None = None,
     heap_rank: int = 64,
+    flips: bool = True,
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
 ) -> dict[str, Any]: ...

@@ -93,11 +93,13 @@ pub fn stability_factor<'py>(
 }
 
 /// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
-/// `register_point_clouds(..., flips=False)`'s stages), as a dict: `transformations` (M, 4, 4)
-/// surest first, `confidence` (M,), `pass_index` (the pass each came from), `passes` (their
-/// number), `voxel_size` and `by_visibility` (whether the sensor judged them).
+/// `register_point_clouds`' stages without a learned model), as a dict: `transformations`
+/// (M, 4, 4) surest first, `confidence` (M,), `pass_index` (the pass each came from), `passes`
+/// (their number), `voxel_size`, `by_visibility` (whether the sensor judged them), `viewpoint`
+/// (the sensor position judged by, given or estimated and confirmed; None), `orientation`
+/// (how the scan's normals were signed, in words).
 #[pyfunction]
-#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, scene=None, num_threads=None))]
+#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, scene=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
     py: Python<'py>,
@@ -109,6 +111,7 @@ pub fn register_scan<'py>(
     peel: bool,
     heap: Option<bool>,
     heap_rank: usize,
+    flips: bool,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -122,6 +125,7 @@ pub fn register_scan<'py>(
         heap,
         // 0 or 1: the plain mutual check (None in `register_point_clouds`).
         heap_rank: Some(heap_rank).filter(|&r| r > 1),
+        flips,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         ..scene::SceneOptions::default()
     };
@@ -139,6 +143,8 @@ pub fn register_scan<'py>(
     d.set_item("passes", out.passes.len())?;
     d.set_item("voxel_size", out.voxel_size)?;
     d.set_item("by_visibility", out.by_visibility)?;
+    d.set_item("viewpoint", out.viewpoint.map(|v| v.to_vec()))?;
+    d.set_item("orientation", out.orientation)?;
     Ok(d)
 }
 

@@ -1,12 +1,13 @@
 //! [`register_point_clouds`]: a model and a scan in, the pose of every copy out, as named
-//! stages over one description of each cloud and one index of the scan: voxel, description,
-//! matching, proposals (the correspondence stage), verification, peeling, ranking.
+//! stages over one description of each cloud and one index of the scan: sensor and viewpoint
+//! ([`describe_scan`]), description, matching, proposals (the correspondence stage),
+//! verification, peeling, turned alternatives ([`resolve_flips`]), ranking.
 //!
-//! This is the training-free path with a known sensor position or none, in heaps too (the
-//! ranked mutual check once many copies are found, point pair voting when the scan is said to
-//! be a heap): the Python package's `register_point_clouds` with `flips=False` runs the same
-//! stages with the same arithmetic, and adds the learned embedding, turned alternatives and
-//! the estimation of an unknown viewpoint.
+//! This is the training-free path, in heaps too (the ranked mutual check once many copies are
+//! found, point pair voting when the scan is said to be a heap), with a known sensor position
+//! or one estimated from the scan and confirmed by the first pass: the Python package's
+//! `register_point_clouds` without a learned model runs the same stages with the same
+//! arithmetic (poses equal to rounding), and adds the learned embedding.
 
 use crate::config::Config;
 use crate::correspondences::{Correspondences, Features};
@@ -19,7 +20,9 @@ use crate::pointcloud::{
     DescribeParams, Described, Orientation, PpfModel, PpfParams, RefineContext, RefineParams,
     Refined, RefinedPose,
 };
+use nalgebra::Matrix3;
 
+use super::flips::resolve_flips;
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
 use super::sensor::describe_scan;
@@ -53,6 +56,10 @@ pub struct SceneOptions {
     /// In a heap, a match is kept when the scan point is among its model point's `heap_rank`
     /// most similar scan points still unexplained (`None` or 1: the plain mutual check).
     pub heap_rank: Option<usize>,
+    /// Try turned alternatives of every accepted pose before ranking ([`resolve_flips`]):
+    /// half turns, quarter turns and the turns peeling's duplicates make with the copy they
+    /// lie on.
+    pub flips: bool,
     /// Seeds the sampling of matches and the correspondence stage (pass `r` uses `seed + r`).
     pub seed: u64,
     /// The scene-wide rules.
@@ -72,6 +79,7 @@ impl Default for SceneOptions {
             peel: true,
             heap: None,
             heap_rank: Some(64),
+            flips: true,
             seed: 0,
             scene: SceneRules::default(),
         }
@@ -249,6 +257,9 @@ pub fn register_point_clouds(
     });
     if options.peel && !accepted.is_empty() {
         accepted = run.peel(accepted, &config)?;
+    }
+    if options.flips && !accepted.is_empty() {
+        accepted = run.flipped(accepted)?;
     }
     let candidates = run.ranked(accepted)?;
     Ok(SceneRegistration {
@@ -676,6 +687,43 @@ impl<'o> Run<'o> {
         new.take(&keep)
     }
 
+    /// The accepted poses with the turned alternatives the scan supports better
+    /// ([`resolve_flips`]), surest first.
+    fn flipped(&self, accepted: Accepted) -> Result<Accepted> {
+        let turns = self.duplicate_turns(&accepted);
+        let poses = Refined {
+            poses: accepted.rows.clone(),
+            by_visibility: self.by_visibility,
+            rejected: Vec::new(),
+        };
+        let params = RefineParams::for_voxel(self.voxel);
+        let (out, order) =
+            resolve_flips(&self.context, &params, &poses, &turns, &self.options.scene)?;
+        Ok(Accepted {
+            rows: out.poses,
+            tags: order.iter().map(|&i| accepted.tags[i]).collect(),
+        })
+    }
+
+    /// Each duplicate the passes dropped ([`Pass::duplicates`]) as a rotation of the model
+    /// relative to the accepted pose whose copy it lies on (the nearest by the posed model's
+    /// centroid): `R_home^T R_duplicate`, the duplicate's rotation in the home pose's frame.
+    fn duplicate_turns(&self, accepted: &Accepted) -> Vec<Matrix3<f64>> {
+        let centre = mean_point(&self.source.points);
+        let placed = |pose: &RigidTransform| pose.apply(centre);
+        let homes: Vec<[f64; 3]> = accepted.rows.iter().map(|r| placed(&r.pose)).collect();
+        let mut turns = Vec::new();
+        for duplicate in self.passes.iter().flat_map(|p| &p.duplicates) {
+            let at = placed(duplicate);
+            let home = (0..homes.len())
+                .min_by(|&a, &b| distance(homes[a], at).total_cmp(&distance(homes[b], at)));
+            if let Some(home) = home {
+                turns.push(accepted.rows[home].pose.rotation.transpose() * duplicate.rotation);
+            }
+        }
+        turns
+    }
+
     /// The accepted poses, final: with the sensor's judgement, those fitting loosely against
     /// the scene's median dropped and the rest ranked by tightness and stability.
     fn ranked(&self, accepted: Accepted) -> Result<Vec<Candidate>> {
@@ -791,6 +839,11 @@ impl Accepted {
 /// The ranked mutual check looks at this many of a model point's nearest scan points (or
 /// `heap_rank` if more): every candidate the Python matcher's windows look at too.
 const WINDOW_CANDIDATES: usize = 64;
+
+/// The Euclidean distance between two points.
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
 
 /// The poses of a registration's instances, in order, as stages take poses.
 fn poses_of(registration: &Registration) -> Vec<RigidTransform> {
