@@ -60,6 +60,7 @@ def _view(v: np.ndarray) -> tuple[float, float, float]:
 def main() -> None:
     import pointclm
     from pointclm import _core
+    from pointclm.clouds import core_path
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
@@ -75,10 +76,12 @@ def main() -> None:
             for path in ("python", "rust") if r % 2 == 0 else ("rust", "python"):
                 t0 = time.perf_counter()
                 if path == "python":
+                    core_path.ENABLED = False  # the Python stages, not the core's
                     py = pointclm.register_point_clouds(
                         model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
                         num_threads=args.threads,
                     )  # fmt: skip
+                    core_path.ENABLED = True
                 else:
                     rs = _core.register_scan(
                         model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
@@ -86,7 +89,7 @@ def main() -> None:
                     )  # fmt: skip
                 best[path] = min(best[path], time.perf_counter() - t0)
         poses = rs["transformations"]
-        same_count = len(poses) == len(py.instances) and rs["passes"] == len(py.passes)
+        same_count = len(poses) == len(py.instances) and len(rs["passes"]) == len(py.passes)
         diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [

@@ -42,7 +42,11 @@ def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:
 
 
 def _spy_on_matching(monkeypatch) -> list[dict[str, Any]]:
-    """Every `DescriptorMatcher.match` call's keyword arguments, in order."""
+    """Every `DescriptorMatcher.match` call's keyword arguments, in order (the Python stages
+    run: the core's pipeline matches inside the core)."""
+    from pointclm.clouds import core_path
+
+    monkeypatch.setattr(core_path, "ENABLED", False)
     calls: list[dict[str, Any]] = []
     match = pp.DescriptorMatcher.match
 

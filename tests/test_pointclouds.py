@@ -429,7 +429,7 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     # A scan of strays alone has no surface: a clear error, not an empty array downstream.
     with pytest.raises(ValueError, match="no surface at voxel"):
         _without_strays(stray[:50], 0.01, None)
-    with pytest.raises(ValueError, match="no surface at voxel"):
+    with pytest.raises(ValueError, match="scan points: need at least 3 points, got 1"):
         pointclm.register_point_clouds(surface, [[0.5, 0.5, 0.5]])
     with pytest.raises(ValueError, match="radius"):
         _core.isolated_points(scan, 0.0)

@@ -120,7 +120,7 @@ def test_heap_passes_judge_voted_poses_beside_the_clusters(scene) -> None:
     np.testing.assert_array_equal(again.transformations, reg.transformations)
 
 
-def test_a_round_votes_beside_its_clustering(scene, monkeypatch) -> None:
+def test_a_round_votes_beside_its_clustering(scene, monkeypatch, python_stages) -> None:
     # Voting runs on a second thread while the round's correspondences are clustered; its
     # result is the same, and its errors reach the caller.
     threads: list[int] = []
@@ -147,7 +147,7 @@ def test_a_round_votes_beside_its_clustering(scene, monkeypatch) -> None:
 
 
 @pytest.mark.parametrize("heap", [False, None])
-def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap) -> None:
+def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap, python_stages):
     def refuse(*_: Any, **__: Any) -> None:
         raise AssertionError("voted outside a heap")
 
@@ -159,7 +159,9 @@ def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap) -> 
     assert all(inst.matches is not None for inst in reg.instances)
 
 
-def test_voted_poses_off_the_scan_are_left_out_before_refinement(scene, monkeypatch) -> None:
+def test_voted_poses_off_the_scan_are_left_out_before_refinement(
+    scene, monkeypatch, python_stages
+) -> None:
     plain = _register(scene, heap=True, num_threads=1)
     far = np.eye(4)
     far[:3, 3] = scene.scan.max(0) + 10.0 * scene.diameter  # nothing of the scan near it

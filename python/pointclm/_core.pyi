@@ -310,9 +310,22 @@ def register_scan(
     heap: bool | None = None,
     heap_rank: int = 64,
     flips: bool = True,
+    top_k: int = 10_000,
+    mutual: bool = True,
+    n_samples: int | None = 1000,
+    config: dict[str, Any] | None = None,
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
-) -> dict[str, Any]: ...
+) -> dict[str, Any]:
+    """The core's scene pipeline. Keys: ``transformations`` (M, 4, 4) surest first, and per
+    copy ``confidence``, ``fitness``, ``inlier_rmse``, ``visible_fitness``,
+    ``contradiction``, ``seen``, ``visible_rmse`` (M,), ``pass_index`` and ``instance``
+    (lists); ``passes`` (dicts: ``correspondences`` (N, 6), ``result``, ``scan_points``,
+    ``added``, ``voted`` and ``duplicates`` (K, 4, 4)); ``source_points``,
+    ``source_normals``, ``target_points``, ``target_normals``; ``config`` (a dict);
+    ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``, ``viewpoint``,
+    ``unconfirmed_viewpoint`` (lists or None) and ``orientation``."""
+
 def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
 def cloud_base_config() -> dict[str, Any]: ...
 def scan_scales(

@@ -1,11 +1,15 @@
 """`register_point_clouds`: a model and a scan in, the pose of every copy out.
 
 The one-call path for users who have clouds, not correspondences: load (arrays or files),
-downsample, normals, FPFH, descriptor matching (:mod:`pointclm.preprocessing`), the
-registration pipeline with lengths scaled to the voxel size, then ICP refinement and
-verification of its poses on the clouds (:mod:`pointclm.refinement`), then peeling: further
-passes over the scan points no accepted copy explains, until one adds no copy. Every stage is
-timed.
+downsample, normals, FPFH, descriptor matching, the correspondence stage with lengths scaled to
+the voxel size, ICP refinement and verification of its poses on the clouds, peeling (further
+passes over the scan points no accepted copy explains, until one adds no copy), turned
+alternatives and ranking. Every stage is timed.
+
+Without a learned model the whole pipeline runs in the Rust core in one call
+(``pointclm::scene::register_point_clouds``, :mod:`pointclm.clouds.core_path`); with one, and
+for the few options the core does not take, the same stages run from Python
+(:mod:`pointclm.clouds`), each callable on its own.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
+from .clouds.core_path import CoreCall, in_core, register_in_core
 from .clouds.diagnosis import _diagnose
 from .clouds.peeling import _is_heap, _peel, unexplained_points
 from .clouds.ranking import _settle
@@ -226,14 +231,38 @@ def register_point_clouds(
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
-    src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=num_threads)
-    scan = _describe_target(tgt, voxel, view, viewpoint is None, src_d, num_threads, sc)
+    if in_core(model=embedding, refine=refine, k=k, window=window, normals=normals):
+        call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
+                        flips, sc, num_threads, viewpoint is None)  # fmt: skip
+        return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
+    run, orientation = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
+                                   mutual, n_samples, k, window, rank, heap, normals, seed,
+                                   num_threads, sc)  # fmt: skip
+    return _finished(_register(run, config, refine, peel, flips), orientation, t_load, t0)
+
+
+def _python_run(
+    src: np.ndarray,
+    tgt: np.ndarray,
+    voxel: float,
+    view: tuple[float, float, float] | None,
+    not_given: bool,
+    embedding: Embedding | None,
+    *matching_and_run: Any,
+) -> tuple[_Run, str]:
+    """The Python stages' run (the learned path's, and the options the core does not take):
+    both clouds described, the matcher and its arguments; and how the scan's normals were
+    oriented. `matching_and_run`: top_k, mutual, n_samples, k, window, rank, heap, normals,
+    seed, num_threads, scene rules."""
+    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, threads, sc = matching_and_run
+    src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=threads)
+    scan = _describe_target(tgt, voxel, view, not_given, src_d, threads, sc)
     matching, heaped = _matchings(top_k, mutual, n_samples, k, window, src, rank, heap, sc)
-    tgt_d, matcher = scan.cloud, _matcher(src_d, scan.cloud, k, num_threads)
+    tgt_d, matcher = scan.cloud, _matcher(src_d, scan.cloud, k, threads)
     run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
-               num_threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
+               threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
                scene=sc)  # fmt: skip
-    return _finished(_register(run, config, refine, peel, flips), scan.orientation, t_load, t0)
+    return run, scan.orientation
 
 
 def _loaded(
@@ -246,12 +275,13 @@ def _loaded(
 
 
 def _finished(
-    reg: PointCloudRegistration, orientation: str, t_load: float, t0: float
+    reg: PointCloudRegistration, orientation: str | None, t_load: float, t0: float
 ) -> PointCloudRegistration:
-    """`reg` with how the scan's normals were oriented, and the timings of reading the files
-    and of the whole call (started at `t0`)."""
+    """`reg` with how the scan's normals were oriented (None: as `reg` says), and the timings
+    of reading the files and of the whole call (started at `t0`)."""
     total = {"load": t_load, "total": time.perf_counter() - t0}
-    return replace(reg, orientation=orientation, timings=reg.timings | total)
+    said = reg.orientation if orientation is None else orientation
+    return replace(reg, orientation=said, timings=reg.timings | total)
 
 
 def _checked_arguments(
@@ -365,7 +395,7 @@ def _register(
         timings=timings,
         passes=passes,
         viewpoint=None if run.viewpoint is None else np.array(run.viewpoint),
-        diagnosis=_diagnose(run, refined, passes, refine),
+        diagnosis=_diagnose(run, len(refined.origin), refined.by_visibility, passes, refine),
     )
 
 

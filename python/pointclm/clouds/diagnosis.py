@@ -2,27 +2,45 @@
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
-from ..refinement import (
-    RefinedPoses,
-)
+from ..refinement import RefinementContext
 from .results import Pass, _xyz
-from .run import _Run
 
 
-def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool) -> str:
-    """Why the result is empty or doubtful, and what to try; "" when there is nothing to say."""
+class _Judged(Protocol):
+    """What a diagnosis needs of a run: where the poses were judged from, at what voxel, and
+    the refinement context to ask again why each candidate was rejected."""
+
+    @property
+    def viewpoint(self) -> tuple[float, float, float] | None: ...
+    @property
+    def unconfirmed(self) -> tuple[float, float, float] | None: ...
+    @property
+    def voxel(self) -> float: ...
+    @property
+    def num_threads(self) -> int | None: ...
+    @property
+    def refiner(self) -> RefinementContext: ...
+
+
+def _diagnose(
+    run: _Judged, found: int, by_visibility: bool, passes: list[Pass], refine: bool
+) -> str:
+    """Why the result is empty or doubtful, and what to try; "" when there is nothing to say.
+    `found` copies were accepted, judged by the sensor when `by_visibility`."""
     first = passes[0]
     no_view = "" if run.viewpoint is not None else _no_viewpoint(run.unconfirmed)
-    if len(refined.origin) and run.viewpoint is not None and refine and not refined.by_visibility:
+    if found and run.viewpoint is not None and refine and not by_visibility:
         return (
             f"the scan does not look like one view from the viewpoint {_xyz(run.viewpoint)} "
             "(too much of it lies behind other scan points seen from there), so poses were "
             "judged by the share of the model they explain; if that is not where the sensor "
             "stood, pass its position, or viewpoint=None to orient the normals without one."
         )
-    if len(refined.origin):
+    if found:
         return ""
     if len(first.result) == 0:
         return (
@@ -50,7 +68,7 @@ _RULE_WORDS = {
 }  # fmt: skip
 
 
-def _rejected(run: _Run, first: Pass) -> str:
+def _rejected(run: _Judged, first: Pass) -> str:
     """Why verification rejected every candidate pose: for each rule that rejected some, how
     many and the nearest miss, its value against the threshold (one more ICP of the
     candidates, only when nothing was found)."""

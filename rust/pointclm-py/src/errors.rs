@@ -23,6 +23,7 @@ fn raise(e: &pointclm::Error, msg: String) -> PyErr {
         E::Allocation { .. } => PyMemoryError::new_err(msg),
         E::Cancelled => PyKeyboardInterrupt::new_err(msg),
         E::TooFewCorrespondences { .. }
+        | E::TooFewMatches { .. }
         | E::TooFewPoints { .. }
         | E::NonFinite { .. }
         | E::LengthMismatch { .. }

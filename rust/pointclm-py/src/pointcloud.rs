@@ -23,7 +23,7 @@ use crate::convert::{indices, matrices4, points as rows3};
 use crate::errors::{to_py_err_at, InputError};
 use crate::pools::{guarded, pool};
 
-fn rows_to_py<'py, const K: usize>(
+pub(crate) fn rows_to_py<'py, const K: usize>(
     py: Python<'py>,
     rows: &[[f64; K]],
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {

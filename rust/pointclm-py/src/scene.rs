@@ -10,10 +10,12 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::args;
-use crate::config::{declared_from_dict, declared_schema};
-use crate::convert::{matrices4, points as rows3};
-use crate::pointcloud::rigid_poses;
+use crate::config::{declared_from_dict, declared_schema, from_dict, to_dict};
+use crate::convert::{indices, matrices4, points as rows3};
+use crate::pointcloud::{rigid_poses, rows_to_py};
 use crate::pools::{guarded, pool};
+use crate::result::PyRegistration;
+use pointclm::kabsch::RigidTransform;
 
 /// Every field of the core's `SceneRules`, in order (as `config_schema`).
 #[pyfunction]
@@ -92,14 +94,13 @@ pub fn stability_factor<'py>(
     scene::ranking::stability_factor(&values(&stability), min_poses).into_pyarray(py)
 }
 
-/// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
-/// `register_point_clouds`' stages without a learned model), as a dict: `transformations`
-/// (M, 4, 4) surest first, `confidence` (M,), `pass_index` (the pass each came from), `passes`
-/// (their number), `voxel_size`, `by_visibility` (whether the sensor judged them), `viewpoint`
-/// (the sensor position judged by, given or estimated and confirmed; None), `orientation`
-/// (how the scan's normals were signed, in words).
+/// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`:
+/// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
-#[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, scene=None, num_threads=None))]
+#[pyo3(
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None)"
+)]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
     py: Python<'py>,
@@ -112,6 +113,10 @@ pub fn register_scan<'py>(
     heap: Option<bool>,
     heap_rank: usize,
     flips: bool,
+    top_k: usize,
+    mutual: bool,
+    n_samples: Option<usize>,
+    config: Option<Bound<'py, PyDict>>,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -126,24 +131,95 @@ pub fn register_scan<'py>(
         // 0 or 1: the plain mutual check (None in `register_point_clouds`).
         heap_rank: Some(heap_rank).filter(|&r| r > 1),
         flips,
+        matching: pointclm::MatchingConfig {
+            top_k,
+            mutual,
+            k: 1,
+            n_samples,
+        },
+        config: config.as_ref().map(|c| from_dict(Some(c))).transpose()?,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
-        ..scene::SceneOptions::default()
     };
     let threads = num_threads.map(pool).transpose()?;
     let out = guarded(py, threads, move || {
         scene::register_point_clouds(&m, &s, &options)
     })?;
-    let mats: Vec<_> = out.candidates.iter().map(|c| c.pose.to_matrix()).collect();
-    let confidence: Vec<f64> = out.candidates.iter().map(|c| c.confidence).collect();
-    let passes: Vec<usize> = out.candidates.iter().map(|c| c.pass_index).collect();
+    scene_dict(py, out)
+}
+
+/// A [`scene::SceneRegistration`] as `register_scan` returns it.
+fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'_, PyDict>> {
+    let c = &out.candidates;
+    let column = |f: fn(&scene::Candidate) -> f64| c.iter().map(f).collect::<Vec<f64>>();
+    let mats: Vec<_> = c.iter().map(|c| c.pose.to_matrix()).collect();
     let d = PyDict::new(py);
     d.set_item("transformations", matrices4(py, &mats))?;
-    d.set_item("confidence", confidence.into_pyarray(py))?;
-    d.set_item("pass_index", passes)?;
-    d.set_item("passes", out.passes.len())?;
+    d.set_item("confidence", column(|c| c.confidence).into_pyarray(py))?;
+    d.set_item("fitness", column(|c| c.fitness).into_pyarray(py))?;
+    d.set_item("inlier_rmse", column(|c| c.inlier_rmse).into_pyarray(py))?;
+    d.set_item(
+        "visible_fitness",
+        column(|c| c.visible_fitness).into_pyarray(py),
+    )?;
+    d.set_item(
+        "contradiction",
+        column(|c| c.contradiction).into_pyarray(py),
+    )?;
+    d.set_item("seen", column(|c| c.seen).into_pyarray(py))?;
+    d.set_item("visible_rmse", column(|c| c.visible_rmse).into_pyarray(py))?;
+    d.set_item(
+        "pass_index",
+        c.iter().map(|c| c.pass_index).collect::<Vec<_>>(),
+    )?;
+    d.set_item("instance", c.iter().map(|c| c.instance).collect::<Vec<_>>())?;
+    let passes = PyList::empty(py);
+    for pass in out.passes {
+        let rows: Vec<[f64; 6]> = (0..pass.correspondences.len())
+            .map(|i| {
+                let (a, b) = (
+                    pass.correspondences.source(i),
+                    pass.correspondences.target(i),
+                );
+                [a[0], a[1], a[2], b[0], b[1], b[2]]
+            })
+            .collect();
+        let poses = |p: &[RigidTransform]| {
+            let m: Vec<_> = p.iter().map(|t| t.to_matrix()).collect();
+            matrices4(py, &m)
+        };
+        let p = PyDict::new(py);
+        p.set_item("correspondences", rows_to_py(py, &rows)?)?;
+        p.set_item("result", PyRegistration::new(py, pass.registration)?)?;
+        p.set_item("scan_points", indices(py, &pass.scan_points))?;
+        p.set_item("added", pass.added)?;
+        p.set_item("voted", poses(&pass.voted))?;
+        p.set_item("duplicates", poses(&pass.duplicates))?;
+        passes.append(p)?;
+    }
+    d.set_item("passes", passes)?;
+    d.set_item("source_points", rows_to_py(py, &out.source.points)?)?;
+    d.set_item("source_normals", rows_to_py(py, &out.source.normals)?)?;
+    d.set_item("target_points", rows_to_py(py, &out.target.points)?)?;
+    d.set_item("target_normals", rows_to_py(py, &out.target.normals)?)?;
+    d.set_item("config", to_dict(py, &out.config)?)?;
+    let (a, b, t) = (out.source.timings, out.target.timings, out.timings);
+    let timings = PyDict::new(py);
+    timings.set_item("downsample", a.downsample + b.downsample)?;
+    timings.set_item("normals", a.normals + b.normals)?;
+    timings.set_item("fpfh", a.fpfh + b.fpfh)?;
+    timings.set_item("matching", t.matching)?;
+    timings.set_item("registration", t.registration)?;
+    timings.set_item("refinement", t.refinement)?;
+    timings.set_item("peeling", t.peeling)?;
+    timings.set_item("flips", t.flips)?;
+    d.set_item("timings", timings)?;
     d.set_item("voxel_size", out.voxel_size)?;
     d.set_item("by_visibility", out.by_visibility)?;
     d.set_item("viewpoint", out.viewpoint.map(|v| v.to_vec()))?;
+    d.set_item(
+        "unconfirmed_viewpoint",
+        out.unconfirmed_viewpoint.map(|v| v.to_vec()),
+    )?;
     d.set_item("orientation", out.orientation)?;
     Ok(d)
 }

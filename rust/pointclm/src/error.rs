@@ -8,6 +8,13 @@ pub enum Error {
     #[error("need at least {min} correspondences, got {got}")]
     TooFewCorrespondences { got: usize, min: usize },
 
+    /// Descriptor matching between a model and a scan left too few pairs for a pose.
+    #[error(
+        "only {got} correspondences survived matching: the clouds share too few similar local \
+         shapes (try mutual=False, a smaller voxel_size, or check the units)"
+    )]
+    TooFewMatches { got: usize },
+
     /// A NaN or infinite coordinate or feature value.
     #[error("{what} has a non-finite value (NaN or inf) in row {row}")]
     NonFinite { what: &'static str, row: usize },

@@ -48,7 +48,7 @@ pub mod voxel;
 pub use flips::{flip_turns, quarter_turns, resolve_flips};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds, Candidate, Pass,
-    SceneOptions, SceneRegistration, INLIER_VOXELS, SIGMA_D_VOXELS,
+    SceneOptions, SceneRegistration, SceneTimings, INLIER_VOXELS, SIGMA_D_VOXELS,
 };
 pub use rules::SceneRules;
 pub use sensor::{describe_scan, DescribedScan};

@@ -21,6 +21,7 @@ use crate::pointcloud::{
     Refined, RefinedPose,
 };
 use nalgebra::Matrix3;
+use std::time::Instant;
 
 use super::flips::resolve_flips;
 use super::peeling::{not_duplicates, unexplained};
@@ -156,6 +157,24 @@ pub struct SceneRegistration {
     pub unconfirmed_viewpoint: Option<[f64; 3]>,
     /// How the scan's normals were oriented, in words.
     pub orientation: String,
+    /// Seconds spent in each stage after the clouds were described (theirs are in
+    /// `source.timings` and `target.timings`).
+    pub timings: SceneTimings,
+}
+
+/// Seconds per stage of [`register_point_clouds`] after description.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SceneTimings {
+    /// Matching of the first pass.
+    pub matching: f64,
+    /// The correspondence stage of the first pass (its own stages in its `Registration`).
+    pub registration: f64,
+    /// ICP and verification of the first pass's poses (and the viewpoint's confirmation).
+    pub refinement: f64,
+    /// Every peeling round.
+    pub peeling: f64,
+    /// Turned alternatives and the final ranking.
+    pub flips: f64,
 }
 
 /// `Config::sigma_d` on clouds, in voxels: a right descriptor match lands within about a voxel
@@ -236,15 +255,25 @@ pub fn register_point_clouds(
     };
     let everything: Vec<usize> = (0..run.target.points.len()).collect();
     let heap = run.is_heap(0);
+    let mut timings = SceneTimings::default();
+    let mut clock = Instant::now();
+    let mut lap = || {
+        let seconds = clock.elapsed().as_secs_f64();
+        clock = Instant::now();
+        seconds
+    };
     let corr = run
         .matched(&everything, options.seed, heap)?
-        .map_err(|got| Error::TooFewCorrespondences { got, min: 3 })?;
+        .map_err(|got| Error::TooFewMatches { got })?;
+    timings.matching = lap();
     let registration = register(&corr, None, &config, options.seed)?;
+    timings.registration = lap();
     let first = if run.guessed {
         run.confirm_viewpoint(&poses_of(&registration))?
     } else {
         run.refine(&poses_of(&registration), &run.rules.clone())?
     };
+    timings.refinement = lap();
     let mut accepted = Accepted::from_pass(first, 0);
     let added = accepted.len();
     run.passes.push(Pass {
@@ -258,11 +287,14 @@ pub fn register_point_clouds(
     if options.peel && !accepted.is_empty() {
         accepted = run.peel(accepted, &config)?;
     }
+    timings.peeling = lap();
     if options.flips && !accepted.is_empty() {
         accepted = run.flipped(accepted)?;
     }
     let candidates = run.ranked(accepted)?;
+    timings.flips = lap();
     Ok(SceneRegistration {
+        timings,
         candidates,
         passes: run.passes,
         by_visibility: run.by_visibility,

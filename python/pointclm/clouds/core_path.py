@@ -1,0 +1,186 @@
+"""The training-free scene pipeline, run whole in the Rust core.
+
+`register_point_clouds` without a learned model calls the core's scene pipeline
+(``pointclm::scene::register_point_clouds``: sensor and viewpoint, description, matching, the
+correspondence stage, verification, peeling, turned alternatives, ranking) in one call, and
+this module turns its answer into a :class:`PointCloudRegistration`. The Python stages remain
+for the learned embedding and for the options the core does not take (see :func:`in_core`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..config import Config
+from ..preprocessing import as_count
+from ..refinement import RefinementContext
+from ..registration import as_config, as_seed
+from ..scene_rules import SceneRules
+from .diagnosis import _diagnose
+from .results import CloudInstance, Pass, PointCloudRegistration
+
+#: Whether calls the core covers run there. False runs the Python stages (those the learned
+#: path uses) instead: the two are compared in the tests and ``benchmarks/scene_core.py``.
+ENABLED = True
+
+
+def in_core(*, model: Any, refine: bool, k: int, window: float | str | None, normals: bool) -> bool:
+    """Whether the core's pipeline covers the call: no learned model (its forward pass needs
+    the Python embedding), poses refined and verified, the plain (k = 1) matching without a
+    mutual window, and no normals handed to the correspondence stage."""
+    covered = model is None and refine and k == 1 and window is None and not normals
+    return ENABLED and covered
+
+
+@dataclass(frozen=True)
+class CoreCall:
+    """What the core's pipeline is asked, checked."""
+
+    voxel: float
+    #: The correspondence stage's config in the clouds' units; None: the core's
+    #: ``cloud_config``.
+    config: Config | dict[str, Any] | None
+    seed: int
+    viewpoint: tuple[float, float, float] | None
+    top_k: int
+    mutual: bool
+    n_samples: int | None
+    heap_rank: int | None
+    heap: bool | None
+    peel: bool
+    flips: bool
+    scene: SceneRules
+    num_threads: int | None
+    #: Whether `viewpoint` is the one the scan file records (not the caller's).
+    recorded: bool = False
+
+    def checked(self) -> CoreCall:
+        """The call with its seed, matching counts (the core takes unsigned ints) and config
+        checked, the config as a dict of every field."""
+        as_count(self.top_k, "top_k", 1)
+        samples = None if self.n_samples is None else as_count(self.n_samples, "n_samples", 1)
+        config = None if self.config is None else as_config(self.config)
+        return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config)
+
+
+def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointCloudRegistration:
+    """`register_point_clouds` on loaded clouds, in the core; ``timings["load"]`` and
+    ``["total"]`` are left for the caller."""
+    out = _core.register_scan(
+        src,
+        tgt,
+        voxel_size=call.voxel,
+        viewpoint=call.viewpoint,
+        seed=call.seed,
+        peel=call.peel,
+        heap=call.heap,
+        heap_rank=call.heap_rank or 0,
+        flips=call.flips,
+        top_k=call.top_k,
+        mutual=call.mutual,
+        n_samples=call.n_samples,
+        config=None if call.config is None else as_config(call.config),
+        scene=call.scene.to_dict(),
+        num_threads=call.num_threads,
+    )
+    passes = [_pass(p) for p in out["passes"]]
+    instances = _instances(out, passes)
+    judged = _CoreJudged(out, call.num_threads)
+    return PointCloudRegistration(
+        result=passes[0].result,
+        correspondences=passes[0].correspondences,
+        source_points=out["source_points"],
+        target_points=out["target_points"],
+        voxel_size=out["voxel_size"],
+        config=Config.from_dict(out["config"]),
+        instances=instances,
+        timings=_timings(out["timings"], passes[0]),
+        passes=passes,
+        viewpoint=None if out["viewpoint"] is None else np.array(out["viewpoint"]),
+        orientation=out["orientation"] + _recorded(call),
+        diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes, True),
+    )
+
+
+def _recorded(call: CoreCall) -> str:
+    """What the orientation adds when the viewpoint was the scan file's."""
+    return " (the file's VIEWPOINT)" if call.recorded and call.viewpoint is not None else ""
+
+
+def _pass(p: dict[str, Any]) -> Pass:
+    return Pass(
+        p["correspondences"],
+        p["result"],
+        p["scan_points"],
+        p["added"],
+        voted=p["voted"],
+        duplicates=p["duplicates"],
+    )
+
+
+def _instances(out: dict[str, Any], passes: list[Pass]) -> list[CloudInstance]:
+    """Each copy found, with the correspondence stage's instance it came from (None for a
+    pose that point pair voting proposed)."""
+    found = []
+    origins = zip(out["pass_index"], out["instance"], strict=True)
+    for i, (pass_index, instance) in enumerate(origins):
+        result = passes[pass_index].result
+        found.append(
+            CloudInstance(
+                out["transformations"][i],
+                float(out["fitness"][i]),
+                float(out["inlier_rmse"][i]),
+                result.instances[instance] if instance < len(result) else None,
+                float(out["confidence"][i]),
+                float(out["visible_fitness"][i]),
+                float(out["contradiction"][i]),
+                pass_index,
+                float(out["visible_rmse"][i]),
+            )
+        )
+    return found
+
+
+def _timings(core: dict[str, float], first: Pass) -> dict[str, float]:
+    """Seconds per stage, in the order and with the names of the Python stages."""
+    stage = dict(first.result.timings)
+    return {
+        "load": 0.0,
+        **{s: core[s] for s in ("downsample", "normals", "fpfh", "matching")},
+        "embedding": 0.0,
+        **{s: stage.get(s, 0.0) for s in ("pruning", "clustering", "poses")},
+        **{s: core[s] for s in ("registration", "refinement", "peeling", "flips")},
+        "total": 0.0,
+    }
+
+
+class _CoreJudged:
+    """Where the core judged the poses from, for the diagnosis; the refinement context is
+    built only when a diagnosis asks why every candidate was rejected."""
+
+    def __init__(self, out: dict[str, Any], num_threads: int | None) -> None:
+        self._out = out
+        self.num_threads = num_threads
+        self.voxel = float(out["voxel_size"])
+        self.viewpoint = _point(out["viewpoint"])
+        self.unconfirmed = _point(out["unconfirmed_viewpoint"])
+
+    @cached_property
+    def refiner(self) -> RefinementContext:
+        return RefinementContext(
+            self._out["source_points"],
+            self._out["target_points"],
+            self.voxel,
+            viewpoint=self.viewpoint,
+            target_normals=self._out["target_normals"],
+            num_threads=self.num_threads,
+        )
+
+
+def _point(v: list[float] | None) -> tuple[float, float, float] | None:
+    return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
