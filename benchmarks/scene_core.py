@@ -1,14 +1,16 @@
-"""The Rust crate's end-to-end scene pipeline against the Python `register_point_clouds` on the
-same choices: the same copies, passes and voxel, poses to rounding, and the time of each.
+"""`register_point_clouds` in the Rust core (its default) against its Python stages on the same
+choices: the same copies, passes and voxel, poses to rounding, and the time of each.
 
-    python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--no-flips] [--out FILE]
+    python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--no-flips]
+                                    [--model NAME] [--out FILE]
 
 Scenes: bins of the validation models' parts (procedural boxes, fandisk, dragon; 20-30 copies,
 the bin's sensor as viewpoint), each with the default heap rule (ranked matching from the tenth
 copy on) and said to be a heap (``heap=True``: point pair voting too), and realistic scenes of
 the held-out models with their sensor given and without it (estimated from the scan). Both
 paths try turned alternatives (``flips=True``, the default; ``--no-flips`` turns them off in
-both). Each round runs every scene with each path in turn (alternating which goes first); the
+both); ``--model default`` adds the shipped network's embedding to both. Each round runs
+every scene with each path in turn (alternating which goes first); the
 table takes each scene's fastest call.
 """
 
@@ -59,7 +61,6 @@ def _view(v: np.ndarray) -> tuple[float, float, float]:
 
 def main() -> None:
     import pointclm
-    from pointclm import _core
     from pointclm.clouds import core_path
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -67,34 +68,31 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--no-flips", action="store_true", help="no turned alternatives")
+    ap.add_argument("--model", help="a learned model for both paths (e.g. default)")
     ap.add_argument("--out", help="write the report here (default: print it)")
     args = ap.parse_args()
     rows = []
     for name, model, scan, view, heap in scenes(args.seeds):
         best = {"python": np.inf, "rust": np.inf}
+        py = rs = None
         for r in range(args.rounds):
             for path in ("python", "rust") if r % 2 == 0 else ("rust", "python"):
+                core_path.ENABLED = path == "rust"  # False: the Python stages
                 t0 = time.perf_counter()
-                if path == "python":
-                    core_path.ENABLED = False  # the Python stages, not the core's
-                    py = pointclm.register_point_clouds(
-                        model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
-                        num_threads=args.threads,
-                    )  # fmt: skip
-                    core_path.ENABLED = True
-                else:
-                    rs = _core.register_scan(
-                        model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
-                        num_threads=args.threads,
-                    )  # fmt: skip
+                reg = pointclm.register_point_clouds(
+                    model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
+                    num_threads=args.threads, model=args.model,
+                )  # fmt: skip
                 best[path] = min(best[path], time.perf_counter() - t0)
-        poses = rs["transformations"]
-        same_count = len(poses) == len(py.instances) and len(rs["passes"]) == len(py.passes)
+                py, rs = (reg, rs) if path == "python" else (py, reg)
+        core_path.ENABLED = True
+        poses = rs.transformations
+        same_count = len(poses) == len(py.instances) and len(rs.passes) == len(py.passes)
         diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [
         f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.machine()}, "
-        f"{args.threads} threads, flips={not args.no_flips})",
+        f"{args.threads} threads, flips={not args.no_flips}, model={args.model})",
         "",
         "| scene | copies (Python) | copies (Rust) | same copies and passes | max pose diff "
         "| Python s | Rust s | Rust / Python |",

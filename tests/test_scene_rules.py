@@ -159,6 +159,51 @@ def test_the_core_scene_pipeline_gives_the_python_pipeline_s_poses(
         _core.register_scan(scene.model_points, scene.scan, scene={"max_stray_share": 2.0})
 
 
+def test_the_learned_path_in_the_core_gives_the_python_stages_poses(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The shipped network's embedding, called back from the core for every pass, and normals
+    # handed to the correspondence stage: the same result as the Python stages, bit for bit.
+    from pointclm.clouds import core_path
+    from pointclm.datasets.scenes import SceneParams, make_realistic_scene
+
+    scene = make_realistic_scene(0, SceneParams(model="bunny"))
+    for kwargs in (
+        {"model": "default"},
+        {"normals": True},
+        {"model": "default", "viewpoint": None},
+    ):
+        kwargs = {"viewpoint": scene.viewpoint, **kwargs}
+        found = {}
+        for enabled in (False, True):
+            with monkeypatch.context() as patch:
+                patch.setattr(core_path, "ENABLED", enabled)
+                found[enabled] = pointclm.register_point_clouds(
+                    scene.source_points, scene.target_points, **kwargs
+                )
+        py, rs = found[False], found[True]
+        assert len(rs.instances) == len(py.instances) >= 3 and len(rs.passes) == len(py.passes)
+        np.testing.assert_array_equal(rs.transformations, py.transformations)
+        np.testing.assert_array_equal(rs.correspondences, py.correspondences)
+        assert [i.confidence for i in rs.instances] == [i.confidence for i in py.instances]
+        assert rs.orientation == py.orientation and rs.diagnosis == py.diagnosis
+    if kwargs.get("model"):
+        assert rs.timings["embedding"] > 0
+    # One thread: the network, called back from the core's only worker, runs there (no wait
+    # for a free worker), with the same result.
+    one = pointclm.register_point_clouds(
+        scene.source_points, scene.target_points, num_threads=1, **kwargs
+    )
+    np.testing.assert_array_equal(one.transformations, rs.transformations)
+    # The embedding's own exception reaches the caller as it was raised.
+    with pytest.raises(ZeroDivisionError):
+        _core.register_scan(scene.source_points, scene.target_points, embed=lambda *cues: 1 / 0)
+    with pytest.raises(ValueError, match="rows for"):
+        _core.register_scan(
+            scene.source_points, scene.target_points, embed=lambda c, *cues: np.ones((1, 4))
+        )
+
+
 def test_verification_names_the_rule_that_rejected_each_pose() -> None:
     # Without a viewpoint: the model on its own scan twice (the second a duplicate) and once
     # far from it (explaining nothing of the model against the best pose's share).

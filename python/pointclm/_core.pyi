@@ -5,6 +5,7 @@ the extension), MemoryError and KeyboardInterrupt; it defines no exception class
 """
 
 import os
+from collections.abc import Callable
 from typing import Any, final
 
 import numpy as np
@@ -316,15 +317,19 @@ def register_scan(
     config: dict[str, Any] | None = None,
     scene: dict[str, Any] | None = None,
     num_threads: int | None = None,
+    pair_normals: bool = False,
+    embed: Callable[..., npt.NDArray[np.float64]] | None = None,
+    embed_inputs: list[str] = ...,
 ) -> dict[str, Any]:
-    """The core's scene pipeline. Keys: ``transformations`` (M, 4, 4) surest first, and per
-    copy ``confidence``, ``fitness``, ``inlier_rmse``, ``visible_fitness``,
-    ``contradiction``, ``seen``, ``visible_rmse`` (M,), ``pass_index`` and ``instance``
-    (lists); ``passes`` (dicts: ``correspondences`` (N, 6), ``result``, ``scan_points``,
-    ``added``, ``voted`` and ``duplicates`` (K, 4, 4)); ``source_points``,
-    ``source_normals``, ``target_points``, ``target_normals``; ``config`` (a dict);
-    ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``, ``viewpoint``,
-    ``unconfirmed_viewpoint`` (lists or None) and ``orientation``."""
+    """The core's scene pipeline; ``embed(correspondences, normals, similarity)`` computes
+    each pass's learned embedding (the cues ``embed_inputs`` names given, else None). Keys:
+    ``transformations`` (M, 4, 4) surest first, and per copy ``confidence``, ``fitness``,
+    ``inlier_rmse``, ``visible_fitness``, ``contradiction``, ``seen``, ``visible_rmse``
+    (M,), ``pass_index`` and ``instance`` (lists); ``passes`` (dicts: ``correspondences``
+    (N, 6), ``result``, ``scan_points``, ``added``, ``voted`` and ``duplicates`` (K, 4, 4));
+    ``source_points``, ``source_normals``, ``target_points``, ``target_normals``; ``config``
+    (a dict); ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``,
+    ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``."""
 
 def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
 def cloud_base_config() -> dict[str, Any]: ...

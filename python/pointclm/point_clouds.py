@@ -231,9 +231,9 @@ def register_point_clouds(
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
-    if in_core(model=embedding, refine=refine, k=k, window=window, normals=normals):
+    if in_core(refine=refine, k=k, window=window):
         call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                        flips, sc, num_threads, viewpoint is None)  # fmt: skip
+                        flips, sc, num_threads, viewpoint is None, embedding, normals)  # fmt: skip
         return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
     run, orientation = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
                                    mutual, n_samples, k, window, rank, heap, normals, seed,

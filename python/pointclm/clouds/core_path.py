@@ -3,12 +3,14 @@
 `register_point_clouds` without a learned model calls the core's scene pipeline
 (``pointclm::scene::register_point_clouds``: sensor and viewpoint, description, matching, the
 correspondence stage, verification, peeling, turned alternatives, ranking) in one call, and
-this module turns its answer into a :class:`PointCloudRegistration`. The Python stages remain
-for the learned embedding and for the options the core does not take (see :func:`in_core`).
+this module turns its answer into a :class:`PointCloudRegistration`. A learned model's
+embedding is called back from the core for every pass (either backend). The Python stages
+remain for the options the core does not take (see :func:`in_core`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
@@ -17,6 +19,7 @@ import numpy as np
 
 from .. import _core
 from ..config import Config
+from ..embedding import Embedding
 from ..preprocessing import as_count
 from ..refinement import RefinementContext
 from ..registration import as_config, as_seed
@@ -24,17 +27,15 @@ from ..scene_rules import SceneRules
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
 
-#: Whether calls the core covers run there. False runs the Python stages (those the learned
-#: path uses) instead: the two are compared in the tests and ``benchmarks/scene_core.py``.
+#: Whether calls the core covers run there. False runs the Python stages instead: the two are
+#: compared in the tests and ``benchmarks/scene_core.py``.
 ENABLED = True
 
 
-def in_core(*, model: Any, refine: bool, k: int, window: float | str | None, normals: bool) -> bool:
-    """Whether the core's pipeline covers the call: no learned model (its forward pass needs
-    the Python embedding), poses refined and verified, the plain (k = 1) matching without a
-    mutual window, and no normals handed to the correspondence stage."""
-    covered = model is None and refine and k == 1 and window is None and not normals
-    return ENABLED and covered
+def in_core(*, refine: bool, k: int, window: float | str | None) -> bool:
+    """Whether the core's pipeline covers the call: poses refined and verified, and the plain
+    (k = 1) matching without a mutual window."""
+    return ENABLED and refine and k == 1 and window is None
 
 
 @dataclass(frozen=True)
@@ -42,8 +43,8 @@ class CoreCall:
     """What the core's pipeline is asked, checked."""
 
     voxel: float
-    #: The correspondence stage's config in the clouds' units; None: the core's
-    #: ``cloud_config``.
+    #: The correspondence stage's config, in the clouds' units; None: ``cloud_config`` (that
+    #: of the learned model when there is one).
     config: Config | dict[str, Any] | None
     seed: int
     viewpoint: tuple[float, float, float] | None
@@ -58,13 +59,21 @@ class CoreCall:
     num_threads: int | None
     #: Whether `viewpoint` is the one the scan file records (not the caller's).
     recorded: bool = False
+    #: The learned embedding of every pass's correspondences; None: training-free.
+    model: Embedding | None = None
+    #: Whether the correspondence stage gets the normals at both ends of each pair.
+    normals: bool = False
 
     def checked(self) -> CoreCall:
-        """The call with its seed, matching counts (the core takes unsigned ints) and config
-        checked, the config as a dict of every field."""
+        """The call with its seed and matching counts checked (the core takes unsigned
+        ints)."""
+        # Imported here: the module that declares the config calls this one.
+        from ..point_clouds import _config
+
         as_count(self.top_k, "top_k", 1)
         samples = None if self.n_samples is None else as_count(self.n_samples, "n_samples", 1)
-        config = None if self.config is None else as_config(self.config)
+        level = self.scene.peel_cluster_level
+        config = _config(self.config, self.voxel, self.model, True, self.peel, level)
         return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config)
 
 
@@ -84,9 +93,12 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         top_k=call.top_k,
         mutual=call.mutual,
         n_samples=call.n_samples,
-        config=None if call.config is None else as_config(call.config),
+        config=as_config(call.config),
         scene=call.scene.to_dict(),
         num_threads=call.num_threads,
+        pair_normals=call.normals,
+        embed=None if call.model is None else _embedding(call.model, call),
+        embed_inputs=[] if call.model is None else list(call.model.inputs),
     )
     passes = [_pass(p) for p in out["passes"]]
     instances = _instances(out, passes)
@@ -105,6 +117,22 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         orientation=out["orientation"] + _recorded(call),
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes, True),
     )
+
+
+def _embedding(model: Embedding, call: CoreCall) -> Callable[..., np.ndarray]:
+    """The core's embedding callback: a pass's correspondences (clouds' units) and the cues
+    the network takes, embedded in its training units."""
+
+    def embed(corr: np.ndarray, normals: np.ndarray | None, similarity: np.ndarray | None):
+        return model.embed(
+            corr,
+            as_config(call.config)["sigma_d"],
+            num_threads=call.num_threads,
+            normals=normals,
+            similarity=similarity,
+        )
+
+    return embed
 
 
 def _recorded(call: CoreCall) -> str:
@@ -152,7 +180,7 @@ def _timings(core: dict[str, float], first: Pass) -> dict[str, float]:
     return {
         "load": 0.0,
         **{s: core[s] for s in ("downsample", "normals", "fpfh", "matching")},
-        "embedding": 0.0,
+        "embedding": core["embedding"],
         **{s: stage.get(s, 0.0) for s in ("pruning", "clustering", "poses")},
         **{s: core[s] for s in ("registration", "refinement", "peeling", "flips")},
         "total": 0.0,

@@ -202,6 +202,19 @@ pub fn guarded<T: Send + 'static>(
         Some(p) => p,
         None => cached(0)?,
     };
+    if rayon::current_thread_index().is_some() {
+        // Called from inside the core's own work (a Python callback, such as a learned
+        // embedding, running on a pool's worker): spawning onto a pool whose workers are all
+        // busy waiting for this call would never start, so run here, in `pool` (inline when
+        // it is the caller's own). The outer call watches for Ctrl-C.
+        let ran = py.detach(move || catch_unwind(AssertUnwindSafe(|| pool.install(f))));
+        return match ran {
+            Ok(r) => r.map_err(to_py_err),
+            Err(_) => Err(PyRuntimeError::new_err(
+                "internal error in pointclm (please report)",
+            )),
+        };
+    }
     let token = CancelToken::new();
     let worker_token = token.clone();
     let (tx, mut rx) = sync_channel(1);

@@ -6,8 +6,10 @@ use numpy::{
 };
 use pointclm::pointcloud::RefineParams;
 use pointclm::scene::{self, SceneRules};
+use pointclm::{Correspondences, Features};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
+use std::sync::{Arc, Mutex};
 
 use crate::args;
 use crate::config::{declared_from_dict, declared_schema, from_dict, to_dict};
@@ -98,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None)"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new()),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[])"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -119,10 +121,22 @@ pub fn register_scan<'py>(
     config: Option<Bound<'py, PyDict>>,
     scene: Option<Bound<'py, PyDict>>,
     #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    pair_normals: bool,
+    embed: Option<Py<PyAny>>,
+    embed_inputs: Vec<String>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
+    let embedder = embed.map(|callback| {
+        Arc::new(PyEmbedder {
+            normals: embed_inputs.iter().any(|i| i == "normals"),
+            similarity: embed_inputs.iter().any(|i| i == "similarity"),
+            callback,
+            error: Mutex::new(None),
+        })
+    });
     let options = scene::SceneOptions {
+        pair_normals,
         voxel_size,
         viewpoint,
         seed,
@@ -141,10 +155,81 @@ pub fn register_scan<'py>(
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
     };
     let threads = num_threads.map(pool).transpose()?;
+    let inner = embedder.clone();
     let out = guarded(py, threads, move || {
-        scene::register_point_clouds(&m, &s, &options)
-    })?;
-    scene_dict(py, out)
+        let embedder = inner.as_deref().map(|e| e as &dyn scene::Embedder);
+        scene::register_point_clouds_with(&m, &s, &options, embedder)
+    });
+    // The embedding's own exception, not the core's note that it failed.
+    if let Some(raised) = embedder.and_then(|e| e.error.lock().ok()?.take()) {
+        return Err(raised);
+    }
+    scene_dict(py, out?)
+}
+
+/// The learned embedding as a Python callable computes it: `callback(correspondences (N, 6),
+/// normals (N, 6) or None, similarity (N,) or None) -> (N, C)`, called with the GIL taken
+/// from the core's worker thread. Its exception is kept to be raised as it was.
+struct PyEmbedder {
+    callback: Py<PyAny>,
+    normals: bool,
+    similarity: bool,
+    error: Mutex<Option<PyErr>>,
+}
+
+impl scene::Embedder for PyEmbedder {
+    fn takes_normals(&self) -> bool {
+        self.normals
+    }
+
+    fn takes_similarity(&self) -> bool {
+        self.similarity
+    }
+
+    fn embed(&self, c: &Correspondences) -> pointclm::Result<Features> {
+        Python::attach(|py| self.call(py, c)).map_err(|e| {
+            if let Ok(mut kept) = self.error.lock() {
+                *kept = Some(e);
+            }
+            pointclm::Error::InvalidParameter {
+                name: "embed",
+                value: "a Python callable".into(),
+                reason: "raised an exception",
+            }
+        })
+    }
+}
+
+impl PyEmbedder {
+    fn call(&self, py: Python<'_>, c: &Correspondences) -> PyResult<Features> {
+        let rows =
+            |f: &dyn Fn(usize) -> [f64; 6]| -> Vec<[f64; 6]> { (0..c.len()).map(f).collect() };
+        let pair = |a: [f64; 3], b: [f64; 3]| [a[0], a[1], a[2], b[0], b[1], b[2]];
+        let corr = rows_to_py(py, &rows(&|i| pair(c.source(i), c.target(i))))?;
+        let normals = match c.has_normals() && self.normals {
+            true => Some(rows_to_py(
+                py,
+                &rows(&|i| {
+                    let (a, b) = c.normals(i).unwrap_or_default();
+                    pair(a, b)
+                }),
+            )?),
+            false => None,
+        };
+        let similarity = c.similarity().map(|v| v.to_vec().into_pyarray(py));
+        let out = self.callback.call1(py, (corr, normals, similarity))?;
+        let array: PyReadonlyArray2<'_, f64> = out.extract(py)?;
+        let view = array.as_array();
+        let width = view.ncols();
+        if view.nrows() != c.len() {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "the embedding gave {} rows for {} correspondences",
+                view.nrows(),
+                c.len()
+            )));
+        }
+        Features::new(view.iter().copied().collect(), width).map_err(crate::errors::to_py_err)
+    }
 }
 
 /// A [`scene::SceneRegistration`] as `register_scan` returns it.
@@ -208,6 +293,7 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
     timings.set_item("normals", a.normals + b.normals)?;
     timings.set_item("fpfh", a.fpfh + b.fpfh)?;
     timings.set_item("matching", t.matching)?;
+    timings.set_item("embedding", t.embedding)?;
     timings.set_item("registration", t.registration)?;
     timings.set_item("refinement", t.refinement)?;
     timings.set_item("peeling", t.peeling)?;

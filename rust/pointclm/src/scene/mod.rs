@@ -37,6 +37,7 @@
 //! # Ok::<(), pointclm::Error>(())
 //! ```
 
+pub mod embedder;
 pub mod flips;
 pub mod peeling;
 pub mod ranking;
@@ -45,10 +46,12 @@ pub mod rules;
 pub mod sensor;
 pub mod voxel;
 
+pub use embedder::{similarity, Embedder, NetworkEmbedder};
 pub use flips::{flip_turns, quarter_turns, resolve_flips};
 pub use register::{
-    cloud_base_config, cloud_config, config_for_voxel, register_point_clouds, Candidate, Pass,
-    SceneOptions, SceneRegistration, SceneTimings, INLIER_VOXELS, SIGMA_D_VOXELS,
+    cloud_base_config, cloud_config, config_for_voxel, register_point_clouds,
+    register_point_clouds_with, Candidate, Pass, SceneOptions, SceneRegistration, SceneTimings,
+    INLIER_VOXELS, SIGMA_D_VOXELS,
 };
 pub use rules::SceneRules;
 pub use sensor::{describe_scan, DescribedScan};

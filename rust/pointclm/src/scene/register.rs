@@ -10,7 +10,7 @@
 //! arithmetic (poses equal to rounding), and adds the learned embedding.
 
 use crate::config::Config;
-use crate::correspondences::{Correspondences, Features};
+use crate::correspondences::{Correspondences, Features, DEFAULT_NORMAL_TOLERANCE};
 use crate::error::{Error, Result};
 use crate::kabsch::RigidTransform;
 use crate::matching::{match_features_given, nearest_sources, MatchingConfig, NearestSources};
@@ -23,6 +23,7 @@ use crate::pointcloud::{
 use nalgebra::Matrix3;
 use std::time::Instant;
 
+use super::embedder::{similarity, Embedder};
 use super::flips::resolve_flips;
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
@@ -57,6 +58,9 @@ pub struct SceneOptions {
     /// In a heap, a match is kept when the scan point is among its model point's `heap_rank`
     /// most similar scan points still unexplained (`None` or 1: the plain mutual check).
     pub heap_rank: Option<usize>,
+    /// Give the correspondence stage the unit normals at both ends of each correspondence
+    /// (their angles join the length test; an embedder that reads normals gets them anyway).
+    pub pair_normals: bool,
     /// Try turned alternatives of every accepted pose before ranking ([`resolve_flips`]):
     /// half turns, quarter turns and the turns peeling's duplicates make with the copy they
     /// lie on.
@@ -80,6 +84,7 @@ impl Default for SceneOptions {
             peel: true,
             heap: None,
             heap_rank: Some(64),
+            pair_normals: false,
             flips: true,
             seed: 0,
             scene: SceneRules::default(),
@@ -167,6 +172,8 @@ pub struct SceneRegistration {
 pub struct SceneTimings {
     /// Matching of the first pass.
     pub matching: f64,
+    /// The learned embedding of the first pass's correspondences (0 without one).
+    pub embedding: f64,
     /// The correspondence stage of the first pass (its own stages in its `Registration`).
     pub registration: f64,
     /// ICP and verification of the first pass's poses (and the viewpoint's confirmation).
@@ -227,6 +234,19 @@ pub fn register_point_clouds(
     scan: &[[f64; 3]],
     options: &SceneOptions,
 ) -> Result<SceneRegistration> {
+    register_point_clouds_with(model, scan, options, None)
+}
+
+/// [`register_point_clouds`] with a learned embedding: `embedder` embeds every pass's
+/// correspondences (with the cues it takes attached) and the correspondence stage prunes and
+/// clusters with it. Give `options.config` the thresholds chosen with the network, in the
+/// clouds' units.
+pub fn register_point_clouds_with(
+    model: &[[f64; 3]],
+    scan: &[[f64; 3]],
+    options: &SceneOptions,
+    embedder: Option<&dyn Embedder>,
+) -> Result<SceneRegistration> {
     check_points(model, "model points", 3)?;
     check_points(scan, "scan points", 3)?;
     let bad = options.scene.clone();
@@ -245,7 +265,7 @@ pub fn register_point_clouds(
         None => default_voxel_size(model, Some(scan), &options.scene)?,
     };
     check_positive("voxel_size (the model has no extent: give one)", voxel)?;
-    let mut run = Run::new(model, scan, voxel, options)?;
+    let mut run = Run::new(model, scan, voxel, options, embedder)?;
     let config = match &options.config {
         Some(c) => c.clone(),
         None => cloud_config(
@@ -262,11 +282,13 @@ pub fn register_point_clouds(
         clock = Instant::now();
         seconds
     };
-    let corr = run
+    let (corr, distances) = run
         .matched(&everything, options.seed, heap)?
         .map_err(|got| Error::TooFewMatches { got })?;
     timings.matching = lap();
-    let registration = register(&corr, None, &config, options.seed)?;
+    let features = run.features(&corr, &distances)?;
+    timings.embedding = lap();
+    let registration = register(&corr, features.as_ref(), &config, options.seed)?;
     timings.registration = lap();
     let first = if run.guessed {
         run.confirm_viewpoint(&poses_of(&registration))?
@@ -321,6 +343,7 @@ struct Run<'o> {
     rules: RefineParams,
     voxel: f64,
     options: &'o SceneOptions,
+    embedder: Option<&'o dyn Embedder>,
     passes: Vec<Pass>,
     by_visibility: bool,
     /// The sensor position verification judges by.
@@ -340,6 +363,7 @@ impl<'o> Run<'o> {
         scan: &[[f64; 3]],
         voxel: f64,
         options: &'o SceneOptions,
+        embedder: Option<&'o dyn Embedder>,
     ) -> Result<Self> {
         let centre = mean_point(model);
         let source = describe(
@@ -372,6 +396,7 @@ impl<'o> Run<'o> {
             rules,
             voxel,
             options,
+            embedder,
             passes: Vec::new(),
             by_visibility: false,
             viewpoint: scan.viewpoint,
@@ -452,7 +477,7 @@ impl<'o> Run<'o> {
         rows: &[usize],
         seed: u64,
         heap: bool,
-    ) -> Result<std::result::Result<Correspondences, usize>> {
+    ) -> Result<std::result::Result<(Correspondences, Vec<f64>), usize>> {
         let mut config = self.options.matching;
         let ranked;
         let rows = if heap {
@@ -491,7 +516,26 @@ impl<'o> Run<'o> {
         if src.len() < 3 {
             return Ok(Err(src.len()));
         }
-        Ok(Ok(Correspondences::new(&src, &tgt)?))
+        let mut corr = Correspondences::new(&src, &tgt)?;
+        if self.options.pair_normals || self.embedder.is_some_and(|e| e.takes_normals()) {
+            let ns: Vec<[f64; 3]> = m.source.iter().map(|&i| self.source.normals[i]).collect();
+            let nt: Vec<[f64; 3]> = used.iter().map(|&j| self.target.normals[j]).collect();
+            corr = corr.with_normals(&ns, &nt, DEFAULT_NORMAL_TOLERANCE)?;
+        }
+        Ok(Ok((corr, m.distance)))
+    }
+
+    /// The learned embedding of a pass's correspondences (with the descriptor similarity of
+    /// their `distances` when the embedder takes it); None without an embedder.
+    fn features(&self, corr: &Correspondences, distances: &[f64]) -> Result<Option<Features>> {
+        let Some(embedder) = self.embedder else {
+            return Ok(None);
+        };
+        if embedder.takes_similarity() {
+            let with = corr.clone().with_similarity(&similarity(distances))?;
+            return embedder.embed(&with).map(Some);
+        }
+        embedder.embed(corr).map(Some)
     }
 
     /// Whether a pass after `accepted` copies matches as in a heap: the scan is said to be one,
@@ -610,10 +654,11 @@ impl<'o> Run<'o> {
             } else {
                 Vec::new()
             };
-            let Ok(corr) = self.matched(&rows, seed, heap)? else {
+            let Ok((corr, distances)) = self.matched(&rows, seed, heap)? else {
                 break;
             };
-            let registration = register(&corr, None, config, seed)?;
+            let features = self.features(&corr, &distances)?;
+            let registration = register(&corr, features.as_ref(), config, seed)?;
             let clustered = registration.instances.len();
             let reach = self.within_reach(&voted, &accepted)?;
             let mut candidates = poses_of(&registration);

@@ -186,3 +186,117 @@ fn verification_says_which_rule_rejected_each_pose() {
     assert_eq!(out.rejected[0].value, 1.0);
     assert_eq!(out.rejected[1].threshold, 0.8);
 }
+
+#[test]
+fn an_embedder_sees_every_pass_with_the_cues_it_takes_and_its_errors_reach_the_caller() {
+    use crate::correspondences::{Correspondences, Features};
+    use crate::scene::{register_point_clouds_with, similarity, Embedder, SceneOptions};
+    use crate::Error;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    struct Counting {
+        calls: AtomicUsize,
+        fail: bool,
+    }
+    impl Embedder for Counting {
+        fn takes_normals(&self) -> bool {
+            true
+        }
+        fn takes_similarity(&self) -> bool {
+            true
+        }
+        fn embed(&self, c: &Correspondences) -> crate::Result<Features> {
+            self.calls.fetch_add(1, Ordering::SeqCst);
+            assert!(c.has_normals());
+            let s = c.similarity().expect("the similarity it takes");
+            assert!(s.iter().all(|&v| v > 0.0 && v <= 1.0));
+            if self.fail {
+                return Err(Error::InvalidParameter {
+                    name: "embed",
+                    value: "test".into(),
+                    reason: "fails on purpose",
+                });
+            }
+            // One unit row each: the features agree everywhere, the lengths decide.
+            Features::new(vec![1.0; c.len()], 1)
+        }
+    }
+    let model: Vec<[f64; 3]> = (0..2000)
+        .map(|i| {
+            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
+            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
+            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
+            [r * d[0], r * d[1], r * d[2]]
+        })
+        .collect();
+    let scan: Vec<[f64; 3]> = (0..2)
+        .flat_map(|k| {
+            model
+                .iter()
+                .map(move |p| [p[0] + 4.0 * k as f64, p[1], p[2]])
+        })
+        .collect();
+    let embedder = Counting {
+        calls: AtomicUsize::new(0),
+        fail: false,
+    };
+    let options = SceneOptions::default();
+    let found = register_point_clouds_with(&model, &scan, &options, Some(&embedder)).unwrap();
+    assert_eq!(embedder.calls.load(Ordering::SeqCst), found.passes.len());
+    assert!(!found.candidates.is_empty());
+    let failing = Counting {
+        calls: AtomicUsize::new(0),
+        fail: true,
+    };
+    let err = register_point_clouds_with(&model, &scan, &options, Some(&failing)).unwrap_err();
+    assert!(matches!(err, Error::InvalidParameter { name: "embed", .. }));
+    // Similarities: the median maps to one half, exact matches to one.
+    assert_eq!(similarity(&[1.0, 2.0, 3.0]), vec![2.0 / 3.0, 0.5, 0.4]);
+    assert_eq!(similarity(&[0.0, 0.0, 3.0]), vec![1.0, 1.0, 1.0 / 4.0]);
+    assert!(similarity(&[]).is_empty());
+}
+
+#[test]
+fn the_shipped_network_embeds_every_pass_of_the_scene_pipeline() {
+    use crate::network::Network;
+    use crate::scene::{cloud_config, register_point_clouds_with, NetworkEmbedder, SceneOptions};
+    let weights = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../python/pointclm/weights/default.safetensors");
+    let network = Network::from_file(weights).unwrap();
+    let model: Vec<[f64; 3]> = (0..2000)
+        .map(|i| {
+            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
+            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
+            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
+            [r * d[0], r * d[1], r * d[2]]
+        })
+        .collect();
+    let scan: Vec<[f64; 3]> = (0..2)
+        .flat_map(|k| {
+            model
+                .iter()
+                .map(move |p| [p[0] + 4.0 * k as f64, p[1], p[2]])
+        })
+        .collect();
+    let voxel = 0.05;
+    let config = cloud_config(voxel, Some(SceneRules::default().peel_cluster_level));
+    let embedder = NetworkEmbedder {
+        network: &network,
+        sigma_d: config.sigma_d,
+    };
+    let options = SceneOptions {
+        voxel_size: Some(voxel),
+        config: Some(config),
+        ..SceneOptions::default()
+    };
+    let found = register_point_clouds_with(&model, &scan, &options, Some(&embedder)).unwrap();
+    assert_eq!(found.candidates.len(), 2);
+    assert!(found.timings.embedding > 0.0);
+    let bad = NetworkEmbedder {
+        network: &network,
+        sigma_d: 0.0,
+    };
+    assert!(register_point_clouds_with(&model, &scan, &options, Some(&bad)).is_err());
+}
