@@ -35,7 +35,7 @@ __all__ = ["MIN_RELATIVE_EIGENVALUE", "UNOBSERVABLE_SPREADS", "PoseCovariances",
 
 #: See the module documentation (``pointclm::pointcloud::covariance`` in the Rust core).
 MIN_RELATIVE_EIGENVALUE = 5e-3
-UNOBSERVABLE_SPREADS = 1e3
+UNOBSERVABLE_SPREADS = 10.0
 
 #: Pairs are model points within this many voxels of a scan point, as for ``fitness``.
 _PAIR_VOXELS = 1.5

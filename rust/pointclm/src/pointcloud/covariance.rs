@@ -17,7 +17,9 @@ use crate::kabsch::RigidTransform;
 /// An unobservable direction's standard deviation, in spreads of the explained points about
 /// their centroid (translations) or in radians (rotations): large and finite, so that a
 /// covariance stays JSON-safe and a ROS consumer reads "unknown" without meeting infinity.
-pub const UNOBSERVABLE_SPREADS: f64 = 1e3;
+/// Why not larger: a noisy face's slide directions lean a little (by its normals' noise)
+/// towards the pinned ones, and this variance leaks into them by that lean squared.
+pub const UNOBSERVABLE_SPREADS: f64 = 10.0;
 
 /// A direction of the (centred, rotation scaled by the spread) information matrix is
 /// unobservable when its eigenvalue is below this share of the largest. Why this value: a
