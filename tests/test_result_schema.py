@@ -73,6 +73,14 @@ def test_register_and_batch_outputs_follow_the_schema(schema, outputs) -> None:
         assert _errors(schema, line, "batch_line") == []
 
 
+def test_each_instance_carries_a_finite_symmetric_covariance(outputs) -> None:
+    for inst in outputs["register"][0]["instances"]:
+        cov = np.array(inst["covariance"])
+        assert cov.shape == (6, 6) and np.isfinite(cov).all()
+        np.testing.assert_allclose(cov, cov.T, atol=1e-12 * np.abs(cov).max())
+        assert 0 <= inst["unobservable"] <= 6
+
+
 def test_the_schema_names_the_current_format_version(schema) -> None:
     assert schema["$defs"]["format_version"]["const"] == FORMAT_VERSION
 

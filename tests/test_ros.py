@@ -328,10 +328,17 @@ def test_detections_as_dicts_carry_class_score_pose_box_and_unknown_covariance()
     np.testing.assert_allclose([box["center"]["position"][a] for a in "xyz"], centre)
 
 
-def test_an_instance_covariance_is_passed_row_major():
+def test_an_instance_covariance_is_reordered_translation_first_row_major():
+    # pointclm's order is (rx, ry, rz, x, y, z); ROS's is (x, y, z, rx, ry, rz).
     cov = np.arange(36.0).reshape(6, 6)
     out = detection3d_array(_result(cov), output="dict")
-    assert out["detections"][0]["results"][0]["pose"]["covariance"] == list(np.arange(36.0))
+    ros = np.array(out["detections"][0]["results"][0]["pose"]["covariance"]).reshape(6, 6)
+    assert ros[0, 0] == cov[3, 3] and ros[3, 3] == cov[0, 0]  # var x, var rx
+    assert ros[0, 5] == cov[3, 2]  # cov(x, rz)
+    assert ros[5, 0] == cov[2, 3]
+    np.testing.assert_array_equal(ros[:3, :3], cov[3:, 3:])
+    np.testing.assert_array_equal(ros[3:, 3:], cov[:3, :3])
+    np.testing.assert_array_equal(ros[:3, 3:], cov[3:, :3])
     with pytest.raises(ValueError, match="covariance must be 6 x 6"):
         detection3d_array(_result(np.eye(3)), output="dict")
 

@@ -145,6 +145,17 @@ class RefineContext:
         radius: float,
         num_threads: int | None = None,
     ) -> npt.NDArray[np.float64]: ...
+    def pose_covariances(
+        self,
+        transformations: npt.NDArray[np.float64],
+        radius: float,
+        num_threads: int | None = None,
+    ) -> tuple[
+        npt.NDArray[np.float64],
+        npt.NDArray[np.float64],
+        npt.NDArray[np.int64],
+        npt.NDArray[np.float64],
+    ]: ...
     def near_mask(
         self, points: npt.NDArray[np.float64], radius: float, num_threads: int | None = None
     ) -> npt.NDArray[np.bool_]: ...

@@ -38,7 +38,7 @@ from .clouds.sensor import (  # noqa: F401 (the scan's stray and side rules, re-
     _without_strays,
     default_voxel_size,
 )
-from .clouds.verification import _instances, _verify
+from .clouds.verification import _covariances, _instances, _verify
 from .config import Config
 from .docstrings import fill
 from .embedding import Embedding, resolve
@@ -391,7 +391,7 @@ def _register(
         target_points=run.tgt_d.points,
         voxel_size=run.voxel,
         config=cfg,
-        instances=_instances(refined, tags, passes),
+        instances=_instances(refined, tags, passes, _covariances(run, refined)),
         timings=timings,
         passes=passes,
         viewpoint=None if run.viewpoint is None else np.array(run.viewpoint),

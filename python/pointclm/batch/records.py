@@ -17,7 +17,7 @@ __all__ = [
 #: The version of the JSON `register --out` and `batch` write, their first field:
 #: MAJOR.MINOR, the minor one raised when fields are added, the major one when a field is
 #: renamed, removed or changes meaning. `pointclm/schemas/result.schema.json` describes it.
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "1.1"
 
 #: The fields of a batch line that change from run to run; everything else is fixed by the
 #: scan, the model, the options and the seed.
@@ -27,6 +27,12 @@ TIMING_FIELDS = ("timings_s", "seconds")
 def _number(value: float) -> float | None:
     # JSON has no NaN; a score that could not be measured is null.
     return None if not math.isfinite(value) else float(value)
+
+
+def _matrix(value: Any) -> list[list[float]] | None:
+    if value is None:
+        return None
+    return [[float(v) for v in row] for row in value]
 
 
 def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
@@ -48,6 +54,9 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
             "contradiction": _number(inst.contradiction),
             "visible_rmse": _number(inst.visible_rmse),
             "pass": inst.pass_index,
+            # Order (rx, ry, rz, x, y, z), finite (pointclm.covariance); null when not computed.
+            "covariance": _matrix(getattr(inst, "covariance", None)),
+            "unobservable": int(getattr(inst, "unobservable", 0)),
         }
         for inst in reg.instances
     ]

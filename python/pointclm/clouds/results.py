@@ -51,6 +51,10 @@ class CloudInstance(PoseForms):
     ``PointCloudRegistration.passes[pass_index].correspondences``; pass 0's are
     ``PointCloudRegistration.correspondences``), or None when the pose was proposed by point
     pair voting in a heap (`HEAP_VOTED_POSES`; no correspondence inliers).
+    ``information`` and ``covariance`` (6 x 6, order rx, ry, rz in radians then x, y, z in the
+    clouds' units, rotations about the model's origin in the scan's axes) say how well the scan
+    pins the pose down; ``unobservable`` counts the directions it does not
+    (:func:`pointclm.covariance.pose_covariances`).
     """
 
     transformation: np.ndarray
@@ -62,6 +66,12 @@ class CloudInstance(PoseForms):
     contradiction: float = float("nan")
     pass_index: int = 0
     visible_rmse: float = float("nan")
+    #: (6, 6) point-to-plane information and pose covariance at ``transformation``, order
+    #: (rx, ry, rz, x, y, z) (:mod:`pointclm.covariance`); None when not computed.
+    information: np.ndarray | None = field(default=None, repr=False, compare=False)
+    covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: How many of the six directions the scan does not determine (a box on one face: 3).
+    unobservable: int = 0
     # The registration's clouds and voxel, set by `PointCloudRegistration`, for
     # `correspondence_set`: computed on demand, since few callers want the pairs.
     _clouds: tuple[np.ndarray, np.ndarray, float] | None = field(

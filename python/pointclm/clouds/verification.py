@@ -9,6 +9,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .._core import Instance, RegistrationResult
+from ..covariance import PoseCovariances, pose_covariances
 from ..refinement import (
     _KEEP_ALL,
     RefinedPoses,
@@ -91,7 +92,10 @@ def _judge(
 
 
 def _instances(
-    refined: RefinedPoses, tags: list[tuple[int, int]], passes: list[Pass]
+    refined: RefinedPoses,
+    tags: list[tuple[int, int]],
+    passes: list[Pass],
+    covariances: PoseCovariances | None = None,
 ) -> list[CloudInstance]:
     def matches(tag: tuple[int, int]) -> Instance | None:
         found = passes[tag[0]].result
@@ -108,9 +112,34 @@ def _instances(
             float(refined.contradiction[i]),
             tags[i][0],
             float(refined.visible_rmse[i]),
+            *_covariance_of(covariances, i),
         )
         for i in range(len(tags))
     ]
+
+
+def _covariances(run: _Run, refined: RefinedPoses) -> PoseCovariances:
+    """Each final pose's information and covariance, once, against the run's scan."""
+    return pose_covariances(
+        run.src_d.points,
+        run.tgt_d.points,
+        refined.transformations,
+        run.voxel,
+        num_threads=run.num_threads,
+        context=run.refiner,
+    )
+
+
+def _covariance_of(
+    covariances: PoseCovariances | None, i: int
+) -> tuple[np.ndarray | None, np.ndarray | None, int]:
+    if covariances is None:
+        return None, None, 0
+    return (
+        covariances.information[i],
+        covariances.covariance[i],
+        int(covariances.unobservable[i]),
+    )
 
 
 def _take(poses: RefinedPoses, rows: list[int] | np.ndarray) -> RefinedPoses:

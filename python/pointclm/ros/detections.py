@@ -8,10 +8,13 @@ bounding box is the model's axis-aligned box in its own frame, carried by that p
 ``center`` is the box centre, which is the pose's position only for a centred model).
 
 Covariance: ROS orders it (x, y, z, rotation about X, about Y, about Z), row-major, in the
-header's frame, metres and radians. An instance that carries a 6 x 6 ``covariance`` (in that
-order) gives it; otherwise the message holds :data:`UNKNOWN_COVARIANCE`: -1 on the diagonal
-and 0 elsewhere, ROS's mark for "no estimate" (as ``sensor_msgs/Imu`` documents for its
-first element, here on every variance so no consumer can take it for a real one).
+header's frame, metres and radians. An instance that carries a 6 x 6 ``covariance`` gives it,
+in pointclm's order (rotation about X, Y, Z, then x, y, z; :mod:`pointclm.covariance`, the
+rotation about the model's origin in the header's axes, as ROS means it), reordered here to
+ROS's translation-first order; otherwise the message holds :data:`UNKNOWN_COVARIANCE`: -1
+on the diagonal and 0 elsewhere, ROS's mark for "no estimate" (as ``sensor_msgs/Imu``
+documents for its first element, here on every variance so no consumer can take it for a real
+one).
 
 The message is built as rclpy objects when ``rclpy`` and ``vision_msgs`` import, as objects
 of a ``rosbags`` typestore when one is given (:func:`add_vision_msgs` registers the types, so
@@ -32,6 +35,9 @@ __all__ = ["OUTPUTS", "UNKNOWN_COVARIANCE", "VISION_MSGS", "add_vision_msgs", "d
 
 #: Row-major 6 x 6 covariance meaning "unknown" (see the module documentation).
 UNKNOWN_COVARIANCE: tuple[float, ...] = tuple(-1.0 if i % 7 == 0 else 0.0 for i in range(36))
+
+#: ROS's covariance rows and columns as indices into pointclm's (rotation first).
+_ROS_ORDER = [3, 4, 5, 0, 1, 2]
 
 #: What :func:`detection3d_array` builds: rclpy messages where importable ("auto"), always
 #: dicts, or rclpy messages or an ImportError.
@@ -214,7 +220,9 @@ def _covariance(inst: Any, k: int) -> np.ndarray:
     arr = np.asarray(cov, dtype=np.float64)
     if arr.shape != (6, 6):
         raise ValueError(f"instance {k}: covariance must be 6 x 6, got shape {arr.shape}")
-    return np.ascontiguousarray(arr).reshape(36)
+    # pointclm's (rx, ry, rz, x, y, z) to ROS's (x, y, z, rx, ry, rz).
+    ros = arr[np.ix_(_ROS_ORDER, _ROS_ORDER)]
+    return np.ascontiguousarray(ros).reshape(36)
 
 
 def _quaternion_xyzw(rotation: np.ndarray) -> np.ndarray:

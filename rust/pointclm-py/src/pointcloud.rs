@@ -565,6 +565,48 @@ impl PyRefineContext {
         Ok(out.into_pyarray(py))
     }
 
+    /// Each of `transformations`' information (P, 6, 6), covariance (P, 6, 6), count of
+    /// unobservable directions (P,) and residual variance (P,) over the model points within
+    /// `radius` of the scan (`pointclm::pointcloud::covariance`; order rx, ry, rz, x, y, z).
+    #[pyo3(signature = (transformations, radius, num_threads=None))]
+    #[allow(clippy::type_complexity)]
+    fn pose_covariances<'py>(
+        &self,
+        py: Python<'py>,
+        #[pyo3(from_py_with = args::transformations)] transformations: PyReadonlyArray3<'py, f64>,
+        #[pyo3(from_py_with = args::radius)] radius: f64,
+        #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+    ) -> PyResult<(
+        Bound<'py, PyArray3<f64>>,
+        Bound<'py, PyArray3<f64>>,
+        Bound<'py, PyArray1<i64>>,
+        Bound<'py, PyArray1<f64>>,
+    )> {
+        let poses = rigid_poses(&transformations)?;
+        let threads = num_threads.map(pool).transpose()?;
+        let inner = Arc::clone(&self.inner);
+        let out = guarded(py, threads, move || inner.pose_covariances(&poses, radius))?;
+        let p = out.len();
+        let flat = |m: &nalgebra::Matrix6<f64>| -> Vec<f64> {
+            // Row-major, as numpy reads it.
+            (0..36).map(|k| m[(k / 6, k % 6)]).collect()
+        };
+        let info: Vec<f64> = out.iter().flat_map(|c| flat(&c.information)).collect();
+        let cov: Vec<f64> = out.iter().flat_map(|c| flat(&c.covariance)).collect();
+        let info = numpy::ndarray::Array3::from_shape_vec((p, 6, 6), info)
+            .map_err(|e| InputError::new_err(e.to_string()))?;
+        let cov = numpy::ndarray::Array3::from_shape_vec((p, 6, 6), cov)
+            .map_err(|e| InputError::new_err(e.to_string()))?;
+        let unobservable: Vec<i64> = out.iter().map(|c| c.unobservable as i64).collect();
+        let variance: Vec<f64> = out.iter().map(|c| c.residual_variance).collect();
+        Ok((
+            info.into_pyarray(py),
+            cov.into_pyarray(py),
+            unobservable.into_pyarray(py),
+            variance.into_pyarray(py),
+        ))
+    }
+
     /// Per row of `points`, whether a scan point lies strictly within `radius` of it.
     #[pyo3(signature = (points, radius, num_threads=None))]
     fn near_mask<'py>(

@@ -7,6 +7,7 @@
 //! within `radius`), and FPFH is Open3D's 33-bin variant (a test checks parity with Open3D's
 //! own output on 3DMatch fragments).
 
+pub mod covariance;
 pub mod describe;
 pub mod fpfh;
 pub mod icp;
@@ -18,6 +19,7 @@ pub mod sensor;
 pub mod visibility;
 pub mod voxel;
 
+pub use covariance::{pose_covariances, PoseCovariance};
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{edge_on_scores, estimate_normals, Orientation};

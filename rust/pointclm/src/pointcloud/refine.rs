@@ -377,6 +377,31 @@ impl RefineContext {
             .collect())
     }
 
+    /// [`super::covariance::pose_covariances`] of `poses` against the context's scan and its
+    /// normals (estimated as ICP's when the context holds none), over the model points within
+    /// `radius` of the scan.
+    pub fn pose_covariances(
+        &self,
+        poses: &[RigidTransform],
+        radius: f64,
+    ) -> Result<Vec<super::covariance::PoseCovariance>> {
+        let estimated;
+        let normals: &[[f64; 3]] = if self.normals.is_empty() {
+            estimated = unsigned_normals(&self.target, &self.index, &self.built)?;
+            &estimated
+        } else {
+            &self.normals
+        };
+        super::covariance::pose_covariances(
+            &self.source,
+            &self.index,
+            &self.target,
+            normals,
+            poses,
+            radius,
+        )
+    }
+
     /// The model the context was built with.
     pub fn source(&self) -> &[[f64; 3]] {
         &self.source
