@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import _core
 from ..config import Config
+from ..covariance import pose_covariances
 from ..embedding import Embedding
 from ..preprocessing import as_count
 from ..refinement import RefinementContext
@@ -26,6 +27,7 @@ from ..registration import as_config, as_seed
 from ..scene_rules import SceneRules
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
+from .verification import _covariance_of
 
 #: Whether calls the core covers run there. False runs the Python stages instead: the two are
 #: compared in the tests and ``benchmarks/scene_core.py``.
@@ -101,8 +103,8 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         embed_inputs=[] if call.model is None else list(call.model.inputs),
     )
     passes = [_pass(p) for p in out["passes"]]
-    instances = _instances(out, passes)
     judged = _CoreJudged(out, call.num_threads)
+    instances = _instances(out, passes, judged)
     return PointCloudRegistration(
         result=passes[0].result,
         correspondences=passes[0].correspondences,
@@ -151,9 +153,19 @@ def _pass(p: dict[str, Any]) -> Pass:
     )
 
 
-def _instances(out: dict[str, Any], passes: list[Pass]) -> list[CloudInstance]:
+def _instances(out: dict[str, Any], passes: list[Pass], judged: _CoreJudged) -> list[CloudInstance]:
     """Each copy found, with the correspondence stage's instance it came from (None for a
-    pose that point pair voting proposed)."""
+    pose that point pair voting proposed), and its information and covariance."""
+    covariances = None
+    if len(out["transformations"]):
+        covariances = pose_covariances(
+            out["source_points"],
+            out["target_points"],
+            out["transformations"],
+            judged.voxel,
+            num_threads=judged.num_threads,
+            context=judged.refiner,
+        )
     found = []
     origins = zip(out["pass_index"], out["instance"], strict=True)
     for i, (pass_index, instance) in enumerate(origins):
@@ -169,6 +181,7 @@ def _instances(out: dict[str, Any], passes: list[Pass]) -> list[CloudInstance]:
                 float(out["contradiction"][i]),
                 pass_index,
                 float(out["visible_rmse"][i]),
+                *_covariance_of(covariances, i),
             )
         )
     return found
