@@ -233,7 +233,8 @@ def register_point_clouds(
     run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
                num_threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
                scene=sc)  # fmt: skip
-    return _finished(_register(run, config, refine, peel, flips), scan.orientation, t_load, t0)
+    reg = _register(run, config, refine, peel, flips)
+    return _finished(reg, scan.orientation, scan.disputed, t_load, t0)
 
 
 def _loaded(
@@ -246,12 +247,24 @@ def _loaded(
 
 
 def _finished(
-    reg: PointCloudRegistration, orientation: str, t_load: float, t0: float
+    reg: PointCloudRegistration, orientation: str, disputed: bool, t_load: float, t0: float
 ) -> PointCloudRegistration:
-    """`reg` with how the scan's normals were oriented, and the timings of reading the files
-    and of the whole call (started at `t0`)."""
+    """`reg` with how the scan's normals were oriented, whether the scan disputes the given
+    viewpoint, and the timings of reading the files and of the whole call (started at `t0`)."""
     total = {"load": t_load, "total": time.perf_counter() - t0}
-    return replace(reg, orientation=orientation, timings=reg.timings | total)
+    note = reg.diagnosis
+    if disputed:
+        note = (
+            "the scan does not look like one view from the viewpoint given; poses were judged "
+            "from it all the same." + (" " + note if note else "")
+        )
+    return replace(
+        reg,
+        orientation=orientation,
+        timings=reg.timings | total,
+        viewpoint_disputed=disputed,
+        diagnosis=note,
+    )
 
 
 def _checked_arguments(

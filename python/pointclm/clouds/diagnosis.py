@@ -15,13 +15,6 @@ def _diagnose(run: _Run, refined: RefinedPoses, passes: list[Pass], refine: bool
     """Why the result is empty or doubtful, and what to try; "" when there is nothing to say."""
     first = passes[0]
     no_view = "" if run.viewpoint is not None else _no_viewpoint(run.unconfirmed)
-    if len(refined.origin) and run.viewpoint is not None and refine and not refined.by_visibility:
-        return (
-            f"the scan does not look like one view from the viewpoint {_xyz(run.viewpoint)} "
-            "(too much of it lies behind other scan points seen from there), so poses were "
-            "judged by the share of the model they explain; if that is not where the sensor "
-            "stood, pass its position, or viewpoint=None to orient the normals without one."
-        )
     if len(refined.origin):
         return ""
     if len(first.result) == 0:
