@@ -27,6 +27,7 @@ from .clouds.ranking import _settle
 from .clouds.results import CloudInstance, Pass, PointCloudRegistration
 from .clouds.run import _match, _matcher, _matchings, _Run
 from .clouds.sensor import (  # noqa: F401 (the scan's stray and side rules, re-exported)
+    DescribedScan,
     _describe_target,
     _spans_a_scene,
     _voxel_size,
@@ -233,8 +234,7 @@ def register_point_clouds(
     run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
                num_threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
                scene=sc)  # fmt: skip
-    reg = _register(run, config, refine, peel, flips)
-    return _finished(reg, scan.orientation, scan.disputed, t_load, t0)
+    return _finished(_register(run, config, refine, peel, flips), scan, t_load, t0)
 
 
 def _loaded(
@@ -247,12 +247,12 @@ def _loaded(
 
 
 def _finished(
-    reg: PointCloudRegistration, orientation: str, disputed: bool, t_load: float, t0: float
+    reg: PointCloudRegistration, scan: DescribedScan, t_load: float, t0: float
 ) -> PointCloudRegistration:
     """`reg` with how the scan's normals were oriented, whether the scan disputes the given
     viewpoint, and the timings of reading the files and of the whole call (started at `t0`)."""
     total = {"load": t_load, "total": time.perf_counter() - t0}
-    note = reg.diagnosis
+    note, disputed = reg.diagnosis, scan.disputed
     if disputed:
         note = (
             "the scan does not look like one view from the viewpoint given; poses were judged "
@@ -260,7 +260,7 @@ def _finished(
         )
     return replace(
         reg,
-        orientation=orientation,
+        orientation=scan.orientation,
         timings=reg.timings | total,
         viewpoint_disputed=disputed,
         diagnosis=note,

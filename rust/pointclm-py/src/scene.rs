@@ -95,7 +95,8 @@ pub fn stability_factor<'py>(
 /// The training-free scene pipeline of the core (`pointclm::scene::register_point_clouds`,
 /// `register_point_clouds(..., flips=False)`'s stages), as a dict: `transformations` (M, 4, 4)
 /// surest first, `confidence` (M,), `pass_index` (the pass each came from), `passes` (their
-/// number), `voxel_size` and `by_visibility` (whether the sensor judged them).
+/// number), `voxel_size`, `by_visibility` (whether the sensor judged them) and
+/// `viewpoint_disputed` (the scan does not look like one view from the viewpoint given).
 #[pyfunction]
 #[pyo3(signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, scene=None, num_threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -139,6 +140,7 @@ pub fn register_scan<'py>(
     d.set_item("passes", out.passes.len())?;
     d.set_item("voxel_size", out.voxel_size)?;
     d.set_item("by_visibility", out.by_visibility)?;
+    d.set_item("viewpoint_disputed", out.viewpoint_disputed)?;
     Ok(d)
 }
 
