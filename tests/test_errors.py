@@ -63,9 +63,11 @@ def test_every_class_is_a_value_error_under_one_base() -> None:
         assert issubclass(cls, FileNotFoundError) and issubclass(cls, ValueError)
     for cls in (InputError, ConfigError, NumericalError, WeightsError):
         assert not issubclass(cls, OSError)
+    assert issubclass(pointclm.errors.ViewpointDisagreementWarning, UserWarning)
     assert sorted(pointclm.errors.__all__) == sorted(
         c.__name__
         for c in (
+            pointclm.errors.ViewpointDisagreementWarning,
             PointclmError,
             InputError,
             ConfigError,

@@ -59,6 +59,7 @@ Design decisions
 from __future__ import annotations
 
 __all__ = [
+    "ViewpointDisagreementWarning",
     "ConfigError",
     "InputError",
     "NumericalError",
@@ -104,3 +105,10 @@ class PathNotFoundError(FileNotFoundError, PointclmError):
 class WeightsNotFoundError(PathNotFoundError, WeightsError):
     """A weight file, or the ``.json`` of its architecture beside it, that does not exist or
     cannot be read."""
+
+
+class ViewpointDisagreementWarning(UserWarning):
+    """A viewpoint the caller gave is used, though the scan does not look like one view from
+    it (:func:`pointclm._core.looks_like_one_view`): it may be merged from several views, in
+    another frame, or the position may be wrong. The result records it
+    (``PointCloudRegistration.viewpoint_disputed``)."""

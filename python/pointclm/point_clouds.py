@@ -32,6 +32,7 @@ from .clouds.ranking import _settle
 from .clouds.results import CloudInstance, Pass, PointCloudRegistration
 from .clouds.run import _match, _matcher, _matchings, _Run
 from .clouds.sensor import (  # noqa: F401 (the scan's stray and side rules, re-exported)
+    DescribedScan,
     _describe_target,
     _spans_a_scene,
     _voxel_size,
@@ -235,10 +236,10 @@ def register_point_clouds(
         call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
                         flips, sc, num_threads, viewpoint is None, embedding, normals)  # fmt: skip
         return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
-    run, orientation = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
+    run, scan = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
                                    mutual, n_samples, k, window, rank, heap, normals, seed,
                                    num_threads, sc)  # fmt: skip
-    return _finished(_register(run, config, refine, peel, flips), orientation, t_load, t0)
+    return _finished(_register(run, config, refine, peel, flips), scan, t_load, t0)
 
 
 def _python_run(
@@ -249,11 +250,11 @@ def _python_run(
     not_given: bool,
     embedding: Embedding | None,
     *matching_and_run: Any,
-) -> tuple[_Run, str]:
-    """The Python stages' run (the learned path's, and the options the core does not take):
-    both clouds described, the matcher and its arguments; and how the scan's normals were
-    oriented. `matching_and_run`: top_k, mutual, n_samples, k, window, rank, heap, normals,
-    seed, num_threads, scene rules."""
+) -> tuple[_Run, DescribedScan]:
+    """The Python stages' run (for the options the core does not take): both clouds
+    described, the matcher and its arguments; and the scan as described. `matching_and_run`:
+    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, num_threads, scene
+    rules."""
     top_k, mutual, n_samples, k, window, rank, heap, normals, seed, threads, sc = matching_and_run
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=threads)
     scan = _describe_target(tgt, voxel, view, not_given, src_d, threads, sc)
@@ -262,7 +263,7 @@ def _python_run(
     run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
                threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
                scene=sc)  # fmt: skip
-    return run, scan.orientation
+    return run, scan
 
 
 def _loaded(
@@ -275,13 +276,27 @@ def _loaded(
 
 
 def _finished(
-    reg: PointCloudRegistration, orientation: str | None, t_load: float, t0: float
+    reg: PointCloudRegistration, scan: DescribedScan | None, t_load: float, t0: float
 ) -> PointCloudRegistration:
-    """`reg` with how the scan's normals were oriented (None: as `reg` says), and the timings
-    of reading the files and of the whole call (started at `t0`)."""
+    """`reg` with how the scan's normals were oriented and whether the scan disputes the
+    given viewpoint (`scan`; None: as `reg` says), and the timings of reading the files and
+    of the whole call (started at `t0`)."""
     total = {"load": t_load, "total": time.perf_counter() - t0}
-    said = reg.orientation if orientation is None else orientation
-    return replace(reg, orientation=said, timings=reg.timings | total)
+    orientation = reg.orientation if scan is None else scan.orientation
+    disputed = reg.viewpoint_disputed if scan is None else scan.disputed
+    note = reg.diagnosis
+    if disputed:
+        note = (
+            "the scan does not look like one view from the viewpoint given; poses were judged "
+            "from it all the same." + (" " + note if note else "")
+        )
+    return replace(
+        reg,
+        orientation=orientation,
+        timings=reg.timings | total,
+        viewpoint_disputed=disputed,
+        diagnosis=note,
+    )
 
 
 def _checked_arguments(

@@ -27,6 +27,7 @@ from ..registration import as_config, as_seed
 from ..scene_rules import SceneRules
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
+from .sensor import warn_disputed
 from .verification import _covariance_of
 
 #: Whether calls the core covers run there. False runs the Python stages instead: the two are
@@ -117,6 +118,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         passes=passes,
         viewpoint=None if out["viewpoint"] is None else np.array(out["viewpoint"]),
         orientation=out["orientation"] + _recorded(call),
+        viewpoint_disputed=_disputed(out, call),
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes, True),
     )
 
@@ -135,6 +137,13 @@ def _embedding(model: Embedding, call: CoreCall) -> Callable[..., np.ndarray]:
         )
 
     return embed
+
+
+def _disputed(out: dict[str, Any], call: CoreCall) -> bool:
+    """Whether the scan disputes the viewpoint given (or recorded), said with a warning."""
+    if out["viewpoint_disputed"] and call.viewpoint is not None:
+        warn_disputed(call.viewpoint, call.recorded, stacklevel=5)  # register_point_clouds' caller
+    return bool(out["viewpoint_disputed"])
 
 
 def _recorded(call: CoreCall) -> str:

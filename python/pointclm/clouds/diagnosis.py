@@ -33,13 +33,6 @@ def _diagnose(
     `found` copies were accepted, judged by the sensor when `by_visibility`."""
     first = passes[0]
     no_view = "" if run.viewpoint is not None else _no_viewpoint(run.unconfirmed)
-    if found and run.viewpoint is not None and refine and not by_visibility:
-        return (
-            f"the scan does not look like one view from the viewpoint {_xyz(run.viewpoint)} "
-            "(too much of it lies behind other scan points seen from there), so poses were "
-            "judged by the share of the model they explain; if that is not where the sensor "
-            "stood, pass its position, or viewpoint=None to orient the normals without one."
-        )
     if found:
         return ""
     if len(first.result) == 0:

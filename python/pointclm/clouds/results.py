@@ -159,7 +159,10 @@ class PointCloudRegistration:
     half-turned alternatives; total).
     ``viewpoint`` is the sensor position verification judged by (given, or a PCD file's
     ``VIEWPOINT``; None: none known, poses judged by the share of the model explained), and
-    ``orientation`` says how the scan's normals were oriented. ``diagnosis`` explains an
+    ``orientation`` says how the scan's normals were oriented. ``viewpoint_disputed``: the
+    scan does not look like one view from the viewpoint given (a
+    :class:`pointclm.errors.ViewpointDisagreementWarning` said so; verification used it all
+    the same). ``diagnosis`` explains an
     empty or doubtful result and what to try ("" when there is nothing to say).
     :meth:`to_open3d` gives the scan and each copy as Open3D clouds.
     """
@@ -176,6 +179,7 @@ class PointCloudRegistration:
     viewpoint: np.ndarray | None = None
     orientation: str = ""
     diagnosis: str = ""
+    viewpoint_disputed: bool = False
 
     def __post_init__(self) -> None:
         clouds = (self.source_points, self.target_points, self.voxel_size)
@@ -232,7 +236,8 @@ class PointCloudRegistration:
         if self.orientation:
             lines.append(f"  scan normals: {self.orientation}")
         judged = "none known" if self.viewpoint is None else _xyz(self.viewpoint)
-        lines.append(f"  verification viewpoint: {judged}")
+        disputed = " (the scan disputes it)" if self.viewpoint_disputed else ""
+        lines.append(f"  verification viewpoint: {judged}{disputed}")
         stages = ", ".join(f"{k} {v:.3f}" for k, v in self.timings.items() if k != "total")
         lines.append(f"  timings (s): {stages}")
         return "\n".join(lines)

@@ -4,6 +4,7 @@ oriented towards where the sensor stood (given, recorded, or estimated from the 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from functools import cache
 from typing import Any, NamedTuple
@@ -13,7 +14,7 @@ from numpy.typing import ArrayLike
 
 from .. import _core
 from .. import preprocessing as pp
-from ..errors import InputError
+from ..errors import InputError, ViewpointDisagreementWarning
 from ..scene_rules import SCENE_DEFAULTS, SceneRules
 from .results import _xyz
 
@@ -57,6 +58,8 @@ class DescribedScan(NamedTuple):
     viewpoint: tuple[float, float, float] | None
     #: Whether `viewpoint` is a guess the first pass must confirm.
     guessed: bool
+    #: Whether the scan does not look like one view from a given `viewpoint` (used anyway).
+    disputed: bool = False
 
 
 def _describe_target(
@@ -75,7 +78,36 @@ def _describe_target(
     if view is not None and not_given:
         orientation += " (the file's VIEWPOINT)"
     guessed = view is None and guess is not None
-    return DescribedScan(tgt_d, orientation, guess if guessed else view, guessed)
+    disputed = view is not None and _disputed(tgt_d.points, view, voxel, not_given)
+    return DescribedScan(tgt_d, orientation, guess if guessed else view, guessed, disputed)
+
+
+def _disputed(
+    pts: np.ndarray, view: tuple[float, float, float], voxel: float, from_file: bool
+) -> bool:
+    """Whether the downsampled scan does not look like one view from the viewpoint the caller
+    (or the scan file) gave, with a :class:`pointclm.errors.ViewpointDisagreementWarning`
+    saying so. Verification uses the viewpoint anyway: the caller knows where the sensor
+    stood, and a scan that disputes it is more often merged or filtered than misplaced."""
+    if _core.looks_like_one_view(pts, view, voxel):
+        return False
+    warn_disputed(view, from_file, stacklevel=6)  # the caller of register_point_clouds
+    return True
+
+
+def warn_disputed(view: tuple[float, float, float], from_file: bool, stacklevel: int) -> None:
+    """The :class:`pointclm.errors.ViewpointDisagreementWarning` of a disputed viewpoint,
+    attributed to the frame `stacklevel` up."""
+    source = "the scan file's VIEWPOINT" if from_file else "the viewpoint given"
+    warnings.warn(
+        f"the scan does not look like one view from {source} {_xyz(view)}: some of its "
+        "points lie behind a surface that covers them all round as seen from there (a scan "
+        "merged from several views, in another frame, or a wrong position). Verification "
+        "uses it anyway; pass the sensor's position in the scan's frame, or viewpoint=None "
+        "to let the scan decide.",
+        ViewpointDisagreementWarning,
+        stacklevel=stacklevel,
+    )
 
 
 def _describe_scan(

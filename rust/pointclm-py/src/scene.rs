@@ -307,6 +307,7 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
         out.unconfirmed_viewpoint.map(|v| v.to_vec()),
     )?;
     d.set_item("orientation", out.orientation)?;
+    d.set_item("viewpoint_disputed", out.viewpoint_disputed)?;
     Ok(d)
 }
 

@@ -16,9 +16,9 @@ use crate::kabsch::RigidTransform;
 use crate::matching::{match_features_given, nearest_sources, MatchingConfig, NearestSources};
 use crate::pipeline::{register, Registration};
 use crate::pointcloud::{
-    check_points, check_positive, describe, isolated_points, nearest_rotation, voxel_downsample,
-    DescribeParams, Described, Orientation, PpfModel, PpfParams, RefineContext, RefineParams,
-    Refined, RefinedPose,
+    check_points, check_positive, describe, isolated_points, looks_like_one_view, nearest_rotation,
+    voxel_downsample, DescribeParams, Described, Orientation, PpfModel, PpfParams, RefineContext,
+    RefineParams, Refined, RefinedPose,
 };
 use nalgebra::Matrix3;
 use std::time::Instant;
@@ -160,6 +160,9 @@ pub struct SceneRegistration {
     pub viewpoint: Option<[f64; 3]>,
     /// A guessed sensor position the first pass did not confirm.
     pub unconfirmed_viewpoint: Option<[f64; 3]>,
+    /// Whether the scan does not look like one view from the viewpoint given
+    /// ([`looks_like_one_view`]); verification used it all the same.
+    pub viewpoint_disputed: bool,
     /// How the scan's normals were oriented, in words.
     pub orientation: String,
     /// Seconds spent in each stage after the clouds were described (theirs are in
@@ -322,6 +325,7 @@ pub fn register_point_clouds_with(
         by_visibility: run.by_visibility,
         viewpoint: run.viewpoint,
         unconfirmed_viewpoint: run.unconfirmed,
+        viewpoint_disputed: run.disputed,
         orientation: run.orientation,
         source: run.source,
         target: run.target,
@@ -352,6 +356,8 @@ struct Run<'o> {
     guessed: bool,
     /// A guess the first pass did not confirm.
     unconfirmed: Option<[f64; 3]>,
+    /// The scan does not look like one view from the viewpoint given.
+    disputed: bool,
     orientation: String,
 }
 
@@ -379,6 +385,10 @@ impl<'o> Run<'o> {
         let target = scan.cloud;
         let nearest = nearest_sources(&source.descriptors, &target.descriptors, 1)?;
         let rules = RefineParams::for_voxel(voxel);
+        let disputed = match options.viewpoint {
+            Some(v) => !looks_like_one_view(&target.points, v, &rules)?,
+            None => false,
+        };
         let context = RefineContext::new(
             &source.points,
             &target.points,
@@ -402,6 +412,7 @@ impl<'o> Run<'o> {
             viewpoint: scan.viewpoint,
             guessed: scan.guessed,
             unconfirmed: None,
+            disputed,
             orientation: scan.orientation,
         })
     }
@@ -411,8 +422,8 @@ impl<'o> Run<'o> {
     /// from there when that keeps the pose the model share ranks first, else without a
     /// viewpoint, which the run then keeps.
     ///
-    /// Why: a scan looks like one view from many points near its sensor (at most 12 % of it
-    /// hidden from there), which is enough to orient normals but not to judge poses, where 1 %
+    /// Why: a scan looks like one view from many points near its sensor (at most 3 % of it
+    /// covered all round from there), which is enough to orient normals but not to judge poses, where 1 %
     /// of a model in free space rejects them. A Stanford range scan 0.06-0.19 m from the
     /// origin looks like one view from it, and every pose fails there; a depth camera's frame
     /// keeps its surest copy. An estimate 10 degrees off costs about a twentieth of the
