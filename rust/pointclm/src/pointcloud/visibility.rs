@@ -162,36 +162,6 @@ impl DepthMap {
         self.share_hidden(scan.iter().filter_map(|p| self.ray(p)), scan.len())
     }
 
-    /// The share of `scan` points that lie clearly behind the scan on their own ray cell and
-    /// on every neighbouring cell that holds a return: points enclosed by a nearer surface.
-    /// Why not [`DepthMap::hidden_share`]: a cell as wide as the scan's spacing straddles
-    /// every depth edge, so a single view of a heap seen at a coarse voxel has a fifth of its
-    /// points behind a nearer one in their cell, all of them beside a foreground edge. A point
-    /// a single view returned has its own surface, not a nearer one, on the edge's far side;
-    /// a point of another view lies behind a surface that covers it all round. Empty cells
-    /// (no return, off the sphere) say nothing either way.
-    pub fn enclosed_share(&self, scan: &[[f64; 3]]) -> f64 {
-        if scan.is_empty() {
-            return 0.0;
-        }
-        let enclosed = scan
-            .iter()
-            .filter_map(|p| self.ray(p))
-            .filter(|(key, range)| {
-                let ahead = range - self.tolerance;
-                (-1..=1).all(|i| {
-                    (-1..=1).all(|j| {
-                        (-1..=1).all(|k| {
-                            let near = [key[0] + i, key[1] + j, key[2] + k];
-                            self.nearest.get(&near).is_none_or(|&r| r < ahead)
-                        })
-                    })
-                })
-            })
-            .count();
-        enclosed as f64 / scan.len() as f64
-    }
-
     /// The share of `total` points whose `rays` lie clearly behind the map's nearest range.
     fn share_hidden(&self, rays: impl Iterator<Item = Ray>, total: usize) -> f64 {
         if total == 0 {

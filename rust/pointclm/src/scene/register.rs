@@ -389,11 +389,17 @@ impl<'o> Run<'o> {
             Some(v) => !looks_like_one_view(&target.points, v, &rules)?,
             None => false,
         };
+        // A guess is kept only where the scan looks like one view from it: unlike the
+        // caller's word, it has nothing else to stand on.
+        let (viewpoint, guessed) = match (scan.viewpoint, scan.guessed) {
+            (Some(v), true) if !looks_like_one_view(&target.points, v, &rules)? => (None, false),
+            kept => kept,
+        };
         let context = RefineContext::new(
             &source.points,
             &target.points,
             Some(&target.normals),
-            scan.viewpoint,
+            viewpoint,
             &rules,
         )?;
         Ok(Self {
@@ -409,8 +415,8 @@ impl<'o> Run<'o> {
             embedder,
             passes: Vec::new(),
             by_visibility: false,
-            viewpoint: scan.viewpoint,
-            guessed: scan.guessed,
+            viewpoint,
+            guessed,
             unconfirmed: None,
             disputed,
             orientation: scan.orientation,
