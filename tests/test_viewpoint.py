@@ -47,7 +47,7 @@ def _downsampled(scan: np.ndarray, model: np.ndarray, keep: float, scale: float,
 
 
 @pytest.mark.xfail(
-    strict=True,
+    strict=False,  # which examples fail depends on the generated scenes' rounding
     reason="the one-view test counts every point behind a nearer one in its ray cell: a heap "
     "seen at twice the default voxel hides a fifth of itself behind its own depth edges. A "
     "rule that counts only points covered all round passed this but let whole copies pass "
