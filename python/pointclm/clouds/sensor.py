@@ -80,9 +80,7 @@ def _describe_target(
     # A guess is kept only where the scan looks like one view from it: unlike the caller's
     # word, it has nothing else to stand on.
     guessed = (
-        view is None
-        and guess is not None
-        and _core.looks_like_one_view(tgt_d.points, guess, voxel)
+        view is None and guess is not None and _core.looks_like_one_view(tgt_d.points, guess, voxel)
     )
     disputed = view is not None and _disputed(tgt_d.points, view, voxel, not_given)
     return DescribedScan(tgt_d, orientation, guess if guessed else view, guessed, disputed)
