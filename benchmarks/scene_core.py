@@ -2,14 +2,17 @@
 choices: the same copies, passes and voxel, poses to rounding, and the time of each.
 
     python benchmarks/scene_core.py [--seeds 3] [--threads 2] [--rounds 2] [--no-flips]
-                                    [--model NAME] [--out FILE]
+                                    [--model NAME] [--options NAME ...] [--out FILE]
 
 Scenes: bins of the validation models' parts (procedural boxes, fandisk, dragon; 20-30 copies,
 the bin's sensor as viewpoint), each with the default heap rule (ranked matching from the tenth
 copy on) and said to be a heap (``heap=True``: point pair voting too), and realistic scenes of
 the held-out models with their sensor given and without it (estimated from the scan). Both
 paths try turned alternatives (``flips=True``, the default; ``--no-flips`` turns them off in
-both); ``--model default`` adds the shipped network's embedding to both. Each round runs
+both); ``--model default`` adds the shipped network's embedding to both. ``--options`` runs
+every scene with each named set of options too (``OPTIONS``: ``refine=False``, ``k=2``, a
+fixed ``mutual_window`` and ``"auto"``; the mutual windows on the bins only, where heaps
+need them). Each round runs
 every scene with each path in turn (alternating which goes first); the
 table takes each scene's fastest call.
 """
@@ -29,6 +32,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 Job = tuple[str, np.ndarray, np.ndarray, tuple[float, float, float] | None, bool | None]
+
+#: The options compared beside the defaults (``--options``), by name.
+OPTIONS: dict[str, dict[str, object]] = {
+    "default": {},
+    "refine=False": {"refine": False},
+    "k=2": {"k": 2},
+    "mutual_window=0.5": {"mutual_window": 0.5},
+    "mutual_window=auto": {"mutual_window": "auto"},
+}
 
 
 def scenes(seeds: int) -> list[Job]:
@@ -69,10 +81,17 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--no-flips", action="store_true", help="no turned alternatives")
     ap.add_argument("--model", help="a learned model for both paths (e.g. default)")
+    ap.add_argument("--options", nargs="+", default=["default"], choices=list(OPTIONS))
     ap.add_argument("--out", help="write the report here (default: print it)")
     args = ap.parse_args()
     rows = []
-    for name, model, scan, view, heap in scenes(args.seeds):
+    jobs = [
+        (f"{name} {option}" if option != "default" else name, model, scan, view, heap, option)
+        for name, model, scan, view, heap in scenes(args.seeds)
+        for option in args.options
+        if name.startswith("bin") or not option.startswith("mutual_window")
+    ]
+    for name, model, scan, view, heap, option in jobs:
         best = {"python": np.inf, "rust": np.inf}
         py = rs = None
         for r in range(args.rounds):
@@ -81,7 +100,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 reg = pointclm.register_point_clouds(
                     model, scan, viewpoint=view, heap=heap, flips=not args.no_flips,
-                    num_threads=args.threads, model=args.model,
+                    num_threads=args.threads, model=args.model, **OPTIONS[option],
                 )  # fmt: skip
                 best[path] = min(best[path], time.perf_counter() - t0)
                 py, rs = (reg, rs) if path == "python" else (py, reg)
@@ -89,10 +108,17 @@ def main() -> None:
         poses = rs.transformations
         same_count = len(poses) == len(py.instances) and len(rs.passes) == len(py.passes)
         diff = float(np.abs(poses - py.transformations).max()) if same_count and len(poses) else 0
+        if same_count:  # and the passes' correspondences, confidences to rounding
+            conf = [i.confidence for i in py.instances], [i.confidence for i in rs.instances]
+            same_count = np.allclose(conf[0], conf[1], rtol=1e-9, atol=0) and all(
+                np.array_equal(a.correspondences, b.correspondences)
+                for a, b in zip(py.passes, rs.passes, strict=True)
+            )
         rows.append((name, len(py.instances), len(poses), same_count, diff, best))
     lines = [
         f"# Rust scene pipeline against Python ({datetime.date.today()}, {platform.machine()}, "
-        f"{args.threads} threads, flips={not args.no_flips}, model={args.model})",
+        f"{args.threads} threads, flips={not args.no_flips}, model={args.model}, options "
+        f"{' '.join(args.options)})",
         "",
         "| scene | copies (Python) | copies (Rust) | same copies and passes | max pose diff "
         "| Python s | Rust s | Rust / Python |",

@@ -240,3 +240,50 @@ def test_the_thresholds_for_clouds_are_the_cores() -> None:
     python = cloud_base_config(refine=True).to_dict()
     assert {k: python[k] for k in core} == core
     assert core["max_nfa"] is None and core["tau_n"] == 1
+
+
+@pytest.mark.parametrize(
+    ("where", "options"),
+    [
+        ("realistic", {"refine": False}),
+        ("realistic", {"refine": False, "viewpoint": None}),
+        ("realistic", {"k": 2}),
+        ("bin", {"mutual_window": 0.5}),
+        ("bin", {"mutual_window": "auto", "heap": True}),
+        ("realistic", {"mutual_window": "auto", "scene": {"heap_min_copies": 3}}),
+    ],
+    ids=str,
+)
+def test_the_core_takes_the_options_the_python_stages_took(
+    monkeypatch: pytest.MonkeyPatch, where: str, options: dict
+) -> None:
+    # Unrefined poses, k nearest matches and the windowed mutual check, in the core against
+    # the Python stages: the same copies, passes, correspondences and diagnosis; poses and
+    # confidences to rounding.
+    from pointclm.clouds import core_path
+    from pointclm.datasets.bins import make_bin_scene
+    from pointclm.datasets.scenes import SceneParams, make_realistic_scene
+    from test_bins import SMALL
+
+    if where == "bin":
+        bin_ = make_bin_scene(0, SMALL)
+        model, scan, view = bin_.model_points, bin_.scan, bin_.sensor
+    else:
+        sc = make_realistic_scene(0, SceneParams(model="bunny"))
+        model, scan, view = sc.source_points, sc.target_points, sc.viewpoint
+    kwargs = {"viewpoint": view, **options}
+    found = {}
+    for enabled in (False, True):
+        with monkeypatch.context() as patch:
+            patch.setattr(core_path, "ENABLED", enabled)
+            found[enabled] = pointclm.register_point_clouds(model, scan, **kwargs)
+    py, rs = found[False], found[True]
+    assert len(rs.instances) == len(py.instances) >= 1 and len(rs.passes) == len(py.passes)
+    np.testing.assert_allclose(rs.transformations, py.transformations, rtol=0, atol=1e-9)
+    confidence = [[i.confidence for i in r.instances] for r in (py, rs)]
+    np.testing.assert_allclose(confidence[1], confidence[0], rtol=1e-9, atol=0)
+    for a, b in zip(py.passes, rs.passes, strict=True):
+        np.testing.assert_array_equal(a.correspondences, b.correspondences)
+        assert a.added == b.added
+    assert rs.diagnosis == py.diagnosis and rs.orientation == py.orientation
+    assert rs.config == py.config

@@ -331,9 +331,15 @@ def register_scan(
     pair_normals: bool = False,
     embed: Callable[..., npt.NDArray[np.float64]] | None = None,
     embed_inputs: list[str] = ...,
+    refine: bool = True,
+    k: int = 1,
+    mutual_window: float | str | None = None,
 ) -> dict[str, Any]:
     """The core's scene pipeline; ``embed(correspondences, normals, similarity)`` computes
-    each pass's learned embedding (the cues ``embed_inputs`` names given, else None). Keys:
+    each pass's learned embedding (the cues ``embed_inputs`` names given, else None);
+    ``refine=False`` scores the correspondence stage's poses without ICP or verification;
+    ``k`` model points matched per scan point; ``mutual_window`` a side in model diagonals
+    or ``"auto"`` (the windowed mutual check). Keys:
     ``transformations`` (M, 4, 4) surest first, and per copy ``confidence``, ``fitness``,
     ``inlier_rmse``, ``visible_fitness``, ``contradiction``, ``seen``, ``visible_rmse``
     (M,), ``pass_index`` and ``instance`` (lists); ``passes`` (dicts: ``correspondences``

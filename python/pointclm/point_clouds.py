@@ -234,7 +234,8 @@ def register_point_clouds(
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     if in_core(refine=refine, k=k, window=window):
         call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                        flips, sc, num_threads, viewpoint is None, embedding, normals)  # fmt: skip
+                        flips, sc, num_threads, viewpoint is None, embedding, normals, refine,
+                        k, window)  # fmt: skip
         return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
     run, scan = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
                                    mutual, n_samples, k, window, rank, heap, normals, seed,

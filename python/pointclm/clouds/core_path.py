@@ -36,9 +36,8 @@ ENABLED = True
 
 
 def in_core(*, refine: bool, k: int, window: float | str | None) -> bool:
-    """Whether the core's pipeline covers the call: poses refined and verified, and the plain
-    (k = 1) matching without a mutual window."""
-    return ENABLED and refine and k == 1 and window is None
+    """Whether the core's pipeline runs the call (it covers every option)."""
+    return ENABLED
 
 
 @dataclass(frozen=True)
@@ -66,6 +65,13 @@ class CoreCall:
     model: Embedding | None = None
     #: Whether the correspondence stage gets the normals at both ends of each pair.
     normals: bool = False
+    #: ICP and verification of the poses (then peeling, turns and ranking); False: the
+    #: correspondence stage's poses, scored only.
+    refine: bool = True
+    #: Model points matched to each scan point.
+    k: int = 1
+    #: The windowed mutual check: a side in model diagonals, "auto" or None (checked).
+    mutual_window: float | str | None = None
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -76,8 +82,9 @@ class CoreCall:
         as_count(self.top_k, "top_k", 1)
         samples = None if self.n_samples is None else as_count(self.n_samples, "n_samples", 1)
         level = self.scene.peel_cluster_level
-        config = _config(self.config, self.voxel, self.model, True, self.peel, level)
-        return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config)
+        config = _config(self.config, self.voxel, self.model, self.refine, self.peel, level)
+        k = as_count(self.k, "k", 1)
+        return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config, k=k)
 
 
 def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointCloudRegistration:
@@ -102,6 +109,9 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         pair_normals=call.normals,
         embed=None if call.model is None else _embedding(call.model, call),
         embed_inputs=[] if call.model is None else list(call.model.inputs),
+        refine=call.refine,
+        k=call.k,
+        mutual_window=call.mutual_window,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)

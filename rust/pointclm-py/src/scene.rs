@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new()),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[])"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -124,6 +124,9 @@ pub fn register_scan<'py>(
     pair_normals: bool,
     embed: Option<Py<PyAny>>,
     embed_inputs: Vec<String>,
+    refine: bool,
+    k: usize,
+    mutual_window: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
@@ -144,11 +147,13 @@ pub fn register_scan<'py>(
         heap,
         // 0 or 1: the plain mutual check (None in `register_point_clouds`).
         heap_rank: Some(heap_rank).filter(|&r| r > 1),
+        mutual_window: mutual_window.as_ref().map(window).transpose()?,
+        refine,
         flips,
         matching: pointclm::MatchingConfig {
             top_k,
             mutual,
-            k: 1,
+            k,
             n_samples,
         },
         config: config.as_ref().map(|c| from_dict(Some(c))).transpose()?,
@@ -165,6 +170,20 @@ pub fn register_scan<'py>(
         return Err(raised);
     }
     scene_dict(py, out?)
+}
+
+/// `mutual_window` as the core takes it: a side in model diagonals, or "auto".
+fn window(value: &Bound<'_, PyAny>) -> PyResult<scene::MutualWindow> {
+    if let Ok(text) = value.extract::<String>() {
+        if text == "auto" {
+            return Ok(scene::MutualWindow::Auto);
+        }
+    } else if let Ok(side) = value.extract::<f64>() {
+        return Ok(scene::MutualWindow::Diagonals(side));
+    }
+    Err(pyo3::exceptions::PyValueError::new_err(format!(
+        "mutual_window must be a number, \"auto\" or None, got {value}"
+    )))
 }
 
 /// The learned embedding as a Python callable computes it: `callback(correspondences (N, 6),

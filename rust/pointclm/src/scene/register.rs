@@ -44,10 +44,23 @@ pub struct SceneOptions {
     /// judged by the share of the model explained.
     pub viewpoint: Option<[f64; 3]>,
     /// Matching of every pass: the `top_k` most similar mutual matches, `n_samples` of them
-    /// drawn at random.
+    /// drawn at random. `matching.k` > 1 pairs each scan point with its `k` most similar
+    /// model points: a model point has one true match per copy, and with `k` = 1 a scan
+    /// point proposes only the model point it likes best, so copies whose points prefer
+    /// another part of the model get few matches. Only the plain (`k` = 1) mutual check is
+    /// relaxed in a heap.
     pub matching: MatchingConfig,
-    /// The correspondence stage's config, in the clouds' units; `None`: [`cloud_config`].
+    /// The correspondence stage's config, in the clouds' units; `None`: [`cloud_config`]
+    /// (without `refine`, [`Config::default`]'s thresholds scaled by [`config_for_voxel`]).
     pub config: Option<Config>,
+    /// ICP on every proposal and verification on the clouds, then peeling, turned
+    /// alternatives and ranking. `false`: the correspondence stage's poses as it gives them,
+    /// one pass, each scored on the clouds (nothing rejected, duplicates kept) and in the
+    /// stage's order (most inliers first); the correspondence stage's config is then
+    /// [`Config::default`]'s (its density pruning and a-contrario test judge the groups, as
+    /// nothing after them does). Why offered: to see what the correspondence stage alone
+    /// proposes, or to refine the poses elsewhere.
+    pub refine: bool,
     /// Further passes over the scan points no accepted copy explains (peeling).
     pub peel: bool,
     /// Whether the scan is a heap of identical parts: `Some(true)`, every pass ranks its
@@ -58,6 +71,10 @@ pub struct SceneOptions {
     /// In a heap, a match is kept when the scan point is among its model point's `heap_rank`
     /// most similar scan points still unexplained (`None` or 1: the plain mutual check).
     pub heap_rank: Option<usize>,
+    /// Make the mutual check local, in cubes of the scan ([`MutualWindow`]); needs
+    /// `matching.mutual` and `matching.k` = 1. `None`: scene-wide (ranked in a heap, with
+    /// `heap_rank`).
+    pub mutual_window: Option<MutualWindow>,
     /// Give the correspondence stage the unit normals at both ends of each correspondence
     /// (their angles join the length test; an embedder that reads normals gets them anyway).
     pub pair_normals: bool,
@@ -81,15 +98,37 @@ impl Default for SceneOptions {
                 ..MatchingConfig::default()
             },
             config: None,
+            refine: true,
             peel: true,
             heap: None,
             heap_rank: Some(64),
+            mutual_window: None,
             pair_normals: false,
             flips: true,
             seed: 0,
             scene: SceneRules::default(),
         }
     }
+}
+
+/// The windowed mutual check of [`SceneOptions::mutual_window`]: the scan is covered by
+/// overlapping cubes of a side (a grid of stride half the side), and a pair counts as mutual
+/// when the model point is the scan point's most similar and the scan point is the model
+/// point's most similar among the scan points of some cube (its 64 most similar looked at).
+///
+/// Why: in a heap of identical parts a model point has one true match per visible copy, and
+/// the scene-wide mutual check keeps at most one of them; within a cube about a part wide
+/// each copy keeps its own, while the check still drops most of the pairs a model point would
+/// not choose. It costs about 1.75 times the time on heaps for a small gain (BENCHMARKS.md,
+/// bins), hence not the default.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MutualWindow {
+    /// Every pass, in cubes of this many model diagonals (the model as given).
+    Diagonals(f64),
+    /// Scene-wide until the passes match as in a heap ([`SceneOptions::heap`]), then in cubes
+    /// of `SceneRules::heap_window` model diagonals with every match kept (no sampling), in
+    /// place of the ranked check (`heap_rank` is then unused).
+    Auto,
 }
 
 /// One copy of the model in the scan, refined and verified.
@@ -268,9 +307,11 @@ pub fn register_point_clouds_with(
         None => default_voxel_size(model, Some(scan), &options.scene)?,
     };
     check_positive("voxel_size (the model has no extent: give one)", voxel)?;
+    check_window(options)?;
     let mut run = Run::new(model, scan, voxel, options, embedder)?;
     let config = match &options.config {
         Some(c) => c.clone(),
+        None if !options.refine => config_for_voxel(&Config::default(), voxel),
         None => cloud_config(
             voxel,
             options.peel.then_some(options.scene.peel_cluster_level),
@@ -293,7 +334,9 @@ pub fn register_point_clouds_with(
     timings.embedding = lap();
     let registration = register(&corr, features.as_ref(), &config, options.seed)?;
     timings.registration = lap();
-    let first = if run.guessed {
+    let first = if !options.refine {
+        run.scored(&poses_of(&registration))?
+    } else if run.guessed {
         run.confirm_viewpoint(&poses_of(&registration))?
     } else {
         run.refine(&poses_of(&registration), &run.rules.clone())?
@@ -309,14 +352,17 @@ pub fn register_point_clouds_with(
         voted: Vec::new(),
         duplicates: Vec::new(),
     });
-    if options.peel && !accepted.is_empty() {
+    if options.refine && options.peel && !accepted.is_empty() {
         accepted = run.peel(accepted, &config)?;
     }
     timings.peeling = lap();
-    if options.flips && !accepted.is_empty() {
+    if options.refine && options.flips && !accepted.is_empty() {
         accepted = run.flipped(accepted)?;
     }
-    let candidates = run.ranked(accepted)?;
+    let candidates = match options.refine {
+        true => run.ranked(accepted)?,
+        false => candidates(accepted),
+    };
     timings.flips = lap();
     Ok(SceneRegistration {
         timings,
@@ -346,6 +392,8 @@ struct Run<'o> {
     context: RefineContext,
     rules: RefineParams,
     voxel: f64,
+    /// The model's bounding-box diagonal as given (the unit of `mutual_window`).
+    model_diagonal: f64,
     options: &'o SceneOptions,
     embedder: Option<&'o dyn Embedder>,
     passes: Vec<Pass>,
@@ -383,7 +431,8 @@ impl<'o> Run<'o> {
         let points = without_strays(voxel_downsample(scan, voxel)?, voxel, &options.scene)?;
         let scan = describe_scan(&points, voxel, options.viewpoint, &source, &options.scene)?;
         let target = scan.cloud;
-        let nearest = nearest_sources(&source.descriptors, &target.descriptors, 1)?;
+        let k = options.matching.k;
+        let nearest = nearest_sources(&source.descriptors, &target.descriptors, k)?;
         let rules = RefineParams::for_voxel(voxel);
         let disputed = match options.viewpoint {
             Some(v) => !looks_like_one_view(&target.points, v, &rules)?,
@@ -411,6 +460,7 @@ impl<'o> Run<'o> {
             context,
             rules,
             voxel,
+            model_diagonal: super::voxel::diagonal(model),
             options,
             embedder,
             passes: Vec::new(),
@@ -487,6 +537,25 @@ impl<'o> Run<'o> {
         Ok(without)
     }
 
+    /// Pass 0's poses without `refine`: scored on the clouds as they are (no ICP, nothing
+    /// rejected, duplicates kept), in the correspondence stage's order (most inliers first).
+    fn scored(&mut self, poses: &[RigidTransform]) -> Result<Refined> {
+        let keep_all = RefineParams {
+            icp: false,
+            min_fitness: 0.0,
+            min_relative_fitness: 0.0,
+            min_visible_fitness: 0.0,
+            max_contradiction: 1.0,
+            min_seen: 0.0,
+            max_slid_fitness: 1.0,
+            max_shared: 1.0,
+            ..self.rules.clone()
+        };
+        let mut scored = self.refine(poses, &keep_all)?;
+        scored.poses.sort_by_key(|r| r.origin);
+        Ok(scored)
+    }
+
     /// Correspondences between the model and the scan points `rows` (mutual, sampled with
     /// `seed`), or how many survived when fewer than 3 (too few for a pose).
     fn matched(
@@ -497,16 +566,27 @@ impl<'o> Run<'o> {
     ) -> Result<std::result::Result<(Correspondences, Vec<f64>), usize>> {
         let mut config = self.options.matching;
         let ranked;
-        let rows = if heap {
-            // The pairs the ranked check keeps are the mutual ones: no further check.
-            ranked = self.rank_mutual(rows)?;
-            config.mutual = false;
-            if ranked.is_empty() {
-                return Ok(Err(0));
+        let window = self.options.mutual_window;
+        let relaxed = match (heap, window) {
+            (true, Some(MutualWindow::Auto)) => {
+                config.n_samples = None;
+                Some(self.window_mutual(rows, self.options.scene.heap_window)?)
             }
-            &ranked[..]
-        } else {
-            rows
+            (true, _) => Some(self.rank_mutual(rows)?),
+            (false, Some(MutualWindow::Diagonals(side))) => Some(self.window_mutual(rows, side)?),
+            (false, _) => None,
+        };
+        let rows = match relaxed {
+            Some(kept) => {
+                // The pairs the relaxed check keeps are the mutual ones: no further check.
+                ranked = kept;
+                config.mutual = false;
+                if ranked.is_empty() {
+                    return Ok(Err(0));
+                }
+                &ranked[..]
+            }
+            None => rows,
         };
         let dim = self.target.descriptors.dim();
         let flat: Vec<f64> = rows
@@ -559,10 +639,13 @@ impl<'o> Run<'o> {
     /// or that many copies show one; never where only the mutual check could be relaxed.
     fn is_heap(&self, accepted: usize) -> bool {
         let o = self.options;
-        let relaxable = o.matching.mutual
-            && o.matching.k == 1
-            && o.heap != Some(false)
-            && o.heap_rank.is_some_and(|r| r > 1);
+        let relaxed = match o.mutual_window {
+            None => o.heap_rank.is_some_and(|r| r > 1),
+            Some(MutualWindow::Auto) => true,
+            // Every pass is windowed already.
+            Some(MutualWindow::Diagonals(_)) => false,
+        };
+        let relaxable = o.matching.mutual && o.matching.k == 1 && o.heap != Some(false) && relaxed;
         relaxable && (o.heap == Some(true) || accepted >= o.scene.heap_min_copies)
     }
 
@@ -571,12 +654,7 @@ impl<'o> Run<'o> {
     /// `heap_rank` if more), ascending.
     fn rank_mutual(&mut self, rows: &[usize]) -> Result<Vec<usize>> {
         let rank = self.options.heap_rank.unwrap_or(1);
-        let k = rank.max(WINDOW_CANDIDATES).min(self.target.points.len());
-        // `heap_rank` is fixed for a call, so the candidates are found once.
-        let near = match self.targets_of_sources.take() {
-            Some(near) => near,
-            None => nearest_sources(&self.target.descriptors, &self.source.descriptors, k)?,
-        };
+        let near = self.targets_of_sources(rank)?;
         let mut taking_part = vec![false; self.target.points.len()];
         for &r in rows {
             taking_part[r] = true;
@@ -593,6 +671,32 @@ impl<'o> Run<'o> {
         self.targets_of_sources = Some(near);
         kept.sort_unstable();
         kept.dedup();
+        Ok(kept)
+    }
+
+    /// Each model row's `k` (at least [`WINDOW_CANDIDATES`]) nearest scan rows of the whole
+    /// scan, nearest first: found once per call (its `k` is fixed for a call), to be put back
+    /// in `targets_of_sources` after use.
+    fn targets_of_sources(&mut self, k: usize) -> Result<NearestSources> {
+        let k = k.max(WINDOW_CANDIDATES).min(self.target.points.len());
+        match self.targets_of_sources.take() {
+            Some(near) if near.k == k => Ok(near),
+            _ => nearest_sources(&self.target.descriptors, &self.source.descriptors, k),
+        }
+    }
+
+    /// The scan rows of `rows` in a pair the windowed mutual check keeps, in cubes of `side`
+    /// model diagonals ([`MutualWindow`]), ascending.
+    fn window_mutual(&mut self, rows: &[usize], side: f64) -> Result<Vec<usize>> {
+        let near = self.targets_of_sources(WINDOW_CANDIDATES)?;
+        let kept = super::window::windowed_mutual(
+            &self.target.points,
+            rows,
+            &near,
+            &self.nearest,
+            side * self.model_diagonal,
+        );
+        self.targets_of_sources = Some(near);
         Ok(kept)
     }
 
@@ -843,24 +947,45 @@ impl<'o> Run<'o> {
             }
             accepted.sort();
         }
-        Ok(accepted
-            .rows
-            .into_iter()
-            .zip(accepted.tags)
-            .map(|(r, (pass_index, instance))| Candidate {
-                pose: r.pose,
-                pass_index,
-                instance,
-                confidence: r.confidence,
-                fitness: r.fitness,
-                inlier_rmse: r.inlier_rmse,
-                visible_fitness: r.visible_fitness,
-                contradiction: r.contradiction,
-                seen: r.seen,
-                visible_rmse: r.visible_rmse,
-            })
-            .collect())
+        Ok(candidates(accepted))
     }
+}
+
+/// The copies as [`register_point_clouds`] returns them, in `accepted`'s order.
+fn candidates(accepted: Accepted) -> Vec<Candidate> {
+    accepted
+        .rows
+        .into_iter()
+        .zip(accepted.tags)
+        .map(|(r, (pass_index, instance))| Candidate {
+            pose: r.pose,
+            pass_index,
+            instance,
+            confidence: r.confidence,
+            fitness: r.fitness,
+            inlier_rmse: r.inlier_rmse,
+            visible_fitness: r.visible_fitness,
+            contradiction: r.contradiction,
+            seen: r.seen,
+            visible_rmse: r.visible_rmse,
+        })
+        .collect()
+}
+
+/// A bad `mutual_window` as a typed error: a side that is not a positive number, or a window
+/// where the check it relaxes is not the plain mutual one.
+fn check_window(options: &SceneOptions) -> Result<()> {
+    if let Some(MutualWindow::Diagonals(side)) = options.mutual_window {
+        check_positive("mutual_window", side)?;
+        if !options.matching.mutual || options.matching.k != 1 {
+            return Err(Error::InvalidParameter {
+                name: "mutual_window",
+                value: format!("{side}"),
+                reason: "needs mutual matching with k = 1: it makes the mutual check local",
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The verified poses so far, surest first, each with its (pass, instance of that pass).
@@ -930,8 +1055,11 @@ impl Accepted {
     }
 }
 
-/// The ranked mutual check looks at this many of a model point's nearest scan points (or
-/// `heap_rank` if more): every candidate the Python matcher's windows look at too.
+/// The ranked and windowed mutual checks look at this many of a model point's nearest scan
+/// points (the ranked one at `heap_rank` if more): a heap shows a few dozen copies, so a
+/// model point's true match on each lies among its few dozen nearest; more cost time and
+/// found no more copies on the validation bins (128: recall of half-visible copies 0.362 vs
+/// 0.356).
 const WINDOW_CANDIDATES: usize = 64;
 
 /// The Euclidean distance between two points.

@@ -100,7 +100,8 @@ fn peeling_explains_what_a_posed_copy_reaches_and_drops_its_duplicates() {
 
 #[test]
 fn the_scene_pipeline_finds_every_copy_of_a_distinctive_shape() {
-    use crate::scene::{register_point_clouds, SceneOptions};
+    use crate::matching::MatchingConfig;
+    use crate::scene::{register_point_clouds, MutualWindow, SceneOptions};
     use nalgebra::{Rotation3, Vector3};
     // A bumpy blob (distinctive for FPFH), three copies side by side, turned.
     let model: Vec<[f64; 3]> = (0..3000)
@@ -155,6 +156,55 @@ fn the_scene_pipeline_finds_every_copy_of_a_distinctive_shape() {
     bad.scene.max_stray_share = f64::NAN;
     assert!(register_point_clouds(&model, &scan, &bad).is_err());
     assert!(register_point_clouds(&model[..2], &scan, &SceneOptions::default()).is_err());
+    // Without refinement: the correspondence stage's poses as it gave them (most inliers
+    // first), one pass, every one kept.
+    let raw = SceneOptions {
+        refine: false,
+        ..SceneOptions::default()
+    };
+    let unrefined = register_point_clouds(&model, &scan, &raw).unwrap();
+    let stage = &unrefined.passes[0].registration.instances;
+    assert_eq!(unrefined.passes.len(), 1);
+    assert_eq!(unrefined.candidates.len(), stage.len());
+    assert_eq!(unrefined.passes[0].added, stage.len());
+    for (i, c) in unrefined.candidates.iter().enumerate() {
+        assert_eq!(c.instance, i);
+        assert!((c.pose.translation - stage[i].pose.translation).norm() < 1e-12);
+    }
+    assert!(unrefined.config.max_nfa.is_some());
+    // Two model points per scan point, and the windowed mutual check (fixed and "auto"):
+    // the same three copies.
+    for options in [
+        SceneOptions {
+            matching: MatchingConfig {
+                k: 2,
+                mutual: true,
+                ..MatchingConfig::default()
+            },
+            ..SceneOptions::default()
+        },
+        SceneOptions {
+            mutual_window: Some(MutualWindow::Diagonals(1.0)),
+            ..SceneOptions::default()
+        },
+        SceneOptions {
+            mutual_window: Some(MutualWindow::Auto),
+            heap: Some(true),
+            ..SceneOptions::default()
+        },
+    ] {
+        let found = register_point_clouds(&model, &scan, &options).unwrap();
+        assert_eq!(found.candidates.len(), 3, "{options:?}");
+    }
+    // A window needs the plain mutual check, and a side.
+    for (k, side) in [(2, 1.0), (1, 0.0), (1, f64::NAN)] {
+        let mut windowed = SceneOptions {
+            mutual_window: Some(MutualWindow::Diagonals(side)),
+            ..SceneOptions::default()
+        };
+        windowed.matching.k = k;
+        assert!(register_point_clouds(&model, &scan, &windowed).is_err());
+    }
 }
 
 #[test]
