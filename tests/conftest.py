@@ -14,12 +14,3 @@ def bank(tmp_path_factory: pytest.TempPathFactory) -> SceneBank:
     path = tmp_path_factory.mktemp("bank") / "bank.npz"
     built.save(path)
     return SceneBank.load(path)
-
-
-@pytest.fixture
-def python_stages(monkeypatch: pytest.MonkeyPatch) -> None:
-    """`register_point_clouds` runs its Python stages (the learned path's) even where the
-    core's pipeline covers the call: for tests that watch those stages from inside."""
-    from pointclm.clouds import core_path
-
-    monkeypatch.setattr(core_path, "ENABLED", False)

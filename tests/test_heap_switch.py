@@ -41,21 +41,38 @@ def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:
     )
 
 
-def _spy_on_matching(monkeypatch) -> list[dict[str, Any]]:
-    """Every `DescriptorMatcher.match` call's keyword arguments, in order (the Python stages
-    run: the core's pipeline matches inside the core)."""
-    from pointclm.clouds import core_path
+def _described(scene, reg: pointclm.PointCloudRegistration) -> tuple[Any, Any]:
+    """The model and `reg`'s scan (its downsampled points) described as the core describes
+    them with the scan's sensor given."""
+    voxel = reg.voxel_size
+    model = pp.describe(scene.model_points, voxel, away_from=scene.model_points.mean(0))
+    np.testing.assert_array_equal(model.points, reg.source_points)
+    radii = {"normal_radius": 2.0 * voxel, "feature_radius": 5.0 * voxel}
+    scan = pp.describe(reg.target_points, None, towards=scene.sensor, **radii)
+    return model, scan
 
-    monkeypatch.setattr(core_path, "ENABLED", False)
-    calls: list[dict[str, Any]] = []
-    match = pp.DescriptorMatcher.match
 
-    def spy(self, *args: Any, **kwargs: Any):
-        calls.append(kwargs)
-        return match(self, *args, **kwargs)
+def _same_matching(scene, reg, checks: list[dict[str, Any]]) -> None:
+    """Every pass of `reg` matched as the public matcher
+    (:class:`pointclm.preprocessing.DescriptorMatcher`) matches its scan points with the
+    keyword arguments `checks[r]` and the pass's seed: the core's checks are the matcher's."""
+    model, scan = _described(scene, reg)
+    matcher = pp.DescriptorMatcher(model.descriptors, scan.descriptors, target_points=scan.points)
+    assert len(checks) == len(reg.passes)
+    for r, (p, check) in enumerate(zip(reg.passes, checks, strict=True)):
+        m = matcher.match(p.scan_points, seed=r, **check)
+        np.testing.assert_array_equal(
+            m.correspondences(model.points, scan.points), p.correspondences
+        )
 
-    monkeypatch.setattr(pp.DescriptorMatcher, "match", spy)
-    return calls
+
+def _diagonal(scene) -> float:
+    pts = scene.model_points
+    return float(np.linalg.norm(pts.max(0) - pts.min(0)))
+
+
+PLAIN = {"mutual": True, "n_samples": 1000}
+RANKED = {**PLAIN, "mutual_rank": pc.HEAP_RANK}
 
 
 def test_the_scene_wide_check_is_the_default() -> None:
@@ -67,9 +84,8 @@ def test_the_scene_wide_check_is_the_default() -> None:
 def test_below_the_count_auto_is_the_scene_wide_check(scene, monkeypatch) -> None:
     # A count no scene reaches: every pass matches as with mutual_window=None.
     _defaults(monkeypatch, heap_min_copies=10_000)
-    calls = _spy_on_matching(monkeypatch)
     auto = _register(scene)
-    assert all("window" not in c for c in calls)
+    _same_matching(scene, auto, [PLAIN] * len(auto.passes))
     plain = _register(scene, mutual_window=None)
     np.testing.assert_array_equal(auto.transformations, plain.transformations)
     assert len(auto.passes) == len(plain.passes)
@@ -78,20 +94,14 @@ def test_below_the_count_auto_is_the_scene_wide_check(scene, monkeypatch) -> Non
 def test_once_the_count_is_reached_later_passes_match_in_windows(scene, monkeypatch) -> None:
     # This small bin's first pass finds one box: a count of 1 makes the later passes switch.
     _defaults(monkeypatch, heap_min_copies=1)
-    calls = _spy_on_matching(monkeypatch)
     reg = _register(scene)
-    assert len(reg.passes) == len(calls) >= 2
-    diagonal = float(np.linalg.norm(np.ptp(reg.source_points, axis=0)))
+    assert len(reg.passes) >= 2
+    windowed = {"mutual": True, "n_samples": None, "window": pc.HEAP_WINDOW * _diagonal(scene)}
     accepted = np.cumsum([p.added for p in reg.passes])
     # Pass 0 always matches scene-wide; pass r in windows once passes 0..r-1 found a copy.
-    assert "window" not in calls[0] and calls[0]["n_samples"] == 1000
-    for r in range(1, len(calls)):
-        if accepted[r - 1] >= 1:
-            assert calls[r]["window"] == pytest.approx(pc.HEAP_WINDOW * diagonal)
-            assert calls[r]["n_samples"] is None and calls[r]["mutual"] is True
-        else:
-            assert "window" not in calls[r]
-    assert any("window" in c for c in calls)
+    checks = [windowed if r and accepted[r - 1] >= 1 else PLAIN for r in range(len(reg.passes))]
+    assert windowed in checks
+    _same_matching(scene, reg, checks)
     # The poses are verified as ever: deterministic, each a distinct copy.
     again = _register(scene)
     np.testing.assert_array_equal(again.transformations, reg.transformations)
@@ -101,9 +111,9 @@ def test_auto_leaves_matching_it_cannot_make_local_alone(scene, monkeypatch) -> 
     # Without the mutual check (or with k > 1) there is nothing to make local: "auto" is a
     # no-op there, not an error, so that it can be passed with any matching.
     _defaults(monkeypatch, heap_min_copies=1)
-    calls = _spy_on_matching(monkeypatch)
     reg = _register(scene, mutual=False)
-    assert len(reg.passes) >= 1 and all("window" not in c for c in calls)
+    assert len(reg.passes) >= 1
+    _same_matching(scene, reg, [{"mutual": False, "n_samples": 1000}] * len(reg.passes))
 
 
 @pytest.mark.parametrize("bad", ["Auto", "windows", ""])
@@ -116,25 +126,22 @@ def test_by_default_a_heap_relaxes_the_check_by_rank(scene, monkeypatch) -> None
     default = inspect.signature(pointclm.register_point_clouds).parameters["heap_rank"]
     assert default.default == pc.HEAP_RANK == 64
     _defaults(monkeypatch, heap_min_copies=1)
-    calls = _spy_on_matching(monkeypatch)
     reg = _register(scene, mutual_window=None)
     accepted = np.cumsum([p.added for p in reg.passes])
-    assert "mutual_rank" not in calls[0]  # pass 0 is the mutual nearest check
-    for r in range(1, len(calls)):
-        ranked = accepted[r - 1] >= 1
-        assert calls[r].get("mutual_rank") == (pc.HEAP_RANK if ranked else None)
-        assert calls[r]["n_samples"] == 1000 and "window" not in calls[r]
-    assert any("mutual_rank" in c for c in calls)
+    # Pass 0 is the mutual nearest check; pass r ranked once passes 0..r-1 found a copy.
+    checks = [RANKED if r and accepted[r - 1] >= 1 else PLAIN for r in range(len(reg.passes))]
+    assert RANKED in checks
+    _same_matching(scene, reg, checks)
 
 
 def test_below_the_count_or_without_a_rank_every_pass_is_the_mutual_check(scene, monkeypatch):
-    calls = _spy_on_matching(monkeypatch)
+    _defaults(monkeypatch, heap_min_copies=1)
     plain = _register(scene, mutual_window=None, heap_rank=None)
-    assert all("mutual_rank" not in c for c in calls)
+    _same_matching(scene, plain, [PLAIN] * len(plain.passes))
     _defaults(monkeypatch, heap_min_copies=10_000)
     ranked = _register(scene, mutual_window=None)
     np.testing.assert_array_equal(ranked.transformations, plain.transformations)
-    assert all("mutual_rank" not in c for c in calls)
+    _same_matching(scene, ranked, [PLAIN] * len(ranked.passes))
 
 
 @pytest.mark.parametrize("bad", [0, -3, 2.5, True, "64"])
@@ -144,14 +151,11 @@ def test_a_bad_heap_rank_is_rejected(scene, bad) -> None:
 
 
 def test_a_scan_said_to_be_a_heap_relaxes_the_check_in_every_pass(scene, monkeypatch):
-    calls = _spy_on_matching(monkeypatch)
     reg = _register(scene, mutual_window=None, heap=True)
-    assert len(calls) == len(reg.passes) >= 1
-    assert all(c.get("mutual_rank") == pc.HEAP_RANK for c in calls)
-    calls.clear()
+    _same_matching(scene, reg, [RANKED] * len(reg.passes))
     _defaults(monkeypatch, heap_min_copies=1)  # heap=False wins over any count
     never = _register(scene, mutual_window=None, heap=False)
-    assert all("mutual_rank" not in c for c in calls)
+    _same_matching(scene, never, [PLAIN] * len(never.passes))
     plain = _register(scene, mutual_window=None, heap_rank=None)
     np.testing.assert_array_equal(never.transformations, plain.transformations)
 

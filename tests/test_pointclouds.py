@@ -412,7 +412,6 @@ def test_noise_level_separates_noise_from_curvature() -> None:
 
 def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     from pointclm import _core
-    from pointclm.point_clouds import MAX_STRAY_SHARE, _without_strays
 
     rng = np.random.default_rng(1)
     surface = sheet(0.01, 1.0)
@@ -421,14 +420,10 @@ def test_stray_points_are_dropped_only_when_there_are_many() -> None:
     scan = np.concatenate([surface, stray])
     isolated = _core.isolated_points(scan, 0.02, 3)
     assert not isolated[: len(surface)].any() and isolated[len(surface) :].mean() > 0.95
-    kept = _without_strays(scan, 0.01, None)
-    assert len(kept) == len(scan) - isolated.sum()
-    # A few isolated points (a clean scan's) stay: the scan is returned as it was.
-    few = np.concatenate([surface, stray[: int(0.5 * MAX_STRAY_SHARE * len(surface))]])
-    assert _without_strays(few, 0.01, None) is few
-    # A scan of strays alone has no surface: a clear error, not an empty array downstream.
-    with pytest.raises(ValueError, match="no surface at voxel"):
-        _without_strays(stray[:50], 0.01, None)
+    # A scan of strays alone has no surface: a clear error, not an empty array downstream
+    # (the core drops strays when they are many: `pointclm::scene::SceneRules`).
+    with pytest.raises(ValueError, match="surface around them"):
+        pointclm.register_point_clouds(surface, stray[:50], voxel_size=0.01)
     with pytest.raises(ValueError, match="scan points: need at least 3 points, got 1"):
         pointclm.register_point_clouds(surface, [[0.5, 0.5, 0.5]])
     with pytest.raises(ValueError, match="radius"):
@@ -476,17 +471,6 @@ def test_a_scan_merged_from_two_views_gets_no_estimated_sensor() -> None:
         _core.estimate_sensor(one, a.voxel_size, None)
     with pytest.raises(ValueError):
         _core.estimate_sensor(one[:2], a.voxel_size, (0.0, 0.0, 1.0))
-
-
-def test_only_a_scan_reaching_past_one_model_decides_its_side_by_sight() -> None:
-    from pointclm.point_clouds import SCENE_EXTENT, _spans_a_scene
-
-    rng = np.random.default_rng(0)
-    model = rng.normal(size=(500, 3))
-    alone = model @ np.diag([1.0, 1.0, 0.2]) + 5.0  # one object, seen alone
-    floor = np.c_[rng.uniform(-3, 3, size=(2000, 2)) * SCENE_EXTENT * 2, np.zeros(2000)]
-    assert not _spans_a_scene(alone, model)
-    assert _spans_a_scene(np.vstack([alone - 5.0, floor]), model)
 
 
 def test_unexplained_points_are_those_no_posed_copy_reaches() -> None:

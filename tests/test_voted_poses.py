@@ -3,7 +3,6 @@ the heap passes of `register_point_clouds` propose beside their descriptor clust
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import numpy as np
@@ -120,71 +119,10 @@ def test_heap_passes_judge_voted_poses_beside_the_clusters(scene) -> None:
     np.testing.assert_array_equal(again.transformations, reg.transformations)
 
 
-def test_a_round_votes_beside_its_clustering(scene, monkeypatch, python_stages) -> None:
-    # Voting runs on a second thread while the round's correspondences are clustered; its
-    # result is the same, and its errors reach the caller.
-    threads: list[int] = []
-    original = pc._Run.voted_poses
-
-    def recording(self: Any, rows: np.ndarray, offset: int) -> np.ndarray:
-        threads.append(threading.get_ident())
-        return original(self, rows, offset)
-
-    monkeypatch.setattr(pc._Run, "voted_poses", recording)
-    reg = _register(scene, heap=True, num_threads=2)
-    assert threads and threading.get_ident() not in threads
-    monkeypatch.setattr(pc._Run, "voted_poses", original)
-    np.testing.assert_array_equal(
-        _register(scene, heap=True, num_threads=2).transformations, reg.transformations
-    )
-
-    def failing(*_: Any, **__: Any) -> None:
-        raise RuntimeError("voting failed")
-
-    monkeypatch.setattr(pc._Run, "voted_poses", failing)
-    with pytest.raises(RuntimeError, match="voting failed"):
-        _register(scene, heap=True, num_threads=2)
-
-
 @pytest.mark.parametrize("heap", [False, None])
-def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap, python_stages):
-    def refuse(*_: Any, **__: Any) -> None:
-        raise AssertionError("voted outside a heap")
-
-    monkeypatch.setattr(pc._Run, "voted_poses", refuse)
+def test_only_a_scan_said_to_be_a_heap_is_voted_on(scene, monkeypatch, heap):
     # Counted as a heap from the first copy on: the matching relaxes, but nothing is voted.
     _defaults(monkeypatch, heap_min_copies=1)
     reg = _register(scene, heap=heap, num_threads=1)
     assert all(len(p.voted) == 0 for p in reg.passes)
     assert all(inst.matches is not None for inst in reg.instances)
-
-
-def test_voted_poses_off_the_scan_are_left_out_before_refinement(
-    scene, monkeypatch, python_stages
-) -> None:
-    plain = _register(scene, heap=True, num_threads=1)
-    far = np.eye(4)
-    far[:3, 3] = scene.scan.max(0) + 10.0 * scene.diameter  # nothing of the scan near it
-    real = pc._Run.voted_poses
-
-    def with_far_ones(self: Any, rows: np.ndarray, offset: int) -> np.ndarray:
-        poses = real(self, rows, offset)
-        return np.concatenate([far[None], poses[:1], far[None], poses[1:]])
-
-    refined: list[np.ndarray] = []
-    refine = pc.RefinementContext.refine
-
-    def spy(self: Any, poses: Any, **kwargs: Any) -> Any:
-        refined.append(np.asarray(poses))
-        return refine(self, poses, **kwargs)
-
-    monkeypatch.setattr(pc._Run, "voted_poses", with_far_ones)
-    monkeypatch.setattr(pc.RefinementContext, "refine", spy)
-    reg = _register(scene, heap=True, num_threads=1)
-    assert all(np.allclose(p.voted[0], far) for p in reg.passes[1:])  # proposed...
-    assert not any(np.allclose(T, far) for batch in refined for T in batch)  # ...not refined
-    # The rows left out shift the others: the accepted poses are those of the plain run.
-    np.testing.assert_array_equal(reg.transformations, plain.transformations)
-    assert [i.matches is None for i in reg.instances] == [
-        i.matches is None for i in plain.instances
-    ]

@@ -6,10 +6,9 @@ the voxel size, ICP refinement and verification of its poses on the clouds, peel
 passes over the scan points no accepted copy explains, until one adds no copy), turned
 alternatives and ranking. Every stage is timed.
 
-Without a learned model the whole pipeline runs in the Rust core in one call
-(``pointclm::scene::register_point_clouds``, :mod:`pointclm.clouds.core_path`); with one, and
-for the few options the core does not take, the same stages run from Python
-(:mod:`pointclm.clouds`), each callable on its own.
+The whole pipeline runs in the Rust core in one call (``pointclm::scene::register_point_clouds``,
+:mod:`pointclm.clouds.core_path`); a learned model's embedding is called back from there for
+every pass.
 """
 
 from __future__ import annotations
@@ -25,27 +24,14 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
-from .clouds.core_path import CoreCall, in_core, register_in_core
-from .clouds.diagnosis import _diagnose
-from .clouds.peeling import _is_heap, _peel, unexplained_points
-from .clouds.ranking import _settle
+from .clouds.core_path import CoreCall, register_in_core
 from .clouds.results import CloudInstance, Pass, PointCloudRegistration
-from .clouds.run import _match, _matcher, _matchings, _Run
-from .clouds.sensor import (  # noqa: F401 (the scan's stray and side rules, re-exported)
-    DescribedScan,
-    _describe_target,
-    _spans_a_scene,
-    _voxel_size,
-    _without_strays,
-    default_voxel_size,
-)
-from .clouds.verification import _covariances, _instances, _verify
+from .clouds.sensor import _voxel_size, default_voxel_size
 from .config import Config
 from .docstrings import fill
 from .embedding import Embedding, resolve
 from .errors import InputError
-from .refinement import RefinementContext  # noqa: F401 (re-exported: peeling refines with it)
-from .registration import as_config, as_threads, register
+from .registration import as_config, as_threads
 from .scene_rules import SCENE_DEFAULTS, SceneRules
 
 __all__ = [
@@ -232,39 +218,30 @@ def register_point_clouds(
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
-    if in_core(refine=refine, k=k, window=window):
-        call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                        flips, sc, num_threads, viewpoint is None, embedding, normals, refine,
-                        k, window)  # fmt: skip
-        return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
-    run, scan = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
-                                   mutual, n_samples, k, window, rank, heap, normals, seed,
-                                   num_threads, sc)  # fmt: skip
-    return _finished(_register(run, config, refine, peel, flips), scan, t_load, t0)
+    call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
+                    flips, sc, num_threads, viewpoint is None, embedding, normals, refine, k,
+                    window)  # fmt: skip
+    return _finished(register_in_core(src, tgt, call.checked()), t_load, t0)
 
 
-def _python_run(
-    src: np.ndarray,
-    tgt: np.ndarray,
-    voxel: float,
-    view: tuple[float, float, float] | None,
-    not_given: bool,
-    embedding: Embedding | None,
-    *matching_and_run: Any,
-) -> tuple[_Run, DescribedScan]:
-    """The Python stages' run (for the options the core does not take): both clouds
-    described, the matcher and its arguments; and the scan as described. `matching_and_run`:
-    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, num_threads, scene
-    rules."""
-    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, threads, sc = matching_and_run
-    src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=threads)
-    scan = _describe_target(tgt, voxel, view, not_given, src_d, threads, sc)
-    matching, heaped = _matchings(top_k, mutual, n_samples, k, window, src, rank, heap, sc)
-    tgt_d, matcher = scan.cloud, _matcher(src_d, scan.cloud, k, threads)
-    run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
-               threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
-               scene=sc)  # fmt: skip
-    return run, scan
+def unexplained_points(
+    target_points: np.ndarray,
+    source_points: np.ndarray,
+    transformations: np.ndarray,
+    radius: float,
+    *,
+    num_threads: int | None = None,
+) -> np.ndarray:
+    """Mask of the target points farther than `radius` from every posed source point, searched
+    on `num_threads` threads (None: every core): what peeling's next pass matches."""
+    poses = np.asarray(transformations, dtype=np.float64).reshape(-1, 4, 4)
+    return _core.unexplained_points(
+        pp.as_points(target_points, "target_points"),
+        pp.as_points(source_points, "source_points"),
+        np.ascontiguousarray(poses),
+        radius,
+        num_threads=as_threads(num_threads),
+    )
 
 
 def _loaded(
@@ -276,28 +253,17 @@ def _loaded(
     return src, tgt, _recorded_viewpoint(target) if view is None else view
 
 
-def _finished(
-    reg: PointCloudRegistration, scan: DescribedScan | None, t_load: float, t0: float
-) -> PointCloudRegistration:
-    """`reg` with how the scan's normals were oriented and whether the scan disputes the
-    given viewpoint (`scan`; None: as `reg` says), and the timings of reading the files and
-    of the whole call (started at `t0`)."""
+def _finished(reg: PointCloudRegistration, t_load: float, t0: float) -> PointCloudRegistration:
+    """`reg` with the note that the scan disputes the given viewpoint (when it does), and the
+    timings of reading the files and of the whole call (started at `t0`)."""
     total = {"load": t_load, "total": time.perf_counter() - t0}
-    orientation = reg.orientation if scan is None else scan.orientation
-    disputed = reg.viewpoint_disputed if scan is None else scan.disputed
     note = reg.diagnosis
-    if disputed:
+    if reg.viewpoint_disputed:
         note = (
             "the scan does not look like one view from the viewpoint given; poses were judged "
             "from it all the same." + (" " + note if note else "")
         )
-    return replace(
-        reg,
-        orientation=orientation,
-        timings=reg.timings | total,
-        viewpoint_disputed=disputed,
-        diagnosis=note,
-    )
+    return replace(reg, timings=reg.timings | total, diagnosis=note)
 
 
 def _checked_arguments(
@@ -353,66 +319,6 @@ def _recorded_viewpoint(target: Any) -> tuple[float, float, float] | None:
         return None
     found = file_viewpoint(target)
     return None if found is None else pp.as_point(found, "viewpoint")
-
-
-def _register(
-    run: _Run, config: Config | dict[str, Any] | None, refine: bool, peel: bool, flips: bool = False
-) -> PointCloudRegistration:
-    """The correspondence stage, refinement and verification, then peeling: every stage
-    after the clouds are described."""
-    t1 = time.perf_counter()
-    everything = np.arange(len(run.tgt_d.points))
-    first = run.heap_matching if _is_heap(run, []) else None
-    corr, pair_normals, sims = _match(run, everything, run.seed, first)
-    t2 = time.perf_counter()
-    if len(corr) < 3:
-        raise ValueError(
-            f"only {len(corr)} correspondences survived matching: the clouds share too few "
-            "similar local shapes (try mutual=False, a smaller voxel_size, or check the units)"
-        )
-    cfg = _config(config, run.voxel, run.model, refine, peel, run.scene.peel_cluster_level)
-    features = run.features(corr, cfg, pair_normals, sims)
-    t3 = time.perf_counter()
-    result = register(
-        corr, features, cfg, run.seed, num_threads=run.num_threads, normals=pair_normals
-    )
-    t4 = time.perf_counter()
-    run, refined, tags = _verify(run, result, refine)
-    passes = [Pass(corr, result, everything, len(tags))]
-    t5 = time.perf_counter()
-    if refine and peel and len(tags):
-        refined, tags = _peel(run, refined, tags, passes, cfg)
-    t6 = time.perf_counter()
-    refined, tags = _settle(run, refined, tags, flips, passes) if refine else (refined, tags)
-    t7 = time.perf_counter()
-    stage = dict(result.timings)
-    timings = {
-        "load": 0.0,
-        "downsample": run.src_d.timings["downsample"] + run.tgt_d.timings["downsample"],
-        "normals": run.src_d.timings["normals"] + run.tgt_d.timings["normals"],
-        "fpfh": run.src_d.timings["fpfh"] + run.tgt_d.timings["fpfh"],
-        "matching": t2 - t1,
-        "embedding": t3 - t2,
-        **{s: stage.get(s, 0.0) for s in ("pruning", "clustering", "poses")},
-        "registration": t4 - t3,
-        "refinement": t5 - t4,
-        "peeling": t6 - t5,
-        "flips": t7 - t6,
-        "total": 0.0,
-    }
-    return PointCloudRegistration(
-        result=result,
-        correspondences=corr,
-        source_points=run.src_d.points,
-        target_points=run.tgt_d.points,
-        voxel_size=run.voxel,
-        config=cfg,
-        instances=_instances(refined, tags, passes, _covariances(run, refined)),
-        timings=timings,
-        passes=passes,
-        viewpoint=None if run.viewpoint is None else np.array(run.viewpoint),
-        diagnosis=_diagnose(run, len(refined.origin), refined.by_visibility, passes, refine),
-    )
 
 
 def _config(

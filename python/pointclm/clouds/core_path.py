@@ -1,11 +1,10 @@
-"""The training-free scene pipeline, run whole in the Rust core.
+"""The scene pipeline, run whole in the Rust core.
 
-`register_point_clouds` without a learned model calls the core's scene pipeline
-(``pointclm::scene::register_point_clouds``: sensor and viewpoint, description, matching, the
-correspondence stage, verification, peeling, turned alternatives, ranking) in one call, and
-this module turns its answer into a :class:`PointCloudRegistration`. A learned model's
-embedding is called back from the core for every pass (either backend). The Python stages
-remain for the options the core does not take (see :func:`in_core`).
+`register_point_clouds` calls the core's scene pipeline (``pointclm::scene::register_point_clouds``:
+sensor and viewpoint, description, matching, the correspondence stage, verification, peeling,
+turned alternatives, ranking) in one call, and this module turns its answer into a
+:class:`PointCloudRegistration`. A learned model's embedding is called back from the core for
+every pass (either backend).
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ import numpy as np
 
 from .. import _core
 from ..config import Config
-from ..covariance import pose_covariances
+from ..covariance import PoseCovariances, pose_covariances
 from ..embedding import Embedding
 from ..preprocessing import as_count
 from ..refinement import RefinementContext
@@ -28,16 +27,6 @@ from ..scene_rules import SceneRules
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
 from .sensor import warn_disputed
-from .verification import _covariance_of
-
-#: Whether calls the core covers run there. False runs the Python stages instead: the two are
-#: compared in the tests and ``benchmarks/scene_core.py``.
-ENABLED = True
-
-
-def in_core(*, refine: bool, k: int, window: float | str | None) -> bool:
-    """Whether the core's pipeline runs the call (it covers every option)."""
-    return ENABLED
 
 
 @dataclass(frozen=True)
@@ -129,7 +118,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         viewpoint=None if out["viewpoint"] is None else np.array(out["viewpoint"]),
         orientation=out["orientation"] + _recorded(call),
         viewpoint_disputed=_disputed(out, call),
-        diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes, True),
+        diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes),
     )
 
 
@@ -204,6 +193,18 @@ def _instances(out: dict[str, Any], passes: list[Pass], judged: _CoreJudged) -> 
             )
         )
     return found
+
+
+def _covariance_of(
+    covariances: PoseCovariances | None, i: int
+) -> tuple[np.ndarray | None, np.ndarray | None, int]:
+    if covariances is None:
+        return None, None, 0
+    return (
+        covariances.information[i],
+        covariances.covariance[i],
+        int(covariances.unobservable[i]),
+    )
 
 
 def _timings(core: dict[str, float], first: Pass) -> dict[str, float]:

@@ -26,9 +26,7 @@ class _Judged(Protocol):
     def refiner(self) -> RefinementContext: ...
 
 
-def _diagnose(
-    run: _Judged, found: int, by_visibility: bool, passes: list[Pass], refine: bool
-) -> str:
+def _diagnose(run: _Judged, found: int, by_visibility: bool, passes: list[Pass]) -> str:
     """Why the result is empty or doubtful, and what to try; "" when there is nothing to say.
     `found` copies were accepted, judged by the sensor when `by_visibility`."""
     first = passes[0]

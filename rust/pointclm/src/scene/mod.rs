@@ -51,8 +51,8 @@ pub use embedder::{similarity, Embedder, NetworkEmbedder};
 pub use flips::{flip_turns, quarter_turns, resolve_flips};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds,
-    register_point_clouds_with, Candidate, MutualWindow, Pass, SceneOptions, SceneRegistration, SceneTimings,
-    INLIER_VOXELS, SIGMA_D_VOXELS,
+    register_point_clouds_with, Candidate, MutualWindow, Pass, SceneOptions, SceneRegistration,
+    SceneTimings, INLIER_VOXELS, SIGMA_D_VOXELS,
 };
 pub use rules::SceneRules;
 pub use sensor::{describe_scan, DescribedScan};

@@ -25,9 +25,8 @@ pub(crate) fn windowed_mutual(
     }
     let half = side / 2.0;
     // One cell further from the lowest corner: every cube's corner cell stays at 0 or above.
-    let cell = |p: [f64; 3]| -> [i64; 3] {
-        [0, 1, 2].map(|d| ((p[d] - lo[d]) / half).floor() as i64 + 1)
-    };
+    let cell =
+        |p: [f64; 3]| -> [i64; 3] { [0, 1, 2].map(|d| ((p[d] - lo[d]) / half).floor() as i64 + 1) };
     let mut taking_part = vec![false; points.len()];
     for &r in rows {
         taking_part[r] = true;

@@ -105,3 +105,32 @@ fn the_fused_hidden_share_is_the_depth_maps() {
     }
     assert_eq!(DepthMap::own_hidden_share(&[], [0.0; 3], 0.1, 0.1), 0.0);
 }
+
+#[test]
+fn only_a_scan_reaching_past_one_model_spans_a_scene() {
+    use crate::scene::sensor::spans_a_scene;
+    use crate::scene::SceneRules;
+    // One flattened object seen alone, then the same in front of a wide floor.
+    let extent = SceneRules::default().scene_extent;
+    let model: Vec<[f64; 3]> = (0..500)
+        .map(|i| {
+            let (th, z) = (i as f64 * 2.399_963, 1.0 - 2.0 * (i as f64 + 0.5) / 500.0);
+            let r = (1.0 - z * z).sqrt();
+            [r * th.cos(), r * th.sin(), z]
+        })
+        .collect();
+    let alone: Vec<[f64; 3]> = model.iter().map(|p| [p[0], p[1], 0.2 * p[2]]).collect();
+    assert!(!spans_a_scene(&alone, &model, extent));
+    let mut scene = alone.clone();
+    let side = 6.0 * extent;
+    for i in 0..40 {
+        for j in 0..40 {
+            scene.push([
+                side * (i as f64 / 39.0 - 0.5),
+                side * (j as f64 / 39.0 - 0.5),
+                -1.0,
+            ]);
+        }
+    }
+    assert!(spans_a_scene(&scene, &model, extent));
+}
