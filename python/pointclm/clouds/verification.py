@@ -142,22 +142,26 @@ def _covariance_of(
     )
 
 
+#: The per-pose columns of `RefinedPoses`.
+_COLUMNS = [f for f in RefinedPoses._fields if f not in ("by_visibility", "sliding")]
+
+
+def _column(poses: RefinedPoses, name: str) -> np.ndarray:
+    """A column of `poses` (NaN where not known)."""
+    value = getattr(poses, name)
+    return np.full(len(poses.origin), np.nan) if value is None else value
+
+
 def _take(poses: RefinedPoses, rows: list[int] | np.ndarray) -> RefinedPoses:
     idx = np.asarray(rows, dtype=np.int64)
-    return poses._replace(
-        **{f: getattr(poses, f)[idx] for f in RefinedPoses._fields if f != "by_visibility"}
-    )
+    return poses._replace(**{f: _column(poses, f)[idx] for f in _COLUMNS}, sliding=None)
 
 
 def _merge(
     a: RefinedPoses, a_tags: list[tuple[int, int]], b: RefinedPoses, b_tags: list[tuple[int, int]]
 ) -> tuple[RefinedPoses, list[tuple[int, int]]]:
     """Two lists of verified poses as one, surest first (`a` first among equals)."""
-    joined: dict[str, Any] = {
-        f: np.concatenate([getattr(a, f), getattr(b, f)])
-        for f in RefinedPoses._fields
-        if f != "by_visibility"
-    }
+    joined: dict[str, Any] = {f: np.concatenate([_column(a, f), _column(b, f)]) for f in _COLUMNS}
     both = a._replace(**joined)
     order = np.argsort(-both.confidence, kind="stable")
     tags = a_tags + b_tags
