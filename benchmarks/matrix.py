@@ -231,17 +231,18 @@ def score_poses(
     )
 
 
-def exact_pose_test(scene, product: int) -> Tally:  # type: ignore[no-untyped-def]
-    """Verification started from the truth (module documentation)."""
+def exact_pose_test(scene, product: int) -> tuple[Tally, Tally]:  # type: ignore[no-untyped-def]
+    """Verification started from the truth (module documentation): the copies kept, and
+    those kept or returned apart as sliding along a face."""
     import pointclm.preprocessing as pp
     from pointclm import RefinementContext
     from pointclm.clouds.sensor import default_voxel_size
     from pointclm.metrics import pose_match_matrix
 
     idx = scene.copies_of(product, MIN_VISIBLE)
-    out = Tally()
+    out, ambiguous = Tally(), Tally()
     if len(idx) == 0:
-        return out
+        return out, ambiguous
     model = scene.models[product]
     voxel = default_voxel_size(model, scene.scan)
     src = pp.voxel_downsample(model, voxel)
@@ -264,17 +265,33 @@ def exact_pose_test(scene, product: int) -> Tally:  # type: ignore[no-untyped-de
     out.extra.update(r.rule for r in ctx.rejections(truth))
     out.extra["drifted"] += len(kept.origin) - in_tol
     out.extra["judged_by_view"] += int(kept.by_visibility)
-    return out
+    # Returned apart as sliding along a face: not rejected, but not kept either.
+    sliding = kept.sliding
+    ok = pose_match_matrix(
+        sliding.transformations,
+        truth,
+        MAX_ROTATION_DEG,
+        MAX_TRANSLATION_DIAGONALS * scene.diameters[product],
+        symmetries=scene.symmetries[product],
+    )
+    slid_in_tol = int(sum(ok[i, sliding.origin[i]] for i in range(len(sliding.origin))))
+    ambiguous.n30, ambiguous.found30 = len(idx), in_tol + slid_in_tol
+    ambiguous.calls = 1
+    return out, ambiguous
 
 
-def _register_clouds(scene, product: int, heap: bool) -> tuple[np.ndarray, float, bool]:  # type: ignore[no-untyped-def]
+def _register_clouds(scene, product: int, heap: bool) -> tuple[np.ndarray, np.ndarray, float, bool]:  # type: ignore[no-untyped-def]
+    """The copies found, and those with the ambiguous (sliding) poses too."""
     import pointclm
 
     t = time.perf_counter()
     res = pointclm.register_point_clouds(
         scene.models[product], scene.scan, heap=True if heap else None
     )
-    return res.transformations, time.perf_counter() - t, res.viewpoint is not None
+    seconds = time.perf_counter() - t
+    both = [c.transformation for c in [*res.instances, *res.ambiguous]]
+    every = np.stack(both) if both else np.zeros((0, 4, 4))
+    return res.transformations, every, seconds, res.viewpoint is not None
 
 
 def _register_correspondences(scene, product: int, seed: int) -> tuple[np.ndarray, float]:  # type: ignore[no-untyped-def]
@@ -313,7 +330,10 @@ def run_cell(cell: Cell, seeds: list[int], data_dir: str | None) -> tuple[dict, 
     rows = ["correspondences"] if cell.family == "correspondences" else ["default"]
     if cell.family == "clouds" and cell.layout in HEAPED:
         rows.append("heap")
-    tallies = {r: {"validation": Tally(), "test": Tally()} for r in [*rows, "exact"]}
+    if cell.family == "clouds":
+        rows += [f"{r}+ambiguous" for r in rows]
+    extra = ["exact", "exact+ambiguous"]
+    tallies = {r: {"validation": Tally(), "test": Tally()} for r in [*rows, *extra]}
     per_product: dict[str, Tally] = {}
     t_scene = 0.0
     for i, seed in enumerate(seeds):
@@ -325,21 +345,29 @@ def run_cell(cell: Cell, seeds: list[int], data_dir: str | None) -> tuple[dict, 
             mine = scene.product == prod
             args = (scene.poses[mine], scene.visible_fraction[mine], scene.diameters[prod])
             for row in rows:
+                if row.endswith("+ambiguous"):
+                    continue
+                both = np.zeros((0, 4, 4))
                 if row == "correspondences":
                     poses, secs = _register_correspondences(scene, prod, seed)
                     used_view = False
                 else:
-                    poses, secs, used_view = _register_clouds(scene, prod, row == "heap")
-                tally = score_poses(poses, *args, scene.symmetries[prod])
-                tally.seconds, tally.calls = secs, 1
-                tally.extra["viewpoint_used"] += int(used_view)
-                tallies[row][split].add(tally)
-                per_product.setdefault(f"{row} {cell.parts[prod]}", Tally()).add(tally)
+                    poses, both, secs, used_view = _register_clouds(scene, prod, row == "heap")
+                for name, pred in ((row, poses), (f"{row}+ambiguous", both)):
+                    if name not in tallies:
+                        continue
+                    tally = score_poses(pred, *args, scene.symmetries[prod])
+                    tally.seconds, tally.calls = secs, 1
+                    tally.extra["viewpoint_used"] += int(used_view)
+                    tallies[name][split].add(tally)
+                    per_product.setdefault(f"{name} {cell.parts[prod]}", Tally()).add(tally)
             if cell.family == "clouds":
-                tallies["exact"][split].add(exact_pose_test(scene, prod))
+                kept, ambiguous = exact_pose_test(scene, prod)
+                tallies["exact"][split].add(kept)
+                tallies["exact+ambiguous"][split].add(ambiguous)
     out: dict = {"axes": cell.axes(), "family": cell.family, "seeds": seeds, "rows": {}}
     for row, halves in tallies.items():
-        if row == "exact" and cell.family != "clouds":
+        if row.startswith("exact") and cell.family != "clouds":
             continue
         both = Tally()
         for h in halves.values():
@@ -368,22 +396,26 @@ def _clean(x: object) -> object:
     return x
 
 
+def _exact(rows: dict) -> str:
+    """The exact-pose keep rate, validation / test, and with the ambiguous poses."""
+    pair = [
+        f"{_fmt(h['validation']['recall30'])} / {_fmt(h['test']['recall30'])}" if h else "-"
+        for h in (rows.get("exact"), rows.get("exact+ambiguous"))
+    ]
+    return "-" if pair[0] == "-" else f"{pair[0]} ({pair[1]})"
+
+
 def table(results: dict) -> str:
     lines = [
         "| cell | varies | row | R>=30% val / test | R>=50% | P val / test | F1 val / test "
-        "| exact keep val / test | s/call |",
+        "| exact keep val / test (with ambiguous) | s/call |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, cell in results["cells"].items():
         varies = ", ".join(f"{k}={v}" for k, v in cell["axes"].items() if BASE.get(k) != v) or "-"
-        exact = cell["rows"].get("exact")
-        ex = (
-            f"{_fmt(exact['validation']['recall30'])} / {_fmt(exact['test']['recall30'])}"
-            if exact
-            else "-"
-        )
+        ex = _exact(cell["rows"])
         for row, s in cell["rows"].items():
-            if row == "exact":
+            if row.startswith("exact"):
                 continue
             v, t, a = s["validation"], s["test"], s["all"]
             lines.append(
@@ -394,8 +426,10 @@ def table(results: dict) -> str:
     for row, s in results["pooled"].items():
         v, t, a = s["validation"], s["test"], s["all"]
         if row == "exact":
-            keep = f"{_fmt(v['recall30'])} / {_fmt(t['recall30'])}"
+            keep = _exact(results["pooled"])
             lines.append(f"| **pooled** | | exact poses | - | - | - | - | {keep} | - |")
+            continue
+        if row.startswith("exact"):
             continue
         lines.append(
             f"| **pooled** | | {row} | {_fmt(v['recall30'])} / {_fmt(t['recall30'])} | "
@@ -465,7 +499,9 @@ def main(argv: list[str] | None = None) -> dict:
         for row, halves in tallies.items():
             for h, tally in halves.items():
                 pooled.setdefault(row, {}).setdefault(h, Tally()).add(tally)
-        brief = {r: round(s["all"]["f1"], 2) for r, s in res["rows"].items() if r != "exact"}
+        brief = {
+            r: round(s["all"]["f1"], 2) for r, s in res["rows"].items() if not r.startswith("exact")
+        }
         ex = res["rows"].get("exact", {}).get("all", {}).get("recall30")
         print(f"{cell.name}: F1 {brief} exact {ex} ({time.perf_counter() - t:.0f} s)", flush=True)
         _write(results, pooled, args, argv, seeds, t0)

@@ -130,6 +130,7 @@ class RefineContext:
         npt.NDArray[np.int64],
         bool,
         list[tuple[int, str, float, float]],
+        tuple[npt.NDArray[np.float64], list[npt.NDArray[np.float64]], npt.NDArray[np.int64]],
     ]: ...
     def near_shares(
         self,
@@ -456,4 +457,5 @@ def refine_poses(
     npt.NDArray[np.int64],
     bool,
     list[tuple[int, str, float, float]],
+    tuple[npt.NDArray[np.float64], list[npt.NDArray[np.float64]], npt.NDArray[np.int64]],
 ]: ...

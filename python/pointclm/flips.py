@@ -17,6 +17,7 @@ from .refinement import (
     MIN_FLIP_CHANGE,
     RefinedPoses,
     RefinementContext,
+    _refined_poses,
 )
 from .registration import as_threads
 from .scene_rules import SceneRules
@@ -164,7 +165,7 @@ def _resolved(
         poses.inlier_rmse,
         poses.visible_rmse,
     ]
-    (mats, columns, origin, _, _), order = context._core.resolve_flips(
+    (mats, columns, origin, *_), order = context._core.resolve_flips(
         np.asarray(poses.transformations, dtype=np.float64),
         [np.asarray(c, dtype=np.float64) for c in scores],
         np.asarray(poses.origin, dtype=np.int64),
@@ -173,17 +174,4 @@ def _resolved(
         rules.to_dict(),
         num_threads=as_threads(num_threads),
     )
-    confidence, fitness, visible, contradiction, seen, rmse, visible_rmse = columns
-    resolved = RefinedPoses(
-        mats,
-        fitness,
-        rmse,
-        origin,
-        confidence,
-        visible,
-        contradiction,
-        seen,
-        visible_rmse,
-        poses.by_visibility,
-    )
-    return resolved, order
+    return _refined_poses(mats, columns, origin, poses.by_visibility), order

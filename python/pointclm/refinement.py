@@ -134,6 +134,15 @@ class RefinedPoses(NamedTuple):
     #: True when the poses were judged by what the sensor at the viewpoint could see; False
     #: when no viewpoint was given or the scan does not look like one view from it.
     by_visibility: bool
+    #: (M,) what each model slid along the face it explains still explains, as a share of
+    #: what it explains in place (NaN where not measured); None where not known.
+    slid_fitness: np.ndarray | None = None
+    #: The poses that pass every rule but slide along a face (``slid_fitness`` above
+    #: `max_slid_fitness`): where along that face the copy lies, the scan does not say. Not
+    #: kept, but returned apart, surest first, confidence times ``(1 - slid_fitness) / (1 -
+    #: max_slid_fitness)``, none sharing more than `max_shared` of its scan points with a kept
+    #: pose or a surer one. None where not known.
+    sliding: RefinedPoses | None = None
 
 
 def refine_poses(
@@ -249,7 +258,7 @@ class RefinementContext:
         unknown = sorted(set(rules) - set(_RULES))
         if unknown:
             raise ValueError(f"unknown rule(s) {unknown}; the rules are {list(_RULES)}")
-        *_, rejected = self._judged(transformations, icp, rules, num_threads)
+        rejected = self._judged(transformations, icp, rules, num_threads)[4]
         return [Rejection(*r) for r in rejected]
 
     def _judged(
@@ -311,22 +320,31 @@ class RefinementContext:
             max_slid_fitness,
         )
         named = dict(zip(_RULES, rules, strict=True))
-        mats, columns, origin, by_visibility, _ = self._judged(
+        mats, columns, origin, by_visibility, _, sliding = self._judged(
             transformations, icp, named, num_threads
         )
-        confidence, fitness, visible, contradiction, seen, rmse, visible_rmse = columns
-        return RefinedPoses(
-            mats,
-            fitness,
-            rmse,
-            origin,
-            confidence,
-            visible,
-            contradiction,
-            seen,
-            visible_rmse,
-            bool(by_visibility),
-        )
+        kept = _refined_poses(mats, columns, origin, bool(by_visibility))
+        return kept._replace(sliding=_refined_poses(*sliding, bool(by_visibility)))
+
+
+def _refined_poses(
+    mats: np.ndarray, columns: list[np.ndarray], origin: np.ndarray, by_visibility: bool
+) -> RefinedPoses:
+    """Poses from the core's arrays (its column order)."""
+    confidence, fitness, visible, contradiction, seen, rmse, visible_rmse, slid = columns
+    return RefinedPoses(
+        mats,
+        fitness,
+        rmse,
+        origin,
+        confidence,
+        visible,
+        contradiction,
+        seen,
+        visible_rmse,
+        by_visibility,
+        slid_fitness=slid,
+    )
 
 
 class Rejection(NamedTuple):

@@ -17,7 +17,7 @@ __all__ = [
 #: The version of the JSON `register --out` and `batch` write, their first field:
 #: MAJOR.MINOR, the minor one raised when fields are added, the major one when a field is
 #: renamed, removed or changes meaning. `pointclm/schemas/result.schema.json` describes it.
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 
 #: The fields of a batch line that change from run to run; everything else is fixed by the
 #: scan, the model, the options and the seed.
@@ -39,35 +39,39 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
     """Voxel, config, instances (``T_target_source`` 4x4 lists, surest first, with their
     scores), the viewpoint verification judged from (given, recorded or guessed and confirmed;
     null: none) and how the scan's normals were oriented, `diagnosis` ("" when there is
-    nothing to say) and timings of a :class:`pointclm.point_clouds.PointCloudRegistration`."""
-    instances = [
-        {
-            "T_target_source": inst.transformation.tolist(),
-            "inliers": len(inst),
-            # Proposed by point pair voting in a heap (no correspondence inliers).
-            "voted": inst.matches is None,
-            "fitness": _number(inst.fitness),
-            "inlier_rmse": _number(inst.inlier_rmse),
-            "confidence": _number(inst.confidence),
-            # What the sensor at the viewpoint could see of the copy (null without one).
-            "visible_fitness": _number(inst.visible_fitness),
-            "contradiction": _number(inst.contradiction),
-            "visible_rmse": _number(inst.visible_rmse),
-            "pass": inst.pass_index,
-            # Order (rx, ry, rz, x, y, z), finite (pointclm.covariance); null when not computed.
-            "covariance": _matrix(getattr(inst, "covariance", None)),
-            "unobservable": int(getattr(inst, "unobservable", 0)),
-        }
-        for inst in reg.instances
-    ]
+    nothing to say) and timings of a :class:`pointclm.point_clouds.PointCloudRegistration`;
+    the poses that slide along a face apart, under ``ambiguous``."""
     return {
         "voxel_size": reg.voxel_size,
         "config": reg.config.to_dict(),
-        "instances": instances,
+        "instances": [_instance(inst) for inst in reg.instances],
+        "ambiguous": [_instance(inst) for inst in getattr(reg, "ambiguous", [])],
         "viewpoint": None if reg.viewpoint is None else [float(v) for v in reg.viewpoint],
         "scan_normals": reg.orientation,
         "diagnosis": diagnosis,
         "timings_s": dict(reg.timings),
+    }
+
+
+def _instance(inst: Any) -> dict[str, Any]:
+    """One copy, as the result JSON holds it."""
+    return {
+        "T_target_source": inst.transformation.tolist(),
+        "inliers": len(inst),
+        # Proposed by point pair voting in a heap (no correspondence inliers).
+        "voted": inst.matches is None,
+        "fitness": _number(inst.fitness),
+        "inlier_rmse": _number(inst.inlier_rmse),
+        "confidence": _number(inst.confidence),
+        # What the sensor at the viewpoint could see of the copy (null without one).
+        "visible_fitness": _number(inst.visible_fitness),
+        "contradiction": _number(inst.contradiction),
+        "visible_rmse": _number(inst.visible_rmse),
+        "pass": inst.pass_index,
+        # Order (rx, ry, rz, x, y, z), finite (pointclm.covariance); null when not computed.
+        "covariance": _matrix(getattr(inst, "covariance", None)),
+        "unobservable": int(getattr(inst, "unobservable", 0)),
+        "slid_fitness": _number(getattr(inst, "slid_fitness", math.nan)),
     }
 
 

@@ -104,7 +104,8 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
-    instances = _instances(out, passes, judged)
+    instances = _instances(out, out, passes, judged)
+    ambiguous = _instances(out["ambiguous"], out, passes, judged)
     return PointCloudRegistration(
         result=passes[0].result,
         correspondences=passes[0].correspondences,
@@ -119,6 +120,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         orientation=out["orientation"] + _recorded(call),
         viewpoint_disputed=_disputed(out, call),
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes),
+        ambiguous=ambiguous,
     )
 
 
@@ -161,35 +163,39 @@ def _pass(p: dict[str, Any]) -> Pass:
     )
 
 
-def _instances(out: dict[str, Any], passes: list[Pass], judged: _CoreJudged) -> list[CloudInstance]:
-    """Each copy found, with the correspondence stage's instance it came from (None for a
-    pose that point pair voting proposed), and its information and covariance."""
+def _instances(
+    copies: dict[str, Any], out: dict[str, Any], passes: list[Pass], judged: _CoreJudged
+) -> list[CloudInstance]:
+    """Each of `copies` (the core's columns), with the correspondence stage's instance it
+    came from (None for a pose that point pair voting proposed), and its information and
+    covariance."""
     covariances = None
-    if len(out["transformations"]):
+    if len(copies["transformations"]):
         covariances = pose_covariances(
             out["source_points"],
             out["target_points"],
-            out["transformations"],
+            copies["transformations"],
             judged.voxel,
             num_threads=judged.num_threads,
             context=judged.refiner,
         )
     found = []
-    origins = zip(out["pass_index"], out["instance"], strict=True)
+    origins = zip(copies["pass_index"], copies["instance"], strict=True)
     for i, (pass_index, instance) in enumerate(origins):
         result = passes[pass_index].result
         found.append(
             CloudInstance(
-                out["transformations"][i],
-                float(out["fitness"][i]),
-                float(out["inlier_rmse"][i]),
+                copies["transformations"][i],
+                float(copies["fitness"][i]),
+                float(copies["inlier_rmse"][i]),
                 result.instances[instance] if instance < len(result) else None,
-                float(out["confidence"][i]),
-                float(out["visible_fitness"][i]),
-                float(out["contradiction"][i]),
+                float(copies["confidence"][i]),
+                float(copies["visible_fitness"][i]),
+                float(copies["contradiction"][i]),
                 pass_index,
-                float(out["visible_rmse"][i]),
+                float(copies["visible_rmse"][i]),
                 *_covariance_of(covariances, i),
+                slid_fitness=float(copies["slid_fitness"][i]),
             )
         )
     return found

@@ -72,6 +72,10 @@ class CloudInstance(PoseForms):
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
     #: How many of the six directions the scan does not determine (a box on one face: 3).
     unobservable: int = 0
+    #: What the model slid along the face it explains still explains, as a share of what it
+    #: explains in place (NaN where not measured); above ``max_slid_fitness`` (0.9) the copy
+    #: is among :attr:`PointCloudRegistration.ambiguous`.
+    slid_fitness: float = float("nan")
     # The registration's clouds and voxel, set by `PointCloudRegistration`, for
     # `correspondence_set`: computed on demand, since few callers want the pairs.
     _clouds: tuple[np.ndarray, np.ndarray, float] | None = field(
@@ -164,6 +168,13 @@ class PointCloudRegistration:
     :class:`pointclm.errors.ViewpointDisagreementWarning` said so; verification used it all
     the same). ``diagnosis`` explains an
     empty or doubtful result and what to try ("" when there is nothing to say).
+    ``ambiguous`` holds poses that fit the scan as well as a copy but slide along a face (a
+    box flush with its neighbours, a flat face lying on a larger plane): the scan does not
+    say where along that face the copy lies. They are not in ``instances``; surest first,
+    their ``confidence`` lowered by the slide (times ``(1 - slid_fitness) / (1 - 0.9)``), none
+    sharing more than half its scan points with an instance or a surer one. Each carries its
+    ``information`` matrix: its near-zero directions are the slide. Keep those the
+    application can tell apart (a gripper that needs only the face, a known grid pitch).
     :meth:`to_open3d` gives the scan and each copy as Open3D clouds.
     """
 
@@ -180,10 +191,11 @@ class PointCloudRegistration:
     orientation: str = ""
     diagnosis: str = ""
     viewpoint_disputed: bool = False
+    ambiguous: list[CloudInstance] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         clouds = (self.source_points, self.target_points, self.voxel_size)
-        for inst in self.instances:
+        for inst in [*self.instances, *self.ambiguous]:
             if isinstance(inst, CloudInstance):
                 object.__setattr__(inst, "_clouds", clouds)
 

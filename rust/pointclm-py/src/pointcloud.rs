@@ -291,12 +291,21 @@ pub fn nearest_neighbours<'py>(
     Ok((indices(py, &idx), dist.into_pyarray(py)))
 }
 
+/// Poses as arrays: (M, 4, 4) transformations, the eight score columns of
+/// [`pose_columns`] and each pose's input index.
+type PoseArrays<'py> = (
+    Bound<'py, PyArray3<f64>>,
+    [Bound<'py, PyArray1<f64>>; 8],
+    Bound<'py, PyArray1<i64>>,
+);
+
 type RefinedArrays<'py> = (
     Bound<'py, PyArray3<f64>>,
-    [Bound<'py, PyArray1<f64>>; 7],
+    [Bound<'py, PyArray1<f64>>; 8],
     Bound<'py, PyArray1<i64>>,
     bool,
     Vec<(usize, &'static str, f64, f64)>,
+    PoseArrays<'py>,
 );
 
 /// Rigid poses from (M, 4, 4) `T_target_source` matrices: the rotation block must be a
@@ -718,6 +727,7 @@ fn refined_from_arrays(
             seen: columns[4][k],
             inlier_rmse: columns[5][k],
             visible_rmse: columns[6][k],
+            slid_fitness: f64::NAN,
             origin: origin[k],
         })
         .collect();
@@ -725,6 +735,7 @@ fn refined_from_arrays(
         poses,
         by_visibility,
         rejected: Vec::new(),
+        sliding: Vec::new(),
     })
 }
 
@@ -742,9 +753,26 @@ fn rotation_blocks(a: &PyReadonlyArray3<'_, f64>) -> PyResult<Vec<Matrix3<f64>>>
         .collect())
 }
 
-/// `refine_poses`' result as arrays (see its documentation).
+/// `refine_poses`' result as arrays (see its documentation): the kept poses, whether the
+/// viewpoint judged, the rejections and the sliding poses.
 fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArrays<'py> {
-    let poses = &out.poses;
+    let (mats, columns, origin) = pose_columns(py, &out.poses);
+    (
+        mats,
+        columns,
+        origin,
+        out.by_visibility,
+        out.rejected
+            .iter()
+            .map(|r| (r.origin, r.rule, r.value, r.threshold))
+            .collect(),
+        pose_columns(py, &out.sliding),
+    )
+}
+
+/// `poses` as arrays: transformations; confidence, fitness, visible fitness, contradiction,
+/// seen, inlier RMSE, visible RMSE and slid fitness; origins.
+fn pose_columns<'py>(py: Python<'py>, poses: &[pointcloud::RefinedPose]) -> PoseArrays<'py> {
     let mats: Vec<_> = poses.iter().map(|r| r.pose.to_matrix()).collect();
     let column = |f: fn(&pointcloud::RefinedPose) -> f64| {
         poses.iter().map(f).collect::<Vec<_>>().into_pyarray(py)
@@ -759,13 +787,9 @@ fn refined_arrays<'py>(py: Python<'py>, out: &pointcloud::Refined) -> RefinedArr
             column(|r| r.seen),
             column(|r| r.inlier_rmse),
             column(|r| r.visible_rmse),
+            column(|r| r.slid_fitness),
         ],
         indices(py, &poses.iter().map(|r| r.origin).collect::<Vec<_>>()),
-        out.by_visibility,
-        out.rejected
-            .iter()
-            .map(|r| (r.origin, r.rule, r.value, r.threshold))
-            .collect(),
     )
 }
 

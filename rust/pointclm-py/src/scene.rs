@@ -251,9 +251,8 @@ impl PyEmbedder {
     }
 }
 
-/// A [`scene::SceneRegistration`] as `register_scan` returns it.
-fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'_, PyDict>> {
-    let c = &out.candidates;
+/// Copies as `register_scan` returns them: a column per field.
+fn copies_dict<'py>(py: Python<'py>, c: &[scene::Candidate]) -> PyResult<Bound<'py, PyDict>> {
     let column = |f: fn(&scene::Candidate) -> f64| c.iter().map(f).collect::<Vec<f64>>();
     let mats: Vec<_> = c.iter().map(|c| c.pose.to_matrix()).collect();
     let d = PyDict::new(py);
@@ -271,11 +270,19 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
     )?;
     d.set_item("seen", column(|c| c.seen).into_pyarray(py))?;
     d.set_item("visible_rmse", column(|c| c.visible_rmse).into_pyarray(py))?;
+    d.set_item("slid_fitness", column(|c| c.slid_fitness).into_pyarray(py))?;
     d.set_item(
         "pass_index",
         c.iter().map(|c| c.pass_index).collect::<Vec<_>>(),
     )?;
     d.set_item("instance", c.iter().map(|c| c.instance).collect::<Vec<_>>())?;
+    Ok(d)
+}
+
+/// A [`scene::SceneRegistration`] as `register_scan` returns it.
+fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'_, PyDict>> {
+    let d = copies_dict(py, &out.candidates)?;
+    d.set_item("ambiguous", copies_dict(py, &out.ambiguous)?)?;
     let passes = PyList::empty(py);
     for pass in out.passes {
         let rows: Vec<[f64; 6]> = (0..pass.correspondences.len())

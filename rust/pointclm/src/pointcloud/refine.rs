@@ -94,11 +94,13 @@ crate::config::config! {
         /// A pose is a duplicate when more than this share of the scan points it explains are
         /// already explained by a surer pose.
         pub max_shared: f64 = 0.5 => Unit::Unitless, [0.0, 1.0];
-        /// Poses are rejected when the model slid along the surface it explains (by that
+        /// Poses are not kept when the model slid along the surface it explains (by that
         /// surface's spread, either way along its two main directions) still explains more
         /// than this share of what it explains in place (1: never). A patch lying on a larger
-        /// surface of its shape (a flat face on a table or a wall) fits anywhere on it: the
-        /// fit says nothing about where the object is, however well it explains the scan.
+        /// surface of its shape (a flat face on a table or a wall, or the top of a box flush
+        /// with its neighbours') fits anywhere on it: the fit says nothing about where along
+        /// the face the object is, however well it explains the scan. Such poses are an
+        /// ambiguity, not an error: they come back apart, in [`Refined::sliding`].
         pub max_slid_fitness: f64 = 0.9 => Unit::Unitless, [0.0, 1.0];
     }
 }
@@ -161,6 +163,10 @@ pub struct RefinedPose {
     pub seen: f64,
     /// RMS distance from the explained model points to their nearest scan points.
     pub inlier_rmse: f64,
+    /// What the model slid along the surface it explains still explains, as a share of what
+    /// it explains in place (see [`RefineParams::max_slid_fitness`]; NaN where not measured:
+    /// rejected by another rule first, or with the rule off).
+    pub slid_fitness: f64,
     /// The same over the explained model points the sensor could see at this pose (NaN
     /// without a trusted viewpoint, or when it sees none): how tightly the visible side
     /// lies on the scan, without the points explained only by surfaces the model hides or
@@ -196,6 +202,12 @@ pub struct Refined {
     pub by_visibility: bool,
     /// One per input pose not kept, by input order: the first rule it failed.
     pub rejected: Vec<Rejection>,
+    /// The poses that pass every rule but slide along a face (`max_slid_fitness`, also in
+    /// `rejected`), surest first, without those sharing more than `max_shared` of their scan
+    /// points with a kept pose or a surer sliding one. Their confidence is lowered by the
+    /// slide: times `(1 - slid_fitness) / (1 - max_slid_fitness)`, the share the slide
+    /// loses against the least a pose must lose to be kept.
+    pub sliding: Vec<RefinedPose>,
 }
 
 /// Refines every pose by point-to-plane ICP against `target` (in parallel on the current rayon
@@ -334,30 +346,52 @@ impl RefineContext {
             })
             .collect();
         let mut verdicts = pass_rules(&fitted, self.depth.is_some(), params);
+        let mut slid = vec![f64::NAN; fitted.len()];
         if params.max_slid_fitness < 1.0 {
-            let slid: Vec<Option<f64>> = fitted
+            slid = fitted
                 .par_iter()
                 .zip(&verdicts)
-                .map(|((pose, j), verdict)| {
-                    let pass = verdict.is_none();
-                    pass.then(|| {
+                .map(|((pose, j), verdict)| match verdict {
+                    None => {
                         slid_fitness(source, pose, &self.index, &j.explained, params.fit_radius)
-                    })
-                    .filter(|&slid| slid > params.max_slid_fitness)
+                    }
+                    Some(_) => f64::NAN,
                 })
                 .collect();
-            for (k, (verdict, slid)) in verdicts.iter_mut().zip(slid).enumerate() {
-                if let Some(value) = slid {
-                    *verdict = Some(Rejection {
-                        origin: k,
-                        rule: "max_slid_fitness",
-                        value,
-                        threshold: params.max_slid_fitness,
-                    });
-                }
+        }
+        let mut slides = vec![false; fitted.len()];
+        for (k, verdict) in verdicts.iter_mut().enumerate() {
+            if verdict.is_none() && slid[k] > params.max_slid_fitness {
+                slides[k] = true;
+                *verdict = Some(Rejection {
+                    origin: k,
+                    rule: "max_slid_fitness",
+                    value: slid[k],
+                    threshold: params.max_slid_fitness,
+                });
             }
         }
-        let (kept, duplicates) = keep_surest(&fitted, &verdicts, target.len(), params);
+        let mut claimed = vec![false; target.len()];
+        let (kept, duplicates) = keep_surest(&fitted, &verdicts, &slid, &mut claimed, params);
+        // The sliding poses, judged after every kept one: a slide never takes a kept pose's
+        // points.
+        let sliding_only: Vec<Option<Rejection>> = verdicts
+            .iter()
+            .zip(&slides)
+            .map(|(v, &s)| {
+                if s {
+                    None
+                } else {
+                    v.clone().or(Some(NOT_SLIDING))
+                }
+            })
+            .collect();
+        let (mut sliding, _) = keep_surest(&fitted, &sliding_only, &slid, &mut claimed, params);
+        let room = 1.0 - params.max_slid_fitness;
+        for r in &mut sliding {
+            r.confidence *= ((1.0 - r.slid_fitness) / room).clamp(0.0, 1.0);
+        }
+        sliding.sort_by(|a, b| b.confidence.total_cmp(&a.confidence));
         let mut rejected: Vec<Rejection> = verdicts.into_iter().flatten().collect();
         rejected.extend(duplicates);
         rejected.sort_by_key(|r| r.origin);
@@ -365,6 +399,7 @@ impl RefineContext {
             poses: kept,
             by_visibility: self.depth.is_some(),
             rejected,
+            sliding,
         })
     }
 
@@ -568,6 +603,14 @@ fn pass_rules(
         .collect()
 }
 
+/// A verdict that keeps a pose out of the sliding poses' round of [`keep_surest`].
+const NOT_SLIDING: Rejection = Rejection {
+    origin: 0,
+    rule: "not_sliding",
+    value: 0.0,
+    threshold: 0.0,
+};
+
 /// Whether `value` misses the floor `threshold` (a NaN value misses every rule).
 fn below(value: f64, threshold: f64) -> bool {
     value.is_nan() || value < threshold
@@ -580,11 +623,13 @@ fn above(value: f64, threshold: f64) -> bool {
 
 /// The fitted poses that pass (no verdict), surest first (ties: input order), each dropped when
 /// it explains no scan point or more than `max_shared` of the scan points it explains are
-/// claimed by a surer kept pose; and the rejections of those dropped.
+/// claimed (by a surer kept pose, or before the call: `claimed` holds the scan points kept
+/// poses explain, in and out); and the rejections of those dropped.
 fn keep_surest(
     fitted: &[(RigidTransform, Judged)],
     verdicts: &[Option<Rejection>],
-    n_target: usize,
+    slid: &[f64],
+    claimed: &mut [bool],
     params: &RefineParams,
 ) -> (Vec<RefinedPose>, Vec<Rejection>) {
     let mut order: Vec<usize> = (0..fitted.len()).collect();
@@ -595,7 +640,6 @@ fn keep_surest(
             .total_cmp(&fitted[a].1.confidence)
             .then(a.cmp(&b))
     });
-    let mut claimed = vec![false; n_target];
     let mut kept = Vec::new();
     let mut dropped = Vec::new();
     for k in order {
@@ -634,6 +678,7 @@ fn keep_surest(
             seen: j.seen,
             inlier_rmse: j.rmse,
             visible_rmse: j.visible_rmse,
+            slid_fitness: slid[k],
             origin: k,
         });
     }

@@ -131,6 +131,7 @@ pub fn resolve_flips(
         poses: order.iter().map(|&i| rows[i].clone()).collect(),
         by_visibility: poses.by_visibility,
         rejected: poses.rejected.clone(),
+        sliding: poses.sliding.clone(),
     };
     Ok((resolved, order))
 }

@@ -157,6 +157,9 @@ pub struct Candidate {
     pub seen: f64,
     /// With a trusted viewpoint: RMS distance of the explained points the sensor could see.
     pub visible_rmse: f64,
+    /// What the model slid along the face it explains still explains, as a share of what it
+    /// explains in place ([`RefineParams::max_slid_fitness`]; NaN where not measured).
+    pub slid_fitness: f64,
 }
 
 /// One pass of the correspondence stage.
@@ -183,6 +186,13 @@ pub struct Pass {
 pub struct SceneRegistration {
     /// The copies found, surest first.
     pub candidates: Vec<Candidate>,
+    /// Poses that fit the scan as well but slide along a face (a box flush with its
+    /// neighbours, or a flat face lying on a larger plane): where along that face the copy
+    /// lies, the scan does not say. Surest first, confidence lowered by the slide
+    /// ([`Refined::sliding`]), none sharing more than `max_shared` of its scan points with a
+    /// candidate or a surer one. Not in `candidates`: the caller decides, with each one's
+    /// information matrix.
+    pub ambiguous: Vec<Candidate>,
     /// Every pass: pass 0 over the whole scan, then one per peeling round.
     pub passes: Vec<Pass>,
     /// The model, downsampled and described.
@@ -342,6 +352,7 @@ pub fn register_point_clouds_with(
         run.refine(&poses_of(&registration), &run.rules.clone())?
     };
     timings.refinement = lap();
+    run.keep_sliding(&first, 0, |origin| origin);
     let mut accepted = Accepted::from_pass(first, 0);
     let added = accepted.len();
     run.passes.push(Pass {
@@ -363,10 +374,12 @@ pub fn register_point_clouds_with(
         true => run.ranked(accepted)?,
         false => candidates(accepted),
     };
+    let ambiguous = run.ambiguous(&candidates)?;
     timings.flips = lap();
     Ok(SceneRegistration {
         timings,
         candidates,
+        ambiguous,
         passes: run.passes,
         by_visibility: run.by_visibility,
         viewpoint: run.viewpoint,
@@ -397,6 +410,8 @@ struct Run<'o> {
     options: &'o SceneOptions,
     embedder: Option<&'o dyn Embedder>,
     passes: Vec<Pass>,
+    /// Every pass's poses that fit but slide along a face, with their (pass, instance).
+    sliding: Accepted,
     by_visibility: bool,
     /// The sensor position verification judges by.
     viewpoint: Option<[f64; 3]>,
@@ -464,6 +479,10 @@ impl<'o> Run<'o> {
             options,
             embedder,
             passes: Vec::new(),
+            sliding: Accepted {
+                rows: Vec::new(),
+                tags: Vec::new(),
+            },
             by_visibility: false,
             viewpoint,
             guessed,
@@ -513,7 +532,7 @@ impl<'o> Run<'o> {
             ..self.rules.clone()
         };
         let in_input = |mut judged: Refined| {
-            for r in &mut judged.poses {
+            for r in judged.poses.iter_mut().chain(&mut judged.sliding) {
                 r.origin = source[r.origin];
             }
             judged
@@ -747,6 +766,44 @@ impl<'o> Run<'o> {
         Ok(refined)
     }
 
+    /// Keeps `refined`'s sliding poses, tagged with `pass` and their instance in it.
+    fn keep_sliding(&mut self, refined: &Refined, pass: usize, instance: impl Fn(usize) -> usize) {
+        for r in &refined.sliding {
+            self.sliding.rows.push(r.clone());
+            self.sliding.tags.push((pass, instance(r.origin)));
+        }
+    }
+
+    /// The sliding poses of every pass, surest first, without those sharing more than
+    /// `max_shared` of the scan points they explain with the copies `found` or a surer one.
+    fn ambiguous(&self, found: &[Candidate]) -> Result<Vec<Candidate>> {
+        let mut sliding = Accepted {
+            rows: self.sliding.rows.clone(),
+            tags: self.sliding.tags.clone(),
+        };
+        if sliding.is_empty() {
+            return Ok(Vec::new());
+        }
+        sliding.sort();
+        let radius = self.rules.fit_radius;
+        let found: Vec<RigidTransform> = found.iter().map(|c| handed(c.pose)).collect();
+        let index = self.context.index();
+        let mut taken: Vec<bool> =
+            unexplained(&self.target.points, &self.source.points, &found, radius)?
+                .into_iter()
+                .map(|free| !free)
+                .collect();
+        let keep = not_duplicates(
+            index,
+            &self.source.points,
+            &sliding.poses(),
+            radius,
+            self.rules.max_shared,
+            &mut taken,
+        )?;
+        Ok(candidates(sliding.take(&keep)))
+    }
+
     /// Scan points no pose of `accepted` explains (within `peel_radius_voxels`).
     fn unexplained(&self, accepted: &Accepted) -> Result<Vec<bool>> {
         let radius = self.options.scene.peel_radius_voxels * self.voxel;
@@ -789,12 +846,15 @@ impl<'o> Run<'o> {
                 ..self.rules.clone()
             };
             let mut new = self.refine(&candidates, &every)?;
+            // A voted pose's origin names its row of `voted`, past the clusters'.
+            let instance = |origin: usize| match origin >= clustered {
+                true => clustered + reach[origin - clustered],
+                false => origin,
+            };
             for pose in &mut new.poses {
-                // A voted pose's origin names its row of `voted`, past the clusters'.
-                if pose.origin >= clustered {
-                    pose.origin = clustered + reach[pose.origin - clustered];
-                }
+                pose.origin = instance(pose.origin);
             }
+            self.keep_sliding(&new, round, instance);
             let new =
                 self.without_weak_votes(Accepted::from_pass(new, round), clustered, &accepted);
             let mut duplicates = Vec::new();
@@ -893,6 +953,7 @@ impl<'o> Run<'o> {
             poses: accepted.rows.clone(),
             by_visibility: self.by_visibility,
             rejected: Vec::new(),
+            sliding: Vec::new(),
         };
         let params = RefineParams::for_voxel(self.voxel);
         let (out, order) =
@@ -968,6 +1029,7 @@ fn candidates(accepted: Accepted) -> Vec<Candidate> {
             contradiction: r.contradiction,
             seen: r.seen,
             visible_rmse: r.visible_rmse,
+            slid_fitness: r.slid_fitness,
         })
         .collect()
 }

@@ -550,7 +550,7 @@ fn plate_on_a_table() -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
 }
 
 #[test]
-fn a_face_lying_on_a_larger_surface_fits_anywhere_and_is_rejected() {
+fn a_face_lying_on_a_larger_surface_fits_anywhere_and_comes_back_apart() {
     let (part, table) = plate_on_a_table();
     let pose = RigidTransform::identity();
     let base = RefineParams {
@@ -566,13 +566,27 @@ fn a_face_lying_on_a_larger_surface_fits_anywhere_and_is_rejected() {
         let kept = refine_poses(&part, &table, None, &[pose], eye, &off).unwrap();
         assert_eq!(kept.poses.len(), 1, "{eye:?}");
         assert_eq!(kept.by_visibility, eye.is_some());
+        assert!(kept.poses[0].slid_fitness.is_nan() && kept.sliding.is_empty());
         let judged = refine_poses(&part, &table, None, &[pose], eye, &base).unwrap();
         assert!(judged.poses.is_empty(), "{eye:?}: {judged:?}");
+        // Not an error but an ambiguity: returned apart, less sure by the slide.
+        assert_eq!(judged.rejected[0].rule, "max_slid_fitness");
+        assert_eq!(judged.sliding.len(), 1, "{eye:?}: {judged:?}");
+        let (slid, plain) = (&judged.sliding[0], &kept.poses[0]);
+        assert!(slid.slid_fitness > base.max_slid_fitness, "{slid:?}");
+        let factor = ((1.0 - slid.slid_fitness) / (1.0 - base.max_slid_fitness)).clamp(0.0, 1.0);
+        assert!((slid.confidence - plain.confidence * factor).abs() < 1e-12);
+        assert_eq!((slid.pose, slid.fitness), (plain.pose, plain.fitness));
+        // Two of them on the same spot: the second only repeats the first.
+        let twice = refine_poses(&part, &table, None, &[pose, pose], eye, &base).unwrap();
+        assert_eq!(twice.sliding.len(), 1, "{eye:?}: {twice:?}");
     }
     // The same part on a table just its size, bounded by free space, is where the scan says.
     let small = sensed(&wall((0.0, 1.0), (0.0, 1.0), 0.0, 0.05), 0.06);
     let fits = refine_poses(&part, &small, None, &[pose], Some(EYE), &base).unwrap();
     assert_eq!(fits.poses.len(), 1, "{fits:?}");
+    assert!(fits.poses[0].slid_fitness <= base.max_slid_fitness);
+    assert!(fits.sliding.is_empty());
 }
 
 #[test]
