@@ -147,6 +147,14 @@ def test_quick_cells():
     base = dataclasses.replace(cells["base"], copies=(4, 5))
     res, _ = mx.run_cell(base, [0], None)
     rows = res["rows"]
-    assert set(rows) == {"default", "heap", "exact"}
+    assert set(rows) == {
+        "default",
+        "heap",
+        "default+ambiguous",
+        "heap+ambiguous",
+        "exact",
+        "exact+ambiguous",
+    }
+    assert rows["exact+ambiguous"]["all"]["recall30"] >= rows["exact"]["all"]["recall30"]
     assert rows["default"]["all"]["recall30"] >= 0.5
     assert rows["exact"]["all"]["recall30"] >= 0.75

@@ -441,6 +441,21 @@ def looks_like_one_view(
     viewpoint: tuple[float, float, float] | None,
     voxel_size: float,
 ) -> bool: ...
+def judge_jointly(
+    scan: npt.NDArray[np.float64],
+    models: list[
+        tuple[
+            npt.NDArray[np.float64],
+            float,
+            npt.NDArray[np.float64],
+            npt.NDArray[np.float64],
+            npt.NDArray[np.float64],
+            npt.NDArray[np.float64],
+        ]
+    ],
+    max_shared: float,
+    num_threads: int | None = None,
+) -> tuple[list[list[bool]], list[list[bool]]]: ...
 def refine_poses(
     source: npt.NDArray[np.float64],
     target: npt.NDArray[np.float64],

@@ -295,6 +295,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::fit_tightness, m)?)?;
     m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
+    m.add_function(wrap_pyfunction!(scene::judge_jointly, m)?)?;
     m.add_function(wrap_pyfunction!(scene::flip_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::quarter_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;

@@ -422,3 +422,68 @@ pub fn quarter_turns<'py>(
     let mats: Vec<_> = turns.iter().map(|t| t.to_matrix()).collect();
     Ok(matrices4(py, &mats))
 }
+
+/// One model's poses for `judge_jointly`: its points, radius, copies and their contradictions,
+/// ambiguous poses and theirs.
+type JointModel<'py> = (
+    PyReadonlyArray2<'py, f64>,
+    f64,
+    PyReadonlyArray3<'py, f64>,
+    PyReadonlyArray1<'py, f64>,
+    PyReadonlyArray3<'py, f64>,
+    PyReadonlyArray1<'py, f64>,
+);
+
+/// Per model, which copies are kept; per model, which ambiguous poses.
+type KeptMasks = (Vec<Vec<bool>>, Vec<Vec<bool>>);
+
+/// Which copies and ambiguous poses of several models' results the joint check keeps
+/// (`scene::judge_jointly`), by model.
+#[pyfunction]
+#[pyo3(signature = (scan, models, max_shared, num_threads=None))]
+pub fn judge_jointly(
+    py: Python<'_>,
+    scan: PyReadonlyArray2<'_, f64>,
+    models: Vec<JointModel<'_>>,
+    max_shared: f64,
+    num_threads: Option<usize>,
+) -> PyResult<KeptMasks> {
+    let scan = rows3(&scan, "scan")?;
+    let posed = |t: &PyReadonlyArray3<'_, f64>, c: &PyReadonlyArray1<'_, f64>| {
+        let poses = rigid_poses(t)?;
+        let c = values(c);
+        if c.len() != poses.len() {
+            return Err(crate::errors::InputError::new_err(format!(
+                "{} poses and {} contradictions: give one per pose",
+                poses.len(),
+                c.len()
+            )));
+        }
+        Ok(poses.into_iter().zip(c).collect::<Vec<_>>())
+    };
+    let mut points = Vec::with_capacity(models.len());
+    let mut lists = Vec::with_capacity(models.len());
+    for (model, radius, copies, copies_c, ambiguous, ambiguous_c) in &models {
+        points.push(rows3(model, "model")?);
+        lists.push((
+            *radius,
+            posed(copies, copies_c)?,
+            posed(ambiguous, ambiguous_c)?,
+        ));
+    }
+    let threads = num_threads.map(pool).transpose()?;
+    let verdict = guarded(py, threads, move || {
+        let judged: Vec<scene::ModelPoses> = points
+            .iter()
+            .zip(lists)
+            .map(|(model, (radius, copies, ambiguous))| scene::ModelPoses {
+                model,
+                radius,
+                copies,
+                ambiguous,
+            })
+            .collect();
+        scene::judge_jointly(&scan, &judged, max_shared)
+    })?;
+    Ok((verdict.copies, verdict.ambiguous))
+}

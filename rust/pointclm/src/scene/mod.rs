@@ -39,6 +39,7 @@
 
 pub mod embedder;
 pub mod flips;
+pub mod joint;
 pub mod peeling;
 pub mod ranking;
 pub mod register;
@@ -49,6 +50,7 @@ mod window;
 
 pub use embedder::{similarity, Embedder, NetworkEmbedder};
 pub use flips::{flip_turns, quarter_turns, resolve_flips};
+pub use joint::{judge_jointly, register_models, JointVerdict, ModelPoses};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds,
     register_point_clouds_with, Candidate, MutualWindow, Pass, SceneOptions, SceneRegistration,
