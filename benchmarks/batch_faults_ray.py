@@ -42,6 +42,7 @@ from batch_faults import (  # noqa: E402
 )
 
 RAY = ["--engine", "ray", "--workers", "2"]
+ENV["RAY_AUTH_MODE"] = "disabled"  # throwaway local clusters: no token, no warning about it
 
 
 def has_ray() -> bool:

@@ -30,7 +30,11 @@ pytestmark = pytest.mark.skipif(
 
 SEED = 3
 N_SCANS = 16
-ENV = {**os.environ, "PYTHONPATH": str(Path(pointclm.__file__).resolve().parents[1])}
+ENV = {
+    **os.environ,
+    "PYTHONPATH": str(Path(pointclm.__file__).resolve().parents[1]),
+    "RAY_AUTH_MODE": "disabled",  # throwaway local clusters
+}
 RAY = ["--engine", "ray", "--workers", "2"]
 needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None, reason="needs ray: pip install 'pointclm[ray]'"
