@@ -20,8 +20,9 @@ workers); ``file-size limit`` (``RLIMIT_FSIZE`` in the child, EFBIG); ``full dis
 for writing, so a batch cannot meet EROFS half way); ``read-only folder`` (mode 0555; a
 root child drops CAP_DAC_OVERRIDE so the mode applies); ``worker killed`` (a worker of 2
 killed each time a line was written since the last kill, at most every 0.3 s); ``scan
-truncated`` (the last scan cut to half its bytes once the first line is out).
-Prints a markdown table.
+truncated`` (the last scan cut to half its bytes once the first line is out). Then
+(``--no-ray`` leaves them out) benchmarks/batch_faults_ray.py's: the same faults with Ray as
+the executor, and an output made read-only while the batch runs. Prints a markdown table.
 """
 
 from __future__ import annotations
@@ -384,9 +385,11 @@ def main() -> None:
     ap.add_argument("--worker-kills", type=int, default=10)
     ap.add_argument("--quick", action="store_true", help="10 kills, 20 scans")
     ap.add_argument("--no-mount", action="store_true", help="no tmpfs faults (root only)")
+    ap.add_argument("--no-ray", action="store_true", help="without batch_faults_ray.py's cases")
+    ap.add_argument("--ray-kills", type=int, default=5, help="SIGKILLs of a Ray batch")
     args = ap.parse_args()
     if args.quick:
-        args.kills, args.scans, args.worker_kills = 10, 20, 4
+        args.kills, args.scans, args.worker_kills, args.ray_kills = 10, 20, 4, 2
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as name:
         tmp = Path(name)
@@ -404,10 +407,19 @@ def main() -> None:
             rows += fault_mounts(model, scans, tmp, reference, size)
         rows.append(fault_worker_kills(model, scans, tmp, reference, args.worker_kills))
         rows.append(fault_truncated(model, scans, tmp, reference))
-    print(f"## pointclm batch under faults ({args.scans} scans, one run {full_time:.1f} s)")
+        if not args.no_ray:
+            from batch_faults_ray import ray_rows
+
+            rows += ray_rows(model, scans, tmp, reference, args.ray_kills, args.worker_kills)
+    print_table(f"{args.scans} scans, one run {full_time:.1f} s", rows, t0)
+
+
+def print_table(what: str, rows: list[dict[str, Any]], t0: float) -> None:
+    print(f"## pointclm batch under faults ({what})")
     print(
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-        f"{datetime.now(timezone.utc):%Y-%m-%d}, {time.perf_counter() - t0:.0f} s in all\n"
+        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {time.perf_counter() - t0:.0f} s "
+        "in all\n"
     )
     print("| fault | exit code | torn last lines | orphan workers | output right | message |")
     print("|---|---|---|---|---|---|")

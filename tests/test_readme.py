@@ -98,7 +98,6 @@ _OPTIONAL = (
     ("import torch", "torch", "train"),
     ("import open3d", "open3d", "test"),
     ("import jsonschema", "jsonschema", "test"),
-    (".to_html(", "plotly", "viz"),
     ("import laspy", "laspy", "io"),
     ("import pye57", "pye57", "io"),
     ("from rosbags", "rosbags", "io"),

@@ -1,20 +1,26 @@
 """A result as one self-contained HTML page: the scan and every copy found, in 3D, to turn
-around in any browser (``pip install 'pointclm[viz]'`` for plotly).
+around in any browser.
 
-The page embeds plotly.js (about 4.7 MB) and the points, so it opens with no network and
-can be mailed or attached to a ticket as it is. The scan is drawn in grey, decimated to at
-most :data:`MAX_SCAN_POINTS` points; each copy found is the model placed by its pose, in its
-own colour (the PNG's palette, :func:`pointclm.visualize.palette`), numbered from 0 in the
-order of the result (surest first) with its confidence in the legend (its fitness where
-no confidence is known); clicking a legend entry hides or shows it. Given the ground-truth
-poses, each true copy that no found pose matches (as the benchmarks score a pose: rotation
-under 15 degrees, translation under a tenth of the model's diagonal) is outlined in black
-dashes: the edges of the model's bounding box at that pose. Points are stored as float32
-in base64, so a page of 20 copies stays a few megabytes (BENCHMARKS.md).
+The page (:mod:`pointclm.html_viewer`) holds a small point viewer in plain JavaScript and
+the points, so it opens with no network and no library, can be mailed or attached to a
+ticket as it is, and is on screen in well under a second where a plotly page took several
+(BENCHMARKS.md). The scan is drawn in grey, subsampled for display to at most
+:data:`MAX_SCAN_POINTS` points, one per cell of a voxel grid (the legend says how many of
+how many, and the cell); each copy found is the model placed by its pose, in its own colour
+(the PNG's palette, :func:`pointclm.visualize.palette`), numbered from 0 in the order of the
+result (surest first) with its confidence in the legend (its fitness where no confidence is
+known); clicking a legend entry hides or shows it. Given the ground-truth poses, each true
+copy that no found pose matches (as the benchmarks score a pose: rotation under 15 degrees,
+translation under a tenth of the model's diagonal) is outlined in black dashes: the edges of
+the model's bounding box at that pose. Points are stored as float32 in base64.
+
+:func:`registration_figure` draws the same layers as a plotly figure, for a notebook
+(``pip install 'pointclm[viz]'``).
 """
 
 from __future__ import annotations
 
+import base64
 import html
 import os
 from pathlib import Path
@@ -23,18 +29,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .html_viewer import page
 from .io.files import atomic_path, check_output_path
 from .metrics import pose_match_matrix
 from .visualize import MATCH_DEG, MATCH_DIAMETERS, _empty_reason, palette
 
 __all__ = ["MAX_MODEL_POINTS", "MAX_SCAN_POINTS", "registration_figure", "write_html"]
 
-#: Scan points drawn at most: more adds megabytes and seconds, not detail on a screen.
+#: Scan points drawn at most: more adds megabytes and time, not detail on a screen.
 MAX_SCAN_POINTS = 20_000
 #: Model points drawn per copy.
 MAX_MODEL_POINTS = 400
-_SCAN_GREY = "rgb(160,160,160)"
-_MISSED = "rgb(0,0,0)"
+_SCAN_GREY = (160, 160, 160)
+_MISSED = (0, 0, 0)
 #: The 12 edges of a box, as pairs of corner indices (corner bits: x, y, z).
 _BOX_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
 
@@ -43,24 +50,43 @@ def _plotly() -> Any:
     try:
         import plotly.graph_objects as go
     except ImportError:
-        raise ImportError("the HTML page needs plotly: pip install 'pointclm[viz]'") from None
+        raise ImportError("the plotly figure needs plotly: pip install 'pointclm[viz]'") from None
     return go
 
 
-def _decimated(points: np.ndarray, limit: int) -> np.ndarray:
-    """Every k-th point, at most `limit` of them (a fixed stride: the same page each time)."""
-    step = max(1, -(-len(points) // limit))
-    return points[::step]
+def _voxel_count(points: np.ndarray, cell: float) -> tuple[int, np.ndarray]:
+    keys = np.floor((points - points.min(axis=0)) / cell).astype(np.int64)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, first = np.unique(flat, return_index=True)
+    return len(first), np.sort(first)
 
 
-def _trace_points(points: np.ndarray) -> dict[str, np.ndarray]:
-    p = np.ascontiguousarray(points, dtype=np.float32)
-    return {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2]}
+def voxel_subsample(points: np.ndarray, limit: int) -> tuple[np.ndarray, float]:
+    """At most `limit` of `points`, the first of each cell of a voxel grid, and the cell
+    (0 where every point is kept): the smallest cell, to 2 %, that leaves no more than
+    `limit`. Spread over the cloud as a stride is not, and the same page each time."""
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points) <= limit:
+        return points, 0.0
+    diagonal = float(np.linalg.norm(np.ptp(points, axis=0)))
+    if diagonal == 0.0:
+        return points[:limit], 0.0
+    # Too many at `small` (where the keys still fit an int64), few enough at `big` (one
+    # cell); halve the ratio, in logarithms, until it is under 2 %.
+    small, big = diagonal * 1e-6, diagonal * 2
+    while big / small > 1.02:
+        cell = float(np.sqrt(small * big))
+        if _voxel_count(points, cell)[0] > limit:
+            small = cell
+        else:
+            big = cell
+    return points[_voxel_count(points, big)[1]], big
 
 
-def _rgb(colour: np.ndarray) -> str:
+def _rgb(colour: np.ndarray) -> tuple[int, int, int]:
     r, g, b = (int(round(255 * float(c))) for c in colour)
-    return f"rgb({r},{g},{b})"
+    return r, g, b
 
 
 def _copy_name(k: int, inst: Any) -> str:
@@ -99,7 +125,69 @@ def _summary(reg: Any, missed: list[int] | None, n_true: int) -> str:
     text = f"{found} {'copy' if found == 1 else 'copies'} found"
     if missed is not None:
         text += f"; {n_true - len(missed)} of {n_true} true copies found, {len(missed)} missed"
+    if not reg.instances:
+        text += f" (no copy found: {_empty_reason(reg) or 'nothing found'})"
     return text
+
+
+def _scan_name(shown: int, total: int, cell: float) -> str:
+    if cell == 0.0:
+        return f"scan ({shown} of {total} points)"
+    return f"scan ({shown} of {total} points, one per {cell:.3g} voxel)"
+
+
+def _layers(
+    reg: Any, ground_truth: ArrayLike | None, max_scan_points: int
+) -> tuple[list[dict[str, Any]], str]:
+    """What the page and the figure draw: the scan, each copy, each missed true copy (name,
+    kind, colour, size, dash, points), and the summary line."""
+    if isinstance(max_scan_points, bool) or not isinstance(max_scan_points, int):
+        raise ValueError(f"max_scan_points must be an int >= 1, got {max_scan_points!r}")
+    if max_scan_points < 1:
+        raise ValueError(f"max_scan_points must be an int >= 1, got {max_scan_points!r}")
+    scan = np.asarray(reg.target_points, dtype=np.float64).reshape(-1, 3)
+    model = np.asarray(reg.source_points, dtype=np.float64).reshape(-1, 3)
+    poses = np.asarray(reg.transformations, dtype=np.float64).reshape(-1, 4, 4)
+    missed = None if ground_truth is None else _missed(model, poses, ground_truth)
+    shown, cell = voxel_subsample(scan, max_scan_points)
+    layers = [_layer(_scan_name(len(shown), len(scan), cell), shown, _SCAN_GREY, 2)]
+    sub, _ = voxel_subsample(model, MAX_MODEL_POINTS)
+    colours = palette(len(poses))
+    for k, (inst, T, colour) in enumerate(zip(reg.instances, poses, colours, strict=True)):
+        layers.append(_layer(_copy_name(k, inst), _placed(sub, T), _rgb(colour), 4))
+    for j in missed or []:
+        box = _box_lines(model, np.asarray(ground_truth, dtype=np.float64)[j])
+        layers.append(_layer(f"missed ground truth {j}", box, _MISSED, 2, kind="lines"))
+    n_true = 0 if ground_truth is None else len(np.asarray(ground_truth).reshape(-1, 16))
+    return layers, _summary(reg, missed, n_true)
+
+
+def _layer(
+    name: str, points: np.ndarray, colour: tuple[int, int, int], size: float, kind: str = "points"
+) -> dict[str, Any]:
+    xyz = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 3)
+    return {"name": name, "kind": kind, "colour": list(colour), "size": size, "xyz": xyz}
+
+
+def _view(reg: Any, layers: list[dict[str, Any]]) -> tuple[list[float], list[float]]:
+    """The first view (toward the viewer, and up): from the sensor where the result knows
+    it, else from the origin when it lies outside the scan (a scan in its sensor's frame),
+    else from above at an angle. Looking along z means a camera's frame: its y points down."""
+    scan = layers[0]["xyz"].astype(np.float64)
+    if not len(scan):
+        return [1.0, -1.0, 1.0], [0.0, 0.0, 1.0]
+    centre = (scan.min(axis=0) + scan.max(axis=0)) / 2
+    viewpoint = getattr(reg, "viewpoint", None)
+    eye = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    inside = bool(((scan.min(axis=0) <= 0) & (0 <= scan.max(axis=0))).all())
+    if eye is None and not inside:
+        eye = np.zeros(3)
+    back = None if eye is None else eye - centre
+    if back is None or not np.isfinite(back).all() or np.linalg.norm(back) == 0:
+        return [1.0, -1.0, 1.0], [0.0, 0.0, 1.0]
+    back = back / np.linalg.norm(back)
+    up = [0.0, -1.0, 0.0] if abs(back[2]) > 0.7 else [0.0, 0.0, 1.0]
+    return [float(v) for v in back], up
 
 
 def registration_figure(
@@ -109,54 +197,22 @@ def registration_figure(
     title: str = "",
     max_scan_points: int = MAX_SCAN_POINTS,
 ) -> Any:
-    """The plotly figure of a :class:`pointclm.PointCloudRegistration` (see the module
-    documentation); :func:`write_html` saves it as a page."""
+    """The plotly figure of a :class:`pointclm.PointCloudRegistration`, the page's layers
+    (see the module documentation), for a notebook; needs plotly."""
     go = _plotly()
-    if isinstance(max_scan_points, bool) or not isinstance(max_scan_points, int):
-        raise ValueError(f"max_scan_points must be an int >= 1, got {max_scan_points!r}")
-    if max_scan_points < 1:
-        raise ValueError(f"max_scan_points must be an int >= 1, got {max_scan_points!r}")
-    scan = np.asarray(reg.target_points, dtype=np.float64).reshape(-1, 3)
-    model = np.asarray(reg.source_points, dtype=np.float64).reshape(-1, 3)
-    poses = np.asarray(reg.transformations, dtype=np.float64).reshape(-1, 4, 4)
-    shown = _decimated(scan, max_scan_points)
-    traces = [
-        go.Scatter3d(
-            **_trace_points(shown),
-            mode="markers",
-            marker={"size": 1.5, "color": _SCAN_GREY},
-            name=f"scan ({len(shown)} of {len(scan)} points)",
-            hoverinfo="skip",
-        )
-    ]
-    sub = _decimated(model, MAX_MODEL_POINTS)
-    colours = palette(len(poses))
-    for k, (inst, T, colour) in enumerate(zip(reg.instances, poses, colours, strict=True)):
+    layers, summary = _layers(reg, ground_truth, max_scan_points)
+    traces = []
+    for layer in layers:
+        xyz, colour = layer["xyz"], "rgb({},{},{})".format(*layer["colour"])
+        style: dict[str, Any] = {"mode": "markers", "marker": {"size": layer["size"] * 0.7}}
+        style["marker"]["color"] = colour
+        if layer["kind"] == "lines":
+            style = {"mode": "lines", "line": {"color": colour, "width": 4, "dash": "dash"}}
         traces.append(
-            go.Scatter3d(
-                **_trace_points(_placed(sub, T)),
-                mode="markers",
-                marker={"size": 2.5, "color": _rgb(colour)},
-                name=_copy_name(k, inst),
-            )
+            go.Scatter3d(x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], name=layer["name"], **style)
         )
-    missed = None if ground_truth is None else _missed(model, poses, ground_truth)
-    for j in missed or []:
-        box = _box_lines(model, np.asarray(ground_truth, dtype=np.float64)[j])
-        traces.append(
-            go.Scatter3d(
-                **_trace_points(box),
-                mode="lines",
-                line={"color": _MISSED, "width": 4, "dash": "dash"},
-                name=f"missed ground truth {j}",
-            )
-        )
-    n_true = 0 if ground_truth is None else len(np.asarray(ground_truth).reshape(-1, 16))
-    return _laid_out(go.Figure(traces), reg, title, _summary(reg, missed, n_true))
-
-
-def _laid_out(fig: Any, reg: Any, title: str, summary: str) -> Any:
-    heading = f"{html.escape(title)}<br><sub>{summary}</sub>" if title else summary
+    heading = f"{html.escape(title)}<br><sub>{html.escape(summary)}</sub>" if title else summary
+    fig = go.Figure(traces)
     fig.update_layout(
         title={"text": heading},
         scene={"aspectmode": "data", "xaxis_title": "x", "yaxis_title": "y", "zaxis_title": "z"},
@@ -164,17 +220,24 @@ def _laid_out(fig: Any, reg: Any, title: str, summary: str) -> Any:
         margin={"l": 0, "r": 0, "t": 60, "b": 0},
         paper_bgcolor="white",
     )
-    if not reg.instances:
-        reason = _empty_reason(reg) or "nothing found"
-        fig.add_annotation(
-            text=html.escape(f"no copy found: {reason}"),
-            xref="paper",
-            yref="paper",
-            x=0.5,
-            y=0.98,
-            showarrow=False,
-        )
     return fig
+
+
+def html_content(
+    reg: Any,
+    *,
+    ground_truth: ArrayLike | None = None,
+    title: str = "",
+    max_scan_points: int = MAX_SCAN_POINTS,
+) -> dict[str, Any]:
+    """What the page embeds (:func:`pointclm.html_viewer.page` documents the keys)."""
+    layers, summary = _layers(reg, ground_truth, max_scan_points)
+    back, up = _view(reg, layers)
+    for layer in layers:
+        layer["points"] = base64.b64encode(layer.pop("xyz").tobytes()).decode("ascii")
+        layer["dash"] = layer["kind"] == "lines"
+        layer["front"] = not layer["name"].startswith("scan")
+    return {"title": title, "summary": summary, "back": back, "up": up, "layers": layers}
 
 
 def write_html(
@@ -186,25 +249,23 @@ def write_html(
     max_scan_points: int = MAX_SCAN_POINTS,
 ) -> Path:
     """Write the page of a :class:`pointclm.PointCloudRegistration` to `path` (one HTML
-    file, plotly.js inline: it opens with no network) and return the path.
+    file, needing no network and no library to open) and return the path.
 
     `ground_truth` (G, 4, 4): the true ``T_target_source`` poses; those no found pose
-    matches are outlined. `title` heads the page above the summary.
+    matches are outlined. `title` heads the page above the summary. `max_scan_points`:
+    the most scan points drawn (a voxel grid's subsample).
 
     Raises
     ------
     ValueError
         If `path` cannot be written (its folder is missing or not writable) or an argument
         is malformed.
-    ImportError
-        If plotly is not installed.
     """
     file = check_output_path(path, "HTML page")
-    fig = registration_figure(
+    content = html_content(
         reg, ground_truth=ground_truth, title=title, max_scan_points=max_scan_points
     )
+    text = page(content)
     with atomic_path(file) as tmp:
-        fig.write_html(
-            str(tmp), include_plotlyjs=True, full_html=True, config={"displaylogo": False}
-        )
+        Path(tmp).write_text(text, encoding="utf-8")
     return file

@@ -1,4 +1,5 @@
-"""`pointclm register --bop-csv`: the poses found in the BOP challenge's CSV."""
+"""`pointclm register --bop-csv` and `pointclm batch --bop-csv`: the poses found in the BOP
+challenge's CSV."""
 
 from __future__ import annotations
 
@@ -8,15 +9,25 @@ from typing import Any
 from .args import _finite_float, _int_at_least
 
 
-def _add_bop_flags(p: argparse.ArgumentParser) -> None:
+def _add_bop_flags(p: argparse.ArgumentParser, batch: bool = False) -> None:
     p.add_argument(
         "--bop-csv",
         metavar="FILE",
         help="also write the poses in the BOP challenge's CSV (scene_id,im_id,obj_id,score,"
-        "R,t,time; score: confidence, t in mm, time: the registration's seconds)",
+        "R,t,time; score: confidence, t in mm, time: the registration's seconds)"
+        + ("; one file for the batch, written once it is through, a scan per image" * batch),
     )
     p.add_argument("--scene-id", type=_int_at_least(0), default=0, help="BOP scene id (default 0)")
-    p.add_argument("--im-id", type=_int_at_least(0), default=0, help="BOP image id (default 0)")
+    if batch:
+        p.add_argument(
+            "--im-id-from",
+            choices=["index", "stem"],
+            default="index",
+            help="a scan's BOP image id: its position in SCANS as expanded (index, default: "
+            "0, 1, ...) or the number its file is named by (stem: 000042.ply is image 42)",
+        )
+    else:
+        p.add_argument("--im-id", type=_int_at_least(0), default=0, help="BOP image id (default 0)")
     p.add_argument("--obj-id", type=_int_at_least(0), default=1, help="BOP object id (default 1)")
     p.add_argument(
         "--unit-to-mm",
@@ -44,3 +55,21 @@ def _write_bop(args: argparse.Namespace, reg: Any) -> None:
         write_bop_csv(
             reg, args.bop_csv, args.scene_id, args.im_id, args.obj_id, unit_to_mm=args.unit_to_mm
         )
+
+
+def _write_batch_bop(args: argparse.Namespace) -> int:
+    """The batch's BOP CSV from its output; returns the poses written (0 without --bop-csv)."""
+    from ..batch import expand_scans
+    from ..batch.bop import write_batch_bop_csv
+
+    if not args.bop_csv:
+        return 0
+    return write_batch_bop_csv(
+        args.out,
+        expand_scans(args.scans),
+        args.bop_csv,
+        scene_id=args.scene_id,
+        obj_id=args.obj_id,
+        im_id_from=args.im_id_from,
+        unit_to_mm=args.unit_to_mm,
+    )

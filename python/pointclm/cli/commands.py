@@ -26,6 +26,7 @@ from .args import (
     _write_json,
     flag_names,
 )
+from .bop import _add_bop_flags, _check_bop_args, _write_batch_bop
 from .register import _add_method_flags, _method_options
 
 
@@ -325,6 +326,7 @@ def _add_batch_parser(sub: Any) -> None:
     b.add_argument("--ply-dir", help="a coloured point cloud per scan in this folder")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_method_flags(b)
+    _add_bop_flags(b, batch=True)
     b.set_defaults(func=cmd_batch)
 
 
@@ -332,6 +334,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from ..io import load_points
 
+    _check_bop_args(args)  # before the (long) batch: a bad path costs nothing
     summary = run_batch(
         args.model_file,
         args.scans,
@@ -348,6 +351,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     )
     # Scans that failed are in the output and the count; the batch itself ran: exit 0.
     print(f"pointclm batch: {summary}")
+    if args.bop_csv:
+        print(f"pointclm batch: {_write_batch_bop(args)} poses in {args.bop_csv}")
     return 0
 
 
