@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new()),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[])"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), symmetry=None),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], symmetry=None)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -124,6 +124,7 @@ pub fn register_scan<'py>(
     pair_normals: bool,
     embed: Option<Py<PyAny>>,
     embed_inputs: Vec<String>,
+    symmetry: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
@@ -153,6 +154,7 @@ pub fn register_scan<'py>(
         },
         config: config.as_ref().map(|c| from_dict(Some(c))).transpose()?,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
+        symmetry: crate::symmetry::model_symmetry(symmetry.as_ref())?,
     };
     let threads = num_threads.map(pool).transpose()?;
     let inner = embedder.clone();
@@ -257,6 +259,12 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
         c.iter().map(|c| c.pass_index).collect::<Vec<_>>(),
     )?;
     d.set_item("instance", c.iter().map(|c| c.instance).collect::<Vec<_>>())?;
+    let symmetry = out
+        .symmetry
+        .as_ref()
+        .map(|s| crate::symmetry::symmetry_dict(py, s))
+        .transpose()?;
+    d.set_item("symmetry", symmetry)?;
     let passes = PyList::empty(py);
     for pass in out.passes {
         let rows: Vec<[f64; 6]> = (0..pass.correspondences.len())

@@ -249,6 +249,61 @@ impl Symmetry {
     }
 }
 
+/// The symmetries [`crate::scene::SceneOptions::symmetry`] takes: declared, or detected on
+/// the model as described (downsampled) at the run's voxel.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ModelSymmetry {
+    /// The caller's, in the model's units.
+    Declared(Symmetry),
+    /// [`detect_symmetries`] on the described model at its [`default_tolerance`] (about 3
+    /// voxels: finer differences the registration cannot tell either).
+    Detect,
+}
+
+/// A declared symmetry moving the model's centroid (or an axis lying from it) by more than
+/// this share of the model's bounding diagonal is taken for one in other units.
+pub const MAX_CENTROID_SHIFT: f64 = 0.1;
+
+impl ModelSymmetry {
+    /// The symmetry for `model` (the caller's points) described as `described`. Errors: a
+    /// declared symmetry that moves the model's centroid by more than [`MAX_CENTROID_SHIFT`]
+    /// of its bounding diagonal (other units, or another frame), and detection's.
+    pub fn resolve(&self, model: &[[f64; 3]], described: &[[f64; 3]]) -> Result<Symmetry> {
+        match self {
+            Self::Detect => detect_symmetries(described, default_tolerance(described)?),
+            Self::Declared(s) => {
+                let shift = s.centroid_shift(model)?;
+                let diagonal = bounding_diagonal(model);
+                if shift > MAX_CENTROID_SHIFT * diagonal {
+                    return Err(Error::InvalidParameter {
+                        name: "symmetry",
+                        value: format!(
+                            "a symmetry moving the model's centroid by {shift:.4e} (the model's \
+                             bounding diagonal is {diagonal:.4e})"
+                        ),
+                        reason: "a symmetry maps the model onto itself: give its translations \
+                                 and axis offsets in the model's units and frame (BOP writes \
+                                 millimetres)",
+                    });
+                }
+                Ok(s.clone())
+            }
+        }
+    }
+}
+
+fn bounding_diagonal(points: &[[f64; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
+}
+
 /// Among the poses equivalent to `pose` (`pose S` for every symmetry `S`), the one whose
 /// rotation is nearest the identity (largest trace; with a continuous axis the angle about it
 /// in closed form; ties to the first discrete element). Equivalent poses give the same pose

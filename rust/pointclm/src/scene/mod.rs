@@ -47,7 +47,7 @@ pub mod sensor;
 pub mod voxel;
 
 pub use embedder::{similarity, Embedder, NetworkEmbedder};
-pub use flips::{flip_turns, quarter_turns, resolve_flips};
+pub use flips::{flip_turns, quarter_turns, resolve_flips, resolve_flips_with_symmetry};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds,
     register_point_clouds_with, Candidate, Pass, SceneOptions, SceneRegistration, SceneTimings,
