@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 from . import preprocessing as pp
+from . import symmetry as symmetries
 from .clouds.core_path import CoreCall, in_core, register_in_core
 from .clouds.diagnosis import _diagnose
 from .clouds.peeling import _is_heap, _peel, unexplained_points
@@ -41,6 +42,7 @@ from .clouds.sensor import (  # noqa: F401 (the scan's stray and side rules, re-
 )
 from .clouds.verification import _covariances, _instances, _verify
 from .config import Config
+from .covariance import pose_covariances
 from .docstrings import fill
 from .embedding import Embedding, resolve
 from .errors import InputError
@@ -202,6 +204,7 @@ def register_point_clouds(
     flips: bool = True,
     num_threads: int | None = None,
     scene: SceneRules | Mapping[str, Any] | None = None,
+    symmetry: Any = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
 
@@ -224,22 +227,57 @@ def register_point_clouds(
     %(flips)s
     %(num_threads)s
     %(scene)s
+    %(symmetry)s
 
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
+    declared = symmetries.resolve(symmetry)
+    sym = declared.as_core() if isinstance(declared, symmetries.Symmetry) else declared
     embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     if in_core(refine=refine, k=k, window=window):
         call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                        flips, sc, num_threads, viewpoint is None, embedding, normals)  # fmt: skip
+                        flips, sc, num_threads, viewpoint is None, embedding, normals,
+                        sym)  # fmt: skip
         return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
     run, scan = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
                                    mutual, n_samples, k, window, rank, heap, normals, seed,
                                    num_threads, sc)  # fmt: skip
-    return _finished(_register(run, config, refine, peel, flips), scan, t_load, t0)
+    reg = _register(run, config, refine, peel, flips)
+    return _finished(_canonical(reg, src, sym, num_threads), scan, t_load, t0)
+
+
+def _canonical(
+    reg: PointCloudRegistration, model: np.ndarray, sym: Any, num_threads: int | None
+) -> PointCloudRegistration:
+    """The Python stages' result with every pose the canonical one of the model's symmetry
+    (`sym`: "auto", the core's dict, or None), its covariance recomputed there."""
+    if sym is None:
+        return reg
+    found = symmetries.Symmetry._from_core(
+        _core.resolve_model_symmetry(model, reg.source_points, sym, num_threads=num_threads)
+    )
+    if not reg.instances:
+        return replace(reg, symmetry=found)
+    poses = found.canonical(reg.transformations)
+    rows = zip(reg.instances, poses, strict=True)
+    instances = [replace(inst, transformation=pose) for inst, pose in rows]
+    if reg.instances[0].covariance is not None:  # computed at the poses before
+        cov = pose_covariances(reg.source_points, reg.target_points, poses, reg.voxel_size,
+                               num_threads=num_threads)  # fmt: skip
+        instances = [
+            replace(
+                inst,
+                information=cov.information[i],
+                covariance=cov.covariance[i],
+                unobservable=int(cov.unobservable[i]),
+            )  # fmt: skip
+            for i, inst in enumerate(instances)
+        ]
+    return replace(reg, instances=instances, symmetry=found)
 
 
 def _python_run(

@@ -25,6 +25,7 @@ from ..preprocessing import as_count
 from ..refinement import RefinementContext
 from ..registration import as_config, as_seed
 from ..scene_rules import SceneRules
+from ..symmetry import Symmetry
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
 from .sensor import warn_disputed
@@ -66,6 +67,8 @@ class CoreCall:
     model: Embedding | None = None
     #: Whether the correspondence stage gets the normals at both ends of each pair.
     normals: bool = False
+    #: The model's symmetries: "auto", the core's symmetry dict, or None.
+    symmetry: str | dict[str, np.ndarray] | None = None
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -102,6 +105,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         pair_normals=call.normals,
         embed=None if call.model is None else _embedding(call.model, call),
         embed_inputs=[] if call.model is None else list(call.model.inputs),
+        symmetry=call.symmetry,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
@@ -120,6 +124,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         orientation=out["orientation"] + _recorded(call),
         viewpoint_disputed=_disputed(out, call),
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes, True),
+        symmetry=None if out["symmetry"] is None else Symmetry._from_core(out["symmetry"]),
     )
 
 

@@ -299,6 +299,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(symmetry::symmetry_group, m)?)?;
     m.add_function(wrap_pyfunction!(symmetry::detect_symmetries, m)?)?;
     m.add_function(wrap_pyfunction!(symmetry::canonical_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(symmetry::resolve_model_symmetry, m)?)?;
     m.add_function(wrap_pyfunction!(scene::flip_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::quarter_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;

@@ -151,3 +151,25 @@ pub fn canonical_poses<'py>(
         .collect();
     Ok(Array3::from_shape_fn((mats.len(), 4, 4), |(k, i, j)| mats[k][i][j]).into_pyarray(py))
 }
+
+/// The symmetry `symmetry` (`"auto"` or a symmetry dict) stands for on a model
+/// (`ModelSymmetry::resolve`): detected on `described` (the model downsampled), or declared
+/// and checked against `model`'s centroid (other units fail).
+#[pyfunction]
+#[pyo3(signature = (model, described, symmetry, num_threads=None))]
+pub fn resolve_model_symmetry<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::source)] model: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::points)] described: PyReadonlyArray2<'py, f64>,
+    symmetry: Bound<'py, PyAny>,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let m = rows3(&model, "model")?;
+    let d = rows3(&described, "described")?;
+    let Some(spec) = model_symmetry(Some(&symmetry))? else {
+        return Err(InputError::new_err("symmetry must not be None here"));
+    };
+    let threads = num_threads.map(pool).transpose()?;
+    let s = guarded(py, threads, move || spec.resolve(&m, &d))?;
+    symmetry_dict(py, &s)
+}
