@@ -85,6 +85,18 @@ def _skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def _fixed_point(disc: np.ndarray, axes: np.ndarray, offsets: np.ndarray) -> np.ndarray | None:
+    """The point every symmetry leaves in place (least norm: the origin when the symmetries
+    have no translation), or None when there is none (transforms that are not a group)."""
+    rows = [s[:3, :3] - np.eye(3) for s in disc] + [np.eye(3) - np.outer(a, a) for a in axes]
+    rhs = [-s[:3, 3] for s in disc]
+    rhs += [(np.eye(3) - np.outer(a, a)) @ o for a, o in zip(axes, offsets, strict=True)]
+    lhs, b = np.concatenate(rows), np.concatenate(rhs)
+    c = np.linalg.lstsq(lhs, b, rcond=None)[0]
+    scale = 1.0 + float(np.abs(b).max(initial=0.0)) + float(np.abs(c).max())
+    return c if np.abs(lhs @ c - b).max(initial=0.0) <= 1e-6 * scale else None
+
+
 def _equivalent_errors(
     p: np.ndarray, g: np.ndarray, symmetries: Any
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -92,46 +104,52 @@ def _equivalent_errors(
     truth made equivalent by each discrete symmetry ``D``. With one continuous axis, the
     truth is ``gt C(theta) D`` at the angle about the axis of least rotation error, in closed
     form (``tr(R_p^T R_g C(theta) R_D)`` is ``c + A cos(theta) + B sin(theta)``); with several
-    (every rotation about their point), at the rotation that makes the rotation error 0."""
+    (every rotation about their point), the rotation error is 0.
+
+    The translation error is that of the point every symmetry leaves in place, ``||T_p c -
+    T_g c||`` (the same for every equivalent truth): the origin, so the usual ``||t_p -
+    t_g||``, when the symmetries have no translation. Why not the origin's always: with a
+    symmetry about another point, the origin's error changes from one equivalent pose to
+    another unless the rotations agree. Transforms leaving no point in place (not a group)
+    get the origin's error at each."""
     disc, axes, offsets = _as_symmetries(symmetries)
+    axes = np.asarray(axes, dtype=np.float64).reshape(-1, 3)
+    axes = axes / np.linalg.norm(axes, axis=1, keepdims=True) if len(axes) else axes
     eq = g[:, None] @ disc[None]  # (G, S, 4, 4)
     if len(axes) == 0:
         re = rotation_error_deg(p[:, None, None, :3, :3], eq[None, :, :, :3, :3])
-        te = translation_error(p[:, None, None, :3, 3], eq[None, :, :, :3, 3])
-        return re, te
-    if len(axes) > 1:
-        # Every rotation about the axes' common point c: gt S has the prediction's rotation,
-        # and translation R_g c - R_p c + t_g.
-        c = np.linalg.lstsq(
-            sum(np.eye(3) - np.outer(a, a) for a in axes),
-            sum((np.eye(3) - np.outer(a, a)) @ o for a, o in zip(axes, offsets, strict=True)),
-            rcond=None,
-        )[0]
-        t = g[None, :, :3, :3] @ c + g[None, :, :3, 3] - (p[:, None, :3, :3] @ c)
-        te = translation_error(p[:, None, :3, 3], t)[..., None]
-        return np.zeros_like(te), te
-    a, o = axes[0] / np.linalg.norm(axes[0]), offsets[0]
-    # M = R_D R_p^T R_g, (P, G, S, 3, 3).
-    m = disc[None, None, :, :3, :3] @ (
-        np.swapaxes(p[:, None, None, :3, :3], -1, -2) @ g[None, :, None, :3, :3]
-    )
-    along = np.einsum("i,...ij,j->...", a, m, a)
-    cos_part = np.trace(m, axis1=-2, axis2=-1) - along
-    sin_part = np.trace(m @ _skew(a), axis1=-2, axis2=-1)
-    theta = np.arctan2(sin_part, cos_part)
-    k = _skew(a)
-    rot = (
-        np.eye(3)
-        + np.sin(theta)[..., None, None] * k
-        + (1.0 - np.cos(theta))[..., None, None] * (k @ k)
-    )  # C(theta), (P, G, S, 3, 3)
-    c_t = o - rot @ o
-    r_eq = g[None, :, None, :3, :3] @ rot @ disc[None, None, :, :3, :3]
-    t_s = (rot @ disc[None, None, :, :3, 3, None])[..., 0] + c_t
-    t_eq = (g[None, :, None, :3, :3] @ t_s[..., None])[..., 0] + g[None, :, None, :3, 3]
-    re = rotation_error_deg(p[:, None, None, :3, :3], r_eq)
-    te = translation_error(p[:, None, None, :3, 3], t_eq)
-    return re, te
+        t_eq = np.broadcast_to(eq[None, :, :, :3, 3], (len(p), *eq.shape[:2], 3))
+    elif len(axes) > 1:
+        re = np.zeros((len(p), len(g), 1))
+        t_eq = None
+    else:
+        a, o = axes[0], offsets[0]
+        # M = R_D R_p^T R_g, (P, G, S, 3, 3).
+        m = disc[None, None, :, :3, :3] @ (
+            np.swapaxes(p[:, None, None, :3, :3], -1, -2) @ g[None, :, None, :3, :3]
+        )
+        along = np.einsum("i,...ij,j->...", a, m, a)
+        cos_part = np.trace(m, axis1=-2, axis2=-1) - along
+        sin_part = np.trace(m @ _skew(a), axis1=-2, axis2=-1)
+        theta = np.arctan2(sin_part, cos_part)
+        k = _skew(a)
+        rot = (
+            np.eye(3)
+            + np.sin(theta)[..., None, None] * k
+            + (1.0 - np.cos(theta))[..., None, None] * (k @ k)
+        )  # C(theta), (P, G, S, 3, 3)
+        r_eq = g[None, :, None, :3, :3] @ rot @ disc[None, None, :, :3, :3]
+        t_s = (rot @ disc[None, None, :, :3, 3, None])[..., 0] + o - rot @ o
+        t_eq = (g[None, :, None, :3, :3] @ t_s[..., None])[..., 0] + g[None, :, None, :3, 3]
+        re = rotation_error_deg(p[:, None, None, :3, :3], r_eq)
+    c = _fixed_point(disc, axes, offsets)
+    if c is None and t_eq is not None:
+        return re, translation_error(p[:, None, None, :3, 3], t_eq)
+    c = np.zeros(3) if c is None else c
+    at_p = p[:, :3, :3] @ c + p[:, :3, 3]
+    at_g = g[:, :3, :3] @ c + g[:, :3, 3]
+    te = translation_error(at_p[:, None], at_g[None])[..., None]
+    return re, np.broadcast_to(te, re.shape).copy()
 
 
 def symmetric_errors(
@@ -140,7 +158,8 @@ def symmetric_errors(
     """Rotation (degrees) and translation errors of every prediction against every ground
     truth, each the smallest over the part's symmetries (both taken at the same symmetry:
     the one of least rotation error, ties broken by translation; about a continuous axis the
-    angle of least rotation error, in closed form).
+    angle of least rotation error, in closed form). With symmetries about a point other than
+    the origin, the translation error is that point's (``_equivalent_errors``).
 
     Parameters
     ----------

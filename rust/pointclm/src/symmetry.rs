@@ -16,7 +16,10 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::kabsch::RigidTransform;
-use crate::pointcloud::{check_points, check_positive, nearest_rotation, PointIndex};
+use crate::pointcloud::icp::icp;
+use crate::pointcloud::{
+    check_points, check_positive, estimate_normals, nearest_rotation, Orientation, PointIndex,
+};
 
 /// At most this many discrete symmetries: the largest finite rotation group of a 3-D solid
 /// (the icosahedron's) has 60, and a prism's dihedral group with 60 sides 120; more means the
@@ -102,7 +105,7 @@ impl Symmetry {
     }
 
     /// The group `discrete` generates (the identity added, products closed, transforms equal
-    /// within 1e-3 radians and 1e-3 of the largest translation kept once), with the
+    /// within 0.01 radians and 0.01 of the largest translation kept once), with the
     /// `continuous` axes (directions made unit).
     ///
     /// Errors: a non-finite value, a rotation that is not one up to rounding
@@ -138,7 +141,9 @@ impl Symmetry {
             .iter()
             .map(|s| s.translation.norm())
             .fold(0.0, f64::max);
-        let discrete = closed(&checked, 1e-3, 1e-3 * scale + 1e-12, Some)?;
+        // 0.01: a detected group, declared again, is closed to a fraction of a degree; two
+        // symmetries of a finite group of at most MAX_GROUP are 3 degrees apart at least.
+        let discrete = closed(&checked, 1e-2, 1e-2 * scale + 1e-12, Some)?;
         Ok(Self {
             discrete,
             continuous: axes,
@@ -416,6 +421,8 @@ pub fn detect_symmetries(model: &[[f64; 3]], tolerance: f64) -> Result<Symmetry>
 /// The model, its index and centroid, to try rotations of it onto itself.
 struct SelfFit<'a> {
     points: &'a [[f64; 3]],
+    /// Unit normals of `points` (within the tolerance), for point-to-plane ICP.
+    normals: Vec<[f64; 3]>,
     index: PointIndex,
     tested: Vec<[f64; 3]>,
     centre: Vector3<f64>,
@@ -432,9 +439,18 @@ impl<'a> SelfFit<'a> {
             .iter()
             .map(|p| (Vector3::from(*p) - centre).norm())
             .fold(0.0, f64::max);
+        let index = PointIndex::new(model)?;
+        let normals = estimate_normals(
+            model,
+            &index,
+            tolerance,
+            30,
+            Orientation::AwayFrom(centre.into()),
+        )?;
         Ok(Self {
             points: model,
-            index: PointIndex::new(model)?,
+            normals,
+            index,
             tested,
             centre,
             radius,
@@ -465,25 +481,21 @@ impl<'a> SelfFit<'a> {
         self.share(s) >= DETECT_MIN_SHARE
     }
 
-    /// `s` after a few ICP steps of the model onto itself (pairs within the tolerance).
+    /// `s` after ICP of the model onto itself (pairs within the tolerance, then half of it).
     fn refined(&self, s: &RigidTransform) -> RigidTransform {
-        let mut s = *s;
-        let t2 = self.tolerance * self.tolerance;
-        for _ in 0..8 {
-            let pairs: Vec<([f64; 3], [f64; 3])> = self
-                .tested
-                .par_iter()
-                .filter_map(|p| {
-                    let (j, d2) = self.index.nearest(&s.apply(*p));
-                    (d2 <= t2).then(|| (*p, self.points[j]))
-                })
-                .collect();
-            match fit_rigid(&pairs) {
-                Some(next) => s = next,
-                None => break,
-            }
-        }
-        s
+        // Point-to-plane: on the flat faces of a box point-to-point pairs barely pull along
+        // the face, and its turns stayed degrees off.
+        let radii = [self.tolerance, 0.5 * self.tolerance];
+        icp(
+            &self.tested,
+            self.points,
+            &self.normals,
+            &self.index,
+            *s,
+            &radii,
+            30,
+            None,
+        )
     }
 
     /// The rotations about the centroid by `rotations` that fit once refined. Why refine
@@ -712,39 +724,6 @@ fn principal(points: &[[f64; 3]], centre: &Vector3<f64>) -> ([f64; 3], [Vector3<
         order.map(|k| eig.eigenvalues[k]),
         order.map(|k| eig.eigenvectors.column(k).into_owned()),
     )
-}
-
-/// The least-squares rigid motion taking each pair's first point to its second, or `None`
-/// for fewer than 3 pairs or a degenerate set.
-fn fit_rigid(pairs: &[([f64; 3], [f64; 3])]) -> Option<RigidTransform> {
-    if pairs.len() < 3 {
-        return None;
-    }
-    let n = pairs.len() as f64;
-    let (mut cx, mut cy) = (Vector3::zeros(), Vector3::zeros());
-    for (x, y) in pairs {
-        cx += Vector3::from(*x);
-        cy += Vector3::from(*y);
-    }
-    cx /= n;
-    cy /= n;
-    let mut h = Matrix3::zeros();
-    for (x, y) in pairs {
-        h += (Vector3::from(*x) - cx) * (Vector3::from(*y) - cy).transpose();
-    }
-    let svd = h.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    let mut v = v_t.transpose();
-    if (v * u.transpose()).determinant() < 0.0 {
-        let mut col = v.column_mut(2);
-        col *= -1.0;
-    }
-    let rotation = v * u.transpose();
-    let rotation = nearest_rotation(&rotation).ok()?;
-    Some(RigidTransform {
-        rotation,
-        translation: cy - rotation * cx,
-    })
 }
 
 /// The group `generators` generate with the identity, each element kept once (within

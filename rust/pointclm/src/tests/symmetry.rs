@@ -261,3 +261,29 @@ fn a_sphere_is_every_rotation() {
     let canon = canonical_pose(&pose, &sym);
     assert!((canon.rotation - Matrix3::identity()).norm() < 1e-9);
 }
+
+#[test]
+fn detected_groups_are_closed_to_a_fraction_of_a_degree() {
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    for sides in [[1.0, 2.0, 3.0], [1.0, 1.0, 2.5], [1.0, 1.0, 1.0]] {
+        let r = random_rotation(&mut rng);
+        let sym = detect(&rotated(&box_points(sides, [0.0; 3], 4000, 14), &r));
+        let g = sym.discrete();
+        for a in g {
+            for b in g {
+                let ab = compose(a, b);
+                let off = g
+                    .iter()
+                    .map(|c| {
+                        let t = (ab.rotation.transpose() * c.rotation).trace();
+                        ((t - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                assert!(
+                    off < 0.5,
+                    "{sides:?}: a product {off} degrees off the group"
+                );
+            }
+        }
+    }
+}
