@@ -104,14 +104,15 @@ impl Symmetry {
         }
     }
 
-    /// The group `discrete` generates (the identity added, products closed, transforms equal
-    /// within 0.01 radians and 0.01 of the largest translation kept once), with the
+    /// The group `discrete` generates (the identity added, products closed, transforms whose
+    /// rotations agree within 0.01 radians kept once), with the
     /// `continuous` axes (directions made unit).
     ///
     /// Errors: a non-finite value, a rotation that is not one up to rounding
     /// ([`crate::pointcloud::MAX_ROTATION_DEVIATION`], a positive determinant: reflections
     /// are not proper symmetries), an axis of zero direction, several axes that do not meet
-    /// at one point, or transforms generating more than [`MAX_GROUP`].
+    /// at one point, transforms generating more than [`MAX_GROUP`], or two with one rotation
+    /// whose translations differ by more than 0.01 times one plus the largest translation.
     pub fn new(discrete: &[RigidTransform], continuous: &[Axis]) -> Result<Self> {
         let mut checked = Vec::with_capacity(discrete.len());
         for (row, s) in discrete.iter().enumerate() {
@@ -141,9 +142,10 @@ impl Symmetry {
             .iter()
             .map(|s| s.translation.norm())
             .fold(0.0, f64::max);
-        // 0.01: a detected group, declared again, is closed to a fraction of a degree; two
-        // symmetries of a finite group of at most MAX_GROUP are 3 degrees apart at least.
-        let discrete = closed(&checked, 1e-2, 1e-2 * scale + 1e-12, Some)?;
+        // 0.01, and products within 0.04 of an element taken for it: a detected group,
+        // declared again, is closed to a degree or so at a coarse voxel; two symmetries of a
+        // finite group of at most MAX_GROUP are 3 degrees (0.052) apart at least.
+        let discrete = closed(&checked, 1e-2, Some(1e-2 * (1.0 + scale)), 4.0, Some)?;
         Ok(Self {
             discrete,
             continuous: axes,
@@ -405,7 +407,7 @@ pub fn detect_symmetries(model: &[[f64; 3]], tolerance: f64) -> Result<Symmetry>
         shape.fits(&s).then_some(s)
     };
     let discrete =
-        closed(&found, apart, tolerance, settle).map_err(|_| Error::InvalidParameter {
+        closed(&found, apart, None, 1.0, settle).map_err(|_| Error::InvalidParameter {
             name: "tolerance",
             value: tolerance.to_string(),
             reason: "the rotations that fit at this tolerance are not a finite group: give a \
@@ -726,23 +728,48 @@ fn principal(points: &[[f64; 3]], centre: &Vector3<f64>) -> ([f64; 3], [Vector3<
     )
 }
 
-/// The group `generators` generate with the identity, each element kept once (within
-/// `rotation_tol` radians and `translation_tol`), identity first then in the order found;
-/// each product passes through `settle` (None: dropped).
+/// The group `generators` generate with the identity, identity first then in the order
+/// found. Elements are told apart by their rotations (within `rotation_tol` radians; a
+/// product within `cover` times it of an element is that element, since rounding in
+/// generators that already are a group adds up in their products): a bounded model has no
+/// translation symmetry, so two symmetries with one rotation are one. Two whose translations
+/// differ by more than `translation_tol` are an error (a screw motion or a translation is no
+/// symmetry); without one, the first is kept. Any other product passes through `settle` (None:
+/// dropped).
 fn closed(
     generators: &[RigidTransform],
     rotation_tol: f64,
-    translation_tol: f64,
+    translation_tol: Option<f64>,
+    cover: f64,
     settle: impl Fn(RigidTransform) -> Option<RigidTransform>,
 ) -> Result<Vec<RigidTransform>> {
-    let same = |a: &RigidTransform, b: &RigidTransform| {
+    let turned = |a: &RigidTransform, b: &RigidTransform, k: f64| {
         let trace = (a.rotation.transpose() * b.rotation).trace();
-        let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos();
-        angle <= rotation_tol && (a.translation - b.translation).norm() <= translation_tol
+        ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos() <= k * rotation_tol
+    };
+    let find = |group: &[RigidTransform], s: &RigidTransform, k: f64| -> Result<bool> {
+        match group.iter().find(|g| turned(g, s, k)) {
+            None => Ok(false),
+            Some(g) => match translation_tol {
+                Some(tol) if (g.translation - s.translation).norm() > tol => {
+                    Err(Error::InvalidParameter {
+                        name: "symmetries_discrete",
+                        value: format!(
+                            "two transforms with one rotation, translations {:?} and {:?}",
+                            g.translation.as_slice(),
+                            s.translation.as_slice()
+                        ),
+                        reason: "they differ by a translation, which no bounded model has as a \
+                                 symmetry (a turn's translation must keep a point fixed)",
+                    })
+                }
+                _ => Ok(true),
+            },
+        }
     };
     let mut group = vec![RigidTransform::identity()];
     let push = |group: &mut Vec<RigidTransform>, s: RigidTransform| -> Result<bool> {
-        if group.iter().any(|g| same(g, &s)) {
+        if find(group, &s, 1.0)? {
             return Ok(false);
         }
         if group.len() >= MAX_GROUP {
@@ -766,7 +793,7 @@ fn closed(
         for a in &snapshot {
             for b in &generators {
                 let product = compose(a, b);
-                if group.iter().any(|g| same(g, &product)) {
+                if find(&group, &product, cover)? {
                     continue;
                 }
                 if let Some(product) = settle(product) {

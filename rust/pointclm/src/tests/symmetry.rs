@@ -222,12 +222,18 @@ fn bad_declarations_are_typed_errors() {
         },
     ];
     assert!(Symmetry::new(&[], &apart).is_err());
-    // An irrational turn generates no finite group.
-    let irrational = RigidTransform {
-        rotation: axis_rotation(&Vector3::z(), 1.0),
+    // A half turn with a translation along its axis is a screw: its square is a translation.
+    let screw = RigidTransform {
+        rotation: half_turn(&Vector3::x()),
+        translation: Vector3::new(0.5, 0.0, 0.0),
+    };
+    assert!(Symmetry::new(&[screw], &[]).is_err());
+    // Turns of a radian about two axes generate no finite group.
+    let turn = |axis: Vector3<f64>| RigidTransform {
+        rotation: axis_rotation(&axis, 1.0),
         translation: Vector3::zeros(),
     };
-    assert!(Symmetry::new(&[irrational], &[]).is_err());
+    assert!(Symmetry::new(&[turn(Vector3::z()), turn(Vector3::x())], &[]).is_err());
     let mut m = [[0.0; 4]; 4];
     m[0][0] = 1.0;
     m[1][1] = 1.0;
