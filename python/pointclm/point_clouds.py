@@ -232,33 +232,26 @@ def register_point_clouds(
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    declared = symmetries.resolve(symmetry)
-    sym = declared.as_core() if isinstance(declared, symmetries.Symmetry) else declared
-    embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
+    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
+    call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
+                    flips, sc, num_threads, viewpoint is None, emb, normals, symmetry)  # fmt: skip
     if in_core(refine=refine, k=k, window=window):
-        call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                        flips, sc, num_threads, viewpoint is None, embedding, normals,
-                        sym)  # fmt: skip
         return _finished(register_in_core(src, tgt, call.checked()), None, t_load, t0)
-    run, scan = _python_run(src, tgt, voxel, view, viewpoint is None, embedding, top_k,
-                                   mutual, n_samples, k, window, rank, heap, normals, seed,
-                                   num_threads, sc)  # fmt: skip
-    reg = _register(run, config, refine, peel, flips)
-    return _finished(_canonical(reg, src, sym, num_threads), scan, t_load, t0)
+    run, scan = _python_run(src, tgt, call.checked(), k, window)
+    return _finished(_register(run, config, refine, peel, flips), scan, t_load, t0, call)
 
 
-def _canonical(
-    reg: PointCloudRegistration, model: np.ndarray, sym: Any, num_threads: int | None
-) -> PointCloudRegistration:
+def _canonical(reg: PointCloudRegistration, sym: Any, num_threads: int | None) -> Any:
     """The Python stages' result with every pose the canonical one of the model's symmetry
     (`sym`: "auto", the core's dict, or None), its covariance recomputed there."""
     if sym is None:
         return reg
+    model = reg.source_points
     found = symmetries.Symmetry._from_core(
-        _core.resolve_model_symmetry(model, reg.source_points, sym, num_threads=num_threads)
+        _core.resolve_model_symmetry(model, model, sym, num_threads=num_threads)
     )
     if not reg.instances:
         return replace(reg, symmetry=found)
@@ -266,7 +259,7 @@ def _canonical(
     rows = zip(reg.instances, poses, strict=True)
     instances = [replace(inst, transformation=pose) for inst, pose in rows]
     if reg.instances[0].covariance is not None:  # computed at the poses before
-        cov = pose_covariances(reg.source_points, reg.target_points, poses, reg.voxel_size,
+        cov = pose_covariances(model, reg.target_points, poses, reg.voxel_size,
                                num_threads=num_threads)  # fmt: skip
         instances = [
             replace(
@@ -281,26 +274,20 @@ def _canonical(
 
 
 def _python_run(
-    src: np.ndarray,
-    tgt: np.ndarray,
-    voxel: float,
-    view: tuple[float, float, float] | None,
-    not_given: bool,
-    embedding: Embedding | None,
-    *matching_and_run: Any,
+    src: np.ndarray, tgt: np.ndarray, call: CoreCall, k: int, window: float | str | None
 ) -> tuple[_Run, DescribedScan]:
     """The Python stages' run (for the options the core does not take): both clouds
-    described, the matcher and its arguments; and the scan as described. `matching_and_run`:
-    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, num_threads, scene
-    rules."""
-    top_k, mutual, n_samples, k, window, rank, heap, normals, seed, threads, sc = matching_and_run
+    described, the matcher and its arguments (`call`'s, with `k` and the mutual `window`);
+    and the scan as described."""
+    voxel, threads, sc, embedding = call.voxel, call.num_threads, call.scene, call.model
     src_d = pp.describe(src, voxel, away_from=src.mean(0), num_threads=threads)
-    scan = _describe_target(tgt, voxel, view, not_given, src_d, threads, sc)
-    matching, heaped = _matchings(top_k, mutual, n_samples, k, window, src, rank, heap, sc)
+    scan = _describe_target(tgt, voxel, call.viewpoint, call.recorded, src_d, threads, sc)
+    matching, heaped = _matchings(call.top_k, call.mutual, call.n_samples, k, window, src,
+                                  call.heap_rank, call.heap, sc)  # fmt: skip
     tgt_d, matcher = scan.cloud, _matcher(src_d, scan.cloud, k, threads)
-    run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, normals, seed, embedding,
-               threads, heap_matching=heaped, guessed_viewpoint=scan.guessed, heap=heap,
-               scene=sc)  # fmt: skip
+    run = _Run(src_d, tgt_d, voxel, scan.viewpoint, matching, matcher, call.normals, call.seed,
+               embedding, threads, heap_matching=heaped, guessed_viewpoint=scan.guessed,
+               heap=call.heap, scene=sc)  # fmt: skip
     return run, scan
 
 
@@ -314,11 +301,18 @@ def _loaded(
 
 
 def _finished(
-    reg: PointCloudRegistration, scan: DescribedScan | None, t_load: float, t0: float
+    reg: PointCloudRegistration,
+    scan: DescribedScan | None,
+    t_load: float,
+    t0: float,
+    call: CoreCall | None = None,
 ) -> PointCloudRegistration:
     """`reg` with how the scan's normals were oriented and whether the scan disputes the
-    given viewpoint (`scan`; None: as `reg` says), and the timings of reading the files and
-    of the whole call (started at `t0`)."""
+    given viewpoint (`scan`; None: as `reg` says), its poses canonical by `call`'s symmetry
+    (the Python stages'), and the timings of reading the files and of the whole call (started
+    at `t0`)."""
+    if call is not None:
+        reg = _canonical(reg, call.symmetry, call.num_threads)
     total = {"load": t_load, "total": time.perf_counter() - t0}
     orientation = reg.orientation if scan is None else scan.orientation
     disputed = reg.viewpoint_disputed if scan is None else scan.disputed

@@ -224,29 +224,31 @@ def add_s(pred: ArrayLike, gt: ArrayLike, points: ArrayLike, symmetries: Any = N
         )
     if len(axes) == 0:
         return min(add(s) for s in disc)
-    a, o = axes[0] / np.linalg.norm(axes[0]), offsets[0]
+    return min(
+        _least_about_axis(add, axes[0] / np.linalg.norm(axes[0]), offsets[0], s) for s in disc
+    )
+
+
+def _least_about_axis(add: Any, a: np.ndarray, o: np.ndarray, s: np.ndarray) -> float:
+    """The least of ``add(C(theta) s)`` over the angle about the axis `a` through `o`: every
+    degree, then golden-section search within a degree of the best."""
     k = _skew(a)
 
-    def turned(theta: float, s: np.ndarray) -> float:
+    def turned(theta: float) -> float:
         c = np.eye(4)
         c[:3, :3] = np.eye(3) + np.sin(theta) * k + (1 - np.cos(theta)) * (k @ k)
         c[:3, 3] = o - c[:3, :3] @ o
         return add(c @ s)
 
-    best = np.inf
-    for s in disc:
-        grid = np.radians(np.arange(360.0))
-        values = [turned(t, s) for t in grid]
-        lo, hi = (
-            grid[int(np.argmin(values))] - np.radians(1),
-            grid[int(np.argmin(values))] + np.radians(1),
-        )
-        ratio = (np.sqrt(5) - 1) / 2
-        while hi - lo > 1e-8:
-            m1, m2 = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
-            if turned(m1, s) < turned(m2, s):
-                hi = m2
-            else:
-                lo = m1
-        best = min(best, min(values), turned((lo + hi) / 2, s))
-    return float(best)
+    grid = np.radians(np.arange(360.0))
+    values = [turned(t) for t in grid]
+    best = grid[int(np.argmin(values))]
+    lo, hi = best - np.radians(1), best + np.radians(1)
+    ratio = (np.sqrt(5) - 1) / 2
+    while hi - lo > 1e-8:
+        m1, m2 = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+        if turned(m1) < turned(m2):
+            hi = m2
+        else:
+            lo = m1
+    return min(min(values), turned((lo + hi) / 2))

@@ -153,7 +153,6 @@ def refine_poses(
     max_slid_fitness: float = MAX_SLID_FITNESS,
     target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
-    symmetry: Any = None,
 ) -> RefinedPoses:
     """Refine poses of `source_points` in `target_points` by point-to-plane ICP and keep
     those the scan supports, surest first.
@@ -189,26 +188,14 @@ def refine_poses(
         Unit normals of `target_points` (either sign), e.g. those
         :func:`pointclm.register_point_clouds` computed; estimated within 2 voxels when
         omitted (pass them when refining against the same scan repeatedly).
-    symmetry : optional
-        The model's symmetries, as :func:`pointclm.register_point_clouds` takes them: each
-        kept pose is returned as the canonical one among its equivalents.
     """
-    from .symmetry import canonical_for, resolve
-
-    declared = resolve(symmetry)  # a bad declaration fails before the work
     clouds = (source_points, target_points, voxel_size)
     context = RefinementContext(
         *clouds, viewpoint=viewpoint, target_normals=target_normals, num_threads=num_threads
     )
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
     named = dict(zip(_RULES, (*rules, max_shared, max_slid_fitness), strict=True))
-    refined = context.refine(transformations, icp=icp, num_threads=num_threads, **named)
-    if declared is None:
-        return refined
-    model = pp.as_points(source_points, "source_points")
-    return refined._replace(
-        transformations=canonical_for(declared, model, refined.transformations, num_threads)
-    )
+    return context.refine(transformations, icp=icp, num_threads=num_threads, **named)
 
 
 class RefinementContext:

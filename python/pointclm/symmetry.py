@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike
 
 from . import _core
 
-__all__ = ["Symmetry", "canonical_for", "detect", "from_bop", "resolve"]
+__all__ = ["Symmetry", "as_core", "canonical_for", "detect", "from_bop", "resolve"]
 
 
 @dataclass(frozen=True)
@@ -257,3 +257,9 @@ def canonical_for(
         _core.resolve_model_symmetry(pts, pts, spec, num_threads=num_threads)
     )
     return found.canonical(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4))
+
+
+def as_core(symmetry: Any) -> str | dict[str, np.ndarray] | None:
+    """`symmetry` as the core takes it (:func:`resolve`d): None, "auto" or its dict."""
+    declared = resolve(symmetry)
+    return declared.as_core() if isinstance(declared, Symmetry) else declared

@@ -25,7 +25,7 @@ from ..preprocessing import as_count
 from ..refinement import RefinementContext
 from ..registration import as_config, as_seed
 from ..scene_rules import SceneRules
-from ..symmetry import Symmetry
+from ..symmetry import Symmetry, as_core
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
 from .sensor import warn_disputed
@@ -67,8 +67,9 @@ class CoreCall:
     model: Embedding | None = None
     #: Whether the correspondence stage gets the normals at both ends of each pair.
     normals: bool = False
-    #: The model's symmetries: "auto", the core's symmetry dict, or None.
-    symmetry: str | dict[str, np.ndarray] | None = None
+    #: The model's symmetries as given (:func:`pointclm.symmetry.resolve`); checked: "auto",
+    #: the core's symmetry dict, or None.
+    symmetry: Any = None
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -80,7 +81,10 @@ class CoreCall:
         samples = None if self.n_samples is None else as_count(self.n_samples, "n_samples", 1)
         level = self.scene.peel_cluster_level
         config = _config(self.config, self.voxel, self.model, True, self.peel, level)
-        return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config)
+        sym = as_core(self.symmetry)
+        return replace(
+            self, seed=as_seed(self.seed), n_samples=samples, config=config, symmetry=sym
+        )
 
 
 def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointCloudRegistration:
