@@ -321,7 +321,7 @@ pub fn canonical_pose(pose: &RigidTransform, symmetry: &Symmetry) -> RigidTransf
 }
 
 /// The median distance from a model point to its nearest other point (over at most
-/// [`DETECT_POINTS`] of them), times [`SPACINGS_PER_TOLERANCE`]: [`detect_symmetries`]'
+/// 4000 of them, evenly strided), times [`SPACINGS_PER_TOLERANCE`]: [`detect_symmetries`]'
 /// default tolerance.
 pub fn default_tolerance(model: &[[f64; 3]]) -> Result<f64> {
     check_points(model, "model points", 3)?;
