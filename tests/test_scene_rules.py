@@ -87,6 +87,7 @@ def test_scene_rules_reach_the_scene_stages() -> None:
 NOT_A_METHOD_FLAG = {
     "source": "the MODEL argument",
     "target": "the SCENE argument (SCANS for batch)",
+    "symmetry": "register's --symmetry: the model's, not the method's (batch has no flag yet)",
 }
 
 

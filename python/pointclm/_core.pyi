@@ -42,6 +42,10 @@ __all__ = [
     "fit_tightness",
     "stability_factor",
     "register_scan",
+    "symmetry_group",
+    "detect_symmetries",
+    "canonical_poses",
+    "resolve_model_symmetry",
     "flip_turns",
     "quarter_turns",
     "bounding_diagonal",
@@ -335,6 +339,7 @@ def register_scan(
     refine: bool = True,
     k: int = 1,
     mutual_window: float | str | None = None,
+    symmetry: str | dict[str, npt.NDArray[np.float64]] | None = None,
 ) -> dict[str, Any]:
     """The core's scene pipeline; ``embed(correspondences, normals, similarity)`` computes
     each pass's learned embedding (the cues ``embed_inputs`` names given, else None);
@@ -347,8 +352,28 @@ def register_scan(
     (N, 6), ``result``, ``scan_points``, ``added``, ``voted`` and ``duplicates`` (K, 4, 4));
     ``source_points``, ``source_normals``, ``target_points``, ``target_normals``; ``config``
     (a dict); ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``,
-    ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``."""
+    ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``; ``symmetry``
+    (the symmetry dict the poses were made canonical by, or None)."""
 
+def symmetry_group(
+    discrete: npt.NDArray[np.float64],
+    axes: npt.NDArray[np.float64],
+    offsets: npt.NDArray[np.float64],
+) -> dict[str, npt.NDArray[np.float64]]: ...
+def detect_symmetries(
+    points: npt.NDArray[np.float64],
+    tolerance: float | None = None,
+    num_threads: int | None = None,
+) -> dict[str, Any]: ...
+def canonical_poses(
+    transformations: npt.NDArray[np.float64], symmetry: dict[str, npt.NDArray[np.float64]]
+) -> npt.NDArray[np.float64]: ...
+def resolve_model_symmetry(
+    model: npt.NDArray[np.float64],
+    described: npt.NDArray[np.float64],
+    symmetry: str | dict[str, npt.NDArray[np.float64]],
+    num_threads: int | None = None,
+) -> dict[str, npt.NDArray[np.float64]]: ...
 def bounding_diagonal(points: npt.NDArray[np.float64]) -> float: ...
 def cloud_base_config() -> dict[str, Any]: ...
 def scan_scales(

@@ -217,6 +217,20 @@ PARAMETERS: dict[str, str] = _entries(
             same time; the scene's own alternatives: bins heap=True first five right
             in 68 -> 69 of 72 validation scenes. False: the poses as verified.
         """,
+    symmetry="""
+        symmetry : dict, pointclm.symmetry.Symmetry or "auto", optional
+            The model's proper symmetries, as one BOP ``models_info.json`` entry gives them
+            (``symmetries_discrete``: 4 x 4 transforms, 16 numbers row-major;
+            ``symmetries_continuous``: ``{"axis", "offset"}``), in the **model's units** (BOP
+            writes mm: :func:`pointclm.symmetry.from_bop` with ``scale=0.001`` for a model in
+            metres; a symmetry moving the model's centroid by over a tenth of its diagonal is a
+            ValueError); or ``"auto"``: detected on the downsampled model
+            (:func:`pointclm.symmetry.detect`, tolerance 3 point spacings). Every returned pose
+            is then the canonical one among its equivalents ``T @ S``: the one whose rotation
+            is nearest the identity (:meth:`pointclm.symmetry.Symmetry.canonical`), so equal
+            copies get equal answers; and `flips` does not try a turn that is a symmetry.
+            None: no symmetry declared.
+        """,
     scene="""
         scene : pointclm.SceneRules or dict, optional
             The scene-wide rules (the voxel's floor, stray points, peeling, heaps, turned

@@ -9,9 +9,11 @@ matching), which duplicates cannot inflate.
 A prediction matches a ground-truth pose if the rotation error
 ``RE = arccos((tr(R^T R*) - 1) / 2) < 15 deg`` and the translation error ``TE = ||t - t*|| < 0.1``
 (synthetic units). For a part with proper symmetries ``S`` (4 x 4 transforms with
-``model = S model``, the BOP ``symmetries_discrete``), every ``T* @ S`` is the same pose: pass
-``symmetries=`` and the errors are the smallest over them, so every equivalent pose scores
-the same.
+``model = S model``, the BOP ``symmetries_discrete``, and rotations about its
+``symmetries_continuous`` axes), every ``T* @ S`` is the same pose: pass ``symmetries=``
+((S, 4, 4) transforms, a :class:`pointclm.symmetry.Symmetry` or a ``models_info`` entry) and
+the errors are the smallest over them, so every equivalent pose scores the same
+(:func:`symmetric_errors`, :func:`add_s`).
 
 Conventions for empty scenes (both scores):
 
@@ -27,12 +29,23 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .pose_errors import (
+    _as_poses,
+    _equivalent_errors,
+    add_s,
+    rotation_error_deg,
+    symmetric_errors,
+    translation_error,
+)
+
 __all__ = [
     "SceneScore",
+    "add_s",
     "Summary",
     "max_bipartite_matching",
     "pose_match_matrix",
@@ -44,101 +57,13 @@ __all__ = [
 ]
 
 
-def rotation_error_deg(R_pred: ArrayLike, R_gt: ArrayLike) -> np.ndarray:
-    """Angle of the relative rotation, in degrees.
-
-    Parameters
-    ----------
-    R_pred, R_gt : numpy.ndarray
-        (..., 3, 3) rotations (broadcast against each other).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``arccos(clip((tr(R_pred^T R_gt) - 1) / 2, -1, 1))`` in degrees, shape (...).
-    """
-    a = np.asarray(R_pred, dtype=np.float64)
-    b = np.asarray(R_gt, dtype=np.float64)
-    trace = np.einsum("...ij,...ij->...", a, b)  # tr(A^T B)
-    return np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))
-
-
-def translation_error(t_pred: ArrayLike, t_gt: ArrayLike) -> np.ndarray:
-    """Euclidean distance between translations.
-
-    Parameters
-    ----------
-    t_pred, t_gt : numpy.ndarray
-        (..., 3) translations (broadcast against each other).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``||t_pred - t_gt||``, shape (...).
-    """
-    diff = np.asarray(t_pred, dtype=np.float64) - np.asarray(t_gt, dtype=np.float64)
-    return np.linalg.norm(diff, axis=-1)
-
-
-def _as_poses(poses: ArrayLike) -> np.ndarray:
-    arr = np.asarray(poses, dtype=np.float64)
-    if arr.size == 0:
-        return np.empty((0, 4, 4))
-    if arr.shape[-2:] != (4, 4):
-        raise ValueError(f"expected poses of shape (K, 4, 4), got {arr.shape}")
-    return arr.reshape(-1, 4, 4)
-
-
-def _as_symmetries(symmetries: ArrayLike | None) -> np.ndarray:
-    if symmetries is None:
-        return np.eye(4)[None]
-    sym = np.asarray(symmetries, dtype=np.float64)
-    if sym.ndim != 3 or sym.shape[1:] != (4, 4) or len(sym) == 0:
-        raise ValueError(f"symmetries must be (S, 4, 4) transforms, S >= 1, got shape {sym.shape}")
-    if not np.isfinite(sym).all():
-        raise ValueError("symmetries must be finite")
-    return sym
-
-
-def symmetric_errors(
-    pred: ArrayLike, gt: ArrayLike, symmetries: ArrayLike | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation (degrees) and translation errors of every prediction against every ground
-    truth, each the smallest over the part's symmetries (both taken at the same symmetry:
-    the one of least rotation error, ties broken by translation).
-
-    Parameters
-    ----------
-    pred, gt : array_like
-        (P, 4, 4) and (G, 4, 4) poses ``T_target_source``.
-    symmetries : array_like, optional
-        (S, 4, 4) proper symmetries of the source (``T @ S`` looks like ``T``); None: the
-        identity alone.
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray)
-        (P, G) rotation errors in degrees and (P, G) translation errors.
-    """
-    p, g = _as_poses(pred), _as_poses(gt)
-    sym = _as_symmetries(symmetries)
-    eq = g[:, None] @ sym[None]  # (G, S, 4, 4): every pose equivalent to each truth
-    re = rotation_error_deg(p[:, None, None, :3, :3], eq[None, :, :, :3, :3])
-    te = translation_error(p[:, None, None, :3, 3], eq[None, :, :, :3, 3])
-    if re.size == 0:
-        return re[..., 0], te[..., 0]
-    # Lexicographic: least rotation error first, then least translation error.
-    pick = np.lexsort((te, re), axis=-1)[..., :1]
-    return np.take_along_axis(re, pick, -1)[..., 0], np.take_along_axis(te, pick, -1)[..., 0]
-
-
 def pose_match_matrix(
     pred: ArrayLike,
     gt: ArrayLike,
     max_rotation_deg: float = 15.0,
     max_translation: float = 0.1,
     *,
-    symmetries: ArrayLike | None = None,
+    symmetries: Any = None,
 ) -> np.ndarray:
     """Which predictions register which ground-truth instances.
 
@@ -150,25 +75,17 @@ def pose_match_matrix(
         (G, 4, 4) ground-truth poses.
     max_rotation_deg, max_translation : float
         Strict thresholds: a match needs ``RE < max_rotation_deg`` and ``TE < max_translation``.
-    symmetries : array_like, optional
-        (S, 4, 4) proper symmetries of the source: a prediction matches when it matches any
-        ``gt @ S`` (:func:`symmetric_errors`).
+    symmetries : optional
+        The source's proper symmetries (as :func:`symmetric_errors` takes them): a
+        prediction matches when it matches any truth made equivalent by one.
 
     Returns
     -------
     numpy.ndarray
         (P, G) bool.
     """
-    p, g = _as_poses(pred), _as_poses(gt)
-    if symmetries is not None:
-        sym = _as_symmetries(symmetries)
-        eq = g[:, None] @ sym[None]
-        re = rotation_error_deg(p[:, None, None, :3, :3], eq[None, :, :, :3, :3])
-        te = translation_error(p[:, None, None, :3, 3], eq[None, :, :, :3, 3])
-        return np.asarray(((re < max_rotation_deg) & (te < max_translation)).any(axis=-1))
-    re = rotation_error_deg(p[:, None, :3, :3], g[None, :, :3, :3])
-    te = translation_error(p[:, None, :3, 3], g[None, :, :3, 3])
-    return (re < max_rotation_deg) & (te < max_translation)
+    re, te = _equivalent_errors(_as_poses(pred), _as_poses(gt), symmetries)
+    return np.asarray(((re < max_rotation_deg) & (te < max_translation)).any(axis=-1))
 
 
 def max_bipartite_matching(adjacency: ArrayLike) -> np.ndarray:

@@ -188,6 +188,7 @@ def register_point_clouds(
     flips: bool = True,
     num_threads: int | None = None,
     scene: SceneRules | Mapping[str, Any] | None = None,
+    symmetry: Any = None,
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
 
@@ -210,17 +211,18 @@ def register_point_clouds(
     %(flips)s
     %(num_threads)s
     %(scene)s
+    %(symmetry)s
 
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    embedding, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
+    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                    flips, sc, num_threads, viewpoint is None, embedding, normals, refine, k,
-                    window)  # fmt: skip
+                    flips, sc, num_threads, viewpoint is None, emb, normals, refine, k,
+                    window, symmetry)  # fmt: skip
     return _finished(register_in_core(src, tgt, call.checked()), t_load, t0)
 
 

@@ -151,14 +151,45 @@ def _checked_poses(poses: np.ndarray, what: str) -> np.ndarray:
     return poses
 
 
-def _score_truth(reg: Any, ground_truth: np.ndarray, model: np.ndarray) -> dict[str, Any]:
+def _load_symmetry(arg: str | None) -> Any:
+    """`--symmetry`: None, "auto", or a JSON file holding one BOP ``models_info`` entry
+    (checked now, so a bad file costs nothing)."""
+    if arg is None or arg == "auto":
+        return arg
+    from ..errors import InputError
+    from ..io.files import read_checked
+    from ..symmetry import from_bop
+
+    file, raw = read_checked(arg, "symmetry file")
+    what = f"--symmetry {file}"
+    try:
+        entry = json.loads(raw)
+    except ValueError as e:
+        raise InputError(f"{what} is not JSON: {e}") from None
+    whole = isinstance(entry, dict) and entry and all(isinstance(v, dict) for v in entry.values())
+    if whole and not {"symmetries_discrete", "symmetries_continuous"} & set(entry):
+        raise InputError(
+            f"{what} looks like a whole models_info.json (one entry per object): give the "
+            "entry of this model alone"
+        )
+    try:
+        return from_bop(entry)
+    except ValueError as e:
+        raise InputError(f"{what}: {e}") from None
+
+
+def _score_truth(
+    reg: Any, ground_truth: np.ndarray, model: np.ndarray, symmetry: Any = None
+) -> dict[str, Any]:
     """Which true poses the instances found, one instance per true pose at most (as the
-    benchmarks count correct copies)."""
+    benchmarks count correct copies), a pose matching a truth made equivalent by one of the
+    model's symmetries (the registration's, declared or detected) too."""
     from ..metrics import max_bipartite_matching, pose_match_matrix
 
     diagonal = float(np.linalg.norm(np.ptp(model, axis=0))) if len(model) else 0.0
     limit = MATCH_DIAGONALS * diagonal
-    match = pose_match_matrix(reg.transformations, ground_truth, MATCH_DEG, limit)
+    sym = getattr(reg, "symmetry", None) or (None if symmetry == "auto" else symmetry)
+    match = pose_match_matrix(reg.transformations, ground_truth, MATCH_DEG, limit, symmetries=sym)
     pairs = max_bipartite_matching(match)
     found = sorted(int(j) for j in pairs if j >= 0)
     return {
@@ -177,6 +208,7 @@ def cmd_register(args: argparse.Namespace) -> int:
     from ..io import load_points
 
     ground_truth = _check_register_args(args)
+    symmetry = _load_symmetry(args.symmetry)
     stages = ["load", "register", *(f for f in ("png", "ply", "html") if getattr(args, f))]
     bar = tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet, leave=False)
     with bar:
@@ -185,10 +217,10 @@ def cmd_register(args: argparse.Namespace) -> int:
         scene = load_points(args.scene_file)
         bar.update()
         bar.set_postfix_str("FPFH, matching, registration")
-        reg = _register_files(args, model, scene)
+        reg = _register_files(args, model, scene, symmetry)
         bar.update()
         _write_pictures(args, reg, ground_truth, bar)
-    truth = None if ground_truth is None else _score_truth(reg, ground_truth, model)
+    truth = None if ground_truth is None else _score_truth(reg, ground_truth, model, symmetry)
     _report(reg, truth)
     if args.out:
         _write_json(args.out, _register_json(args, reg, truth))
@@ -215,12 +247,14 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
     return None if args.ground_truth is None else _load_ground_truth(args.ground_truth)
 
 
-def _register_files(args: argparse.Namespace, model: np.ndarray, scene: np.ndarray) -> Any:
+def _register_files(
+    args: argparse.Namespace, model: np.ndarray, scene: np.ndarray, symmetry: Any = None
+) -> Any:
     from ..point_clouds import register_point_clouds
 
     options = _method_options(args, lambda: model)
     options["viewpoint"] = scan_viewpoint(options["viewpoint"], args.scene_file)
-    return register_point_clouds(model, scene, **options)
+    return register_point_clouds(model, scene, symmetry=symmetry, **options)
 
 
 def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -> dict[str, Any]:
@@ -330,6 +364,14 @@ def _add_register_parser(sub: Any) -> None:
         help="true T_target_source poses (.npy of (G, 4, 4), or a JSON list of 4x4): the "
         "report says which were found (RE < 15 deg, TE < 10%% of the model's diagonal) and the "
         "picture and page draw the missed ones",
+    )
+    r.add_argument(
+        "--symmetry",
+        metavar="FILE|auto",
+        help="the model's proper symmetries: a JSON file holding its BOP models_info entry "
+        "(symmetries_discrete / symmetries_continuous, in the model's units: BOP writes mm), "
+        "or 'auto' to detect them; poses come out canonical among their equivalents, and "
+        "--ground-truth counts an equivalent pose as found",
     )
     r.add_argument("--out", help="write instances, diagnosis and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")

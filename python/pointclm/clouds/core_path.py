@@ -24,6 +24,7 @@ from ..preprocessing import as_count
 from ..refinement import RefinementContext
 from ..registration import as_config, as_seed
 from ..scene_rules import SceneRules
+from ..symmetry import Symmetry, as_core
 from .diagnosis import _diagnose
 from .results import CloudInstance, Pass, PointCloudRegistration
 from .sensor import warn_disputed
@@ -61,6 +62,9 @@ class CoreCall:
     k: int = 1
     #: The windowed mutual check: a side in model diagonals, "auto" or None (checked).
     mutual_window: float | str | None = None
+    #: The model's symmetries as given (:func:`pointclm.symmetry.resolve`); checked: "auto",
+    #: the core's symmetry dict, or None.
+    symmetry: Any = None
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -73,7 +77,10 @@ class CoreCall:
         level = self.scene.peel_cluster_level
         config = _config(self.config, self.voxel, self.model, self.refine, self.peel, level)
         k = as_count(self.k, "k", 1)
-        return replace(self, seed=as_seed(self.seed), n_samples=samples, config=config, k=k)
+        sym = as_core(self.symmetry)
+        return replace(
+            self, seed=as_seed(self.seed), n_samples=samples, config=config, k=k, symmetry=sym
+        )
 
 
 def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointCloudRegistration:
@@ -101,6 +108,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         refine=call.refine,
         k=call.k,
         mutual_window=call.mutual_window,
+        symmetry=call.symmetry,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
@@ -121,6 +129,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         viewpoint_disputed=_disputed(out, call),
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes),
         ambiguous=ambiguous,
+        symmetry=None if out["symmetry"] is None else Symmetry._from_core(out["symmetry"]),
     )
 
 

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike
 from .._core import Instance, RegistrationResult
 from ..config import Config
 from ..poses import PoseForms
+from ..symmetry import Symmetry
 
 #: A model point is explained within this many voxels of a scan point: the radius of
 #: ``fitness`` and ``inlier_rmse`` (:func:`pointclm.refine_poses`).
@@ -192,6 +193,9 @@ class PointCloudRegistration:
     diagnosis: str = ""
     viewpoint_disputed: bool = False
     ambiguous: list[CloudInstance] = field(default_factory=list)
+    #: The model's symmetries every pose was made canonical by (declared, or detected with
+    #: ``symmetry="auto"``); None: none declared.
+    symmetry: Symmetry | None = None
 
     def __post_init__(self) -> None:
         clouds = (self.source_points, self.target_points, self.voxel_size)

@@ -10,6 +10,7 @@ mod pointcloud;
 mod pools;
 mod result;
 mod scene;
+mod symmetry;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2};
 use pointclm::{Correspondences, Scene};
@@ -296,6 +297,10 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
     m.add_function(wrap_pyfunction!(scene::judge_jointly, m)?)?;
+    m.add_function(wrap_pyfunction!(symmetry::symmetry_group, m)?)?;
+    m.add_function(wrap_pyfunction!(symmetry::detect_symmetries, m)?)?;
+    m.add_function(wrap_pyfunction!(symmetry::canonical_poses, m)?)?;
+    m.add_function(wrap_pyfunction!(symmetry::resolve_model_symmetry, m)?)?;
     m.add_function(wrap_pyfunction!(scene::flip_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::quarter_turns, m)?)?;
     m.add_function(wrap_pyfunction!(scene::bounding_diagonal, m)?)?;

@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None)"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -127,6 +127,7 @@ pub fn register_scan<'py>(
     refine: bool,
     k: usize,
     mutual_window: Option<Bound<'py, PyAny>>,
+    symmetry: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
@@ -158,6 +159,7 @@ pub fn register_scan<'py>(
         },
         config: config.as_ref().map(|c| from_dict(Some(c))).transpose()?,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
+        symmetry: crate::symmetry::model_symmetry(symmetry.as_ref())?,
     };
     let threads = num_threads.map(pool).transpose()?;
     let inner = embedder.clone();
@@ -283,6 +285,12 @@ fn copies_dict<'py>(py: Python<'py>, c: &[scene::Candidate]) -> PyResult<Bound<'
 fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'_, PyDict>> {
     let d = copies_dict(py, &out.candidates)?;
     d.set_item("ambiguous", copies_dict(py, &out.ambiguous)?)?;
+    let symmetry = out
+        .symmetry
+        .as_ref()
+        .map(|s| crate::symmetry::symmetry_dict(py, s))
+        .transpose()?;
+    d.set_item("symmetry", symmetry)?;
     let passes = PyList::empty(py);
     for pass in out.passes {
         let rows: Vec<[f64; 6]> = (0..pass.correspondences.len())

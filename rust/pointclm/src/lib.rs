@@ -60,6 +60,7 @@ pub mod ransac;
 pub mod scene;
 mod seeds;
 pub mod spectral;
+pub mod symmetry;
 #[cfg(test)]
 #[path = "tests/support.rs"]
 mod testing;

@@ -19,6 +19,7 @@ use crate::pointcloud::{
     check_points, check_positive, nearest_rotation, PointIndex, RefineContext, RefineParams,
     Refined, RefinedPose,
 };
+use crate::symmetry::Symmetry;
 
 /// A component of a principal axis farther than this from zero can set the axis' sign. Why
 /// not the largest component: an axis at 45 degrees between two coordinate axes (common in
@@ -88,11 +89,26 @@ pub fn resolve_flips(
     rotations: &[Matrix3<f64>],
     rules: &SceneRules,
 ) -> Result<(Refined, Vec<usize>)> {
+    resolve_flips_with_symmetry(context, params, poses, rotations, rules, &Symmetry::none())
+}
+
+/// [`resolve_flips`] for a model with declared symmetries: a turn within `scene_turn_deg` of
+/// a symmetry, or of a symmetry composed with a turn already tried, is not a distinct
+/// alternative and is not tried (the pose and that turn place the same part).
+pub fn resolve_flips_with_symmetry(
+    context: &RefineContext,
+    params: &RefineParams,
+    poses: &Refined,
+    rotations: &[Matrix3<f64>],
+    rules: &SceneRules,
+    symmetry: &Symmetry,
+) -> Result<(Refined, Vec<usize>)> {
     check_rules(rules)?;
     let rotations = checked_rotations(rotations)?;
     check_positive("fit_radius", params.fit_radius)?;
     let shape = Shape::new(context.source(), params.fit_radius)?;
     let (turns, half) = shape.turns(poses.by_visibility, &rotations, rules);
+    let (turns, half) = distinct_turns(turns, half, symmetry, rules.scene_turn_deg);
     let n = poses.poses.len();
     if n == 0 || turns.is_empty() {
         return Ok((poses.clone(), (0..n).collect()));
@@ -134,6 +150,31 @@ pub fn resolve_flips(
         sliding: poses.sliding.clone(),
     };
     Ok((resolved, order))
+}
+
+/// `turns` (the first `half` of them half turns) without those within `near` degrees of a
+/// symmetry, or of one composed with a turn kept before them, and the half turns left.
+fn distinct_turns(
+    turns: Vec<RigidTransform>,
+    half: usize,
+    symmetry: &Symmetry,
+    near: f64,
+) -> (Vec<RigidTransform>, usize) {
+    if symmetry.is_trivial() {
+        return (turns, half);
+    }
+    let mut kept: Vec<RigidTransform> = Vec::with_capacity(turns.len());
+    let mut kept_half = 0;
+    for (i, turn) in turns.into_iter().enumerate() {
+        let same =
+            |k: &Matrix3<f64>| symmetry.angle_to_deg(&(k.transpose() * turn.rotation)) < near;
+        if same(&Matrix3::identity()) || kept.iter().any(|k| same(&k.rotation)) {
+            continue;
+        }
+        kept_half += usize::from(i < half);
+        kept.push(turn);
+    }
+    (kept, kept_half)
 }
 
 /// `params` scoring only: nothing rejected but poses that explain nothing, duplicates kept.

@@ -49,7 +49,7 @@ pub mod voxel;
 mod window;
 
 pub use embedder::{similarity, Embedder, NetworkEmbedder};
-pub use flips::{flip_turns, quarter_turns, resolve_flips};
+pub use flips::{flip_turns, quarter_turns, resolve_flips, resolve_flips_with_symmetry};
 pub use joint::{judge_jointly, register_models, JointVerdict, ModelPoses};
 pub use register::{
     cloud_base_config, cloud_config, config_for_voxel, register_point_clouds,

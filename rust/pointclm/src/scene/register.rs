@@ -1,7 +1,8 @@
 //! [`register_point_clouds`]: a model and a scan in, the pose of every copy out, as named
 //! stages over one description of each cloud and one index of the scan: sensor and viewpoint
 //! ([`describe_scan`]), description, matching, proposals (the correspondence stage),
-//! verification, peeling, turned alternatives ([`resolve_flips`]), ranking.
+//! verification, peeling, turned alternatives
+//! ([`resolve_flips`](super::resolve_flips)), ranking.
 //!
 //! This is the training-free path, in heaps too (the ranked mutual check once many copies are
 //! found, point pair voting when the scan is said to be a heap), with a known sensor position
@@ -24,13 +25,14 @@ use nalgebra::Matrix3;
 use std::time::Instant;
 
 use super::embedder::{similarity, Embedder};
-use super::flips::resolve_flips;
+use super::flips::resolve_flips_with_symmetry;
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
 use super::sensor::describe_scan;
 use super::voxel::default_voxel_size;
 use super::SceneRules;
 use super::{mean_point, median};
+use crate::symmetry::{canonical_pose, ModelSymmetry, Symmetry};
 
 /// How [`register_point_clouds`] runs; [`SceneOptions::default`] is the Python package's
 /// defaults for this path.
@@ -78,12 +80,16 @@ pub struct SceneOptions {
     /// Give the correspondence stage the unit normals at both ends of each correspondence
     /// (their angles join the length test; an embedder that reads normals gets them anyway).
     pub pair_normals: bool,
-    /// Try turned alternatives of every accepted pose before ranking ([`resolve_flips`]):
-    /// half turns, quarter turns and the turns peeling's duplicates make with the copy they
+    /// Try turned alternatives of every accepted pose before ranking
+    /// ([`resolve_flips`](super::resolve_flips)): half turns, quarter turns and the turns peeling's duplicates make with the copy they
     /// lie on.
     pub flips: bool,
     /// Seeds the sampling of matches and the correspondence stage (pass `r` uses `seed + r`).
     pub seed: u64,
+    /// The model's proper symmetries: every returned pose is the canonical one among its
+    /// equivalents ([`crate::symmetry::canonical_pose`]), and the turned-alternatives stage
+    /// skips turns that are symmetries. `None`: none declared.
+    pub symmetry: Option<ModelSymmetry>,
     /// The scene-wide rules.
     pub scene: SceneRules,
 }
@@ -106,6 +112,7 @@ impl Default for SceneOptions {
             pair_normals: false,
             flips: true,
             seed: 0,
+            symmetry: None,
             scene: SceneRules::default(),
         }
     }
@@ -214,6 +221,8 @@ pub struct SceneRegistration {
     pub viewpoint_disputed: bool,
     /// How the scan's normals were oriented, in words.
     pub orientation: String,
+    /// The model's symmetries the poses were made canonical by (declared, or detected).
+    pub symmetry: Option<Symmetry>,
     /// Seconds spent in each stage after the clouds were described (theirs are in
     /// `source.timings` and `target.timings`).
     pub timings: SceneTimings,
@@ -319,6 +328,10 @@ pub fn register_point_clouds_with(
     check_positive("voxel_size (the model has no extent: give one)", voxel)?;
     check_window(options)?;
     let mut run = Run::new(model, scan, voxel, options, embedder)?;
+    let symmetry = match &options.symmetry {
+        Some(s) => Some(s.resolve(model, &run.source.points)?),
+        None => None,
+    };
     let config = match &options.config {
         Some(c) => c.clone(),
         None if !options.refine => config_for_voxel(&Config::default(), voxel),
@@ -368,13 +381,18 @@ pub fn register_point_clouds_with(
     }
     timings.peeling = lap();
     if options.refine && options.flips && !accepted.is_empty() {
-        accepted = run.flipped(accepted)?;
+        accepted = run.flipped(accepted, symmetry.as_ref())?;
     }
-    let candidates = match options.refine {
+    let mut candidates = match options.refine {
         true => run.ranked(accepted)?,
         false => candidates(accepted),
     };
-    let ambiguous = run.ambiguous(&candidates)?;
+    let mut ambiguous = run.ambiguous(&candidates)?;
+    if let Some(s) = &symmetry {
+        for c in candidates.iter_mut().chain(&mut ambiguous) {
+            c.pose = canonical_pose(&c.pose, s);
+        }
+    }
     timings.flips = lap();
     Ok(SceneRegistration {
         timings,
@@ -386,6 +404,7 @@ pub fn register_point_clouds_with(
         unconfirmed_viewpoint: run.unconfirmed,
         viewpoint_disputed: run.disputed,
         orientation: run.orientation,
+        symmetry,
         source: run.source,
         target: run.target,
         voxel_size: voxel,
@@ -946,8 +965,8 @@ impl<'o> Run<'o> {
     }
 
     /// The accepted poses with the turned alternatives the scan supports better
-    /// ([`resolve_flips`]), surest first.
-    fn flipped(&self, accepted: Accepted) -> Result<Accepted> {
+    /// ([`resolve_flips`](super::resolve_flips)), surest first.
+    fn flipped(&self, accepted: Accepted, symmetry: Option<&Symmetry>) -> Result<Accepted> {
         let turns = self.duplicate_turns(&accepted);
         let poses = Refined {
             poses: accepted.rows.clone(),
@@ -956,8 +975,15 @@ impl<'o> Run<'o> {
             sliding: Vec::new(),
         };
         let params = RefineParams::for_voxel(self.voxel);
-        let (out, order) =
-            resolve_flips(&self.context, &params, &poses, &turns, &self.options.scene)?;
+        let none = Symmetry::none();
+        let (out, order) = resolve_flips_with_symmetry(
+            &self.context,
+            &params,
+            &poses,
+            &turns,
+            &self.options.scene,
+            symmetry.unwrap_or(&none),
+        )?;
         Ok(Accepted {
             rows: out.poses,
             tags: order.iter().map(|&i| accepted.tags[i]).collect(),
