@@ -285,12 +285,12 @@ def test_the_cli_scores_with_a_symmetry(tmp_path, capsys):
     assert "16 numbers" in capsys.readouterr().err
 
 
-def test_the_python_stages_return_canonical_poses_too():
+def test_other_matching_options_return_canonical_poses_too():
     rng = np.random.default_rng(12)
     model = box([1.0, 2.0, 3.0], 3000)
     t = random_pose(rng)
     scan = _scene(box([1.0, 2.0, 3.0], 3000, seed=13), [t])
-    reg = pointclm.register_point_clouds(model, scan, k=2, symmetry="auto")  # Python stages
+    reg = pointclm.register_point_clouds(model, scan, k=2, symmetry="auto")
     assert reg.symmetry is not None and reg.symmetry.order == 4
     assert reg.instances
     for inst in reg.instances:
