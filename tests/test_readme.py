@@ -1,17 +1,21 @@
-"""The README's code blocks run as written and print what they claim (issue 15).
+"""The README's and the documentation pages' code blocks run as written and print what they
+claim.
+
+Pages: README.md and every ``docs/**/*.md``. A block may be skipped with a visible reason by an
+HTML comment on the line before it, ``<!-- skip: needs ros -->`` (keep that rare).
 
 - ```python blocks: each runs in a fresh namespace, as a reader pastes one block into a new
   interpreter; every block imports what it uses, so none depends on another. They run from
-  the repository root (where the README's relative paths point). A comment ``# -> text``
-  claims what the block prints: each ``...``-separated piece of ``text`` must appear in the
-  block's output, in order. A block naming ``../shared/data`` is skipped when that folder is
-  missing, one importing torch when torch is not installed.
+  the repository root (where the relative paths point). A comment ``# -> text`` claims what
+  the block prints: each ``...``-separated piece of ``text`` must appear in the block's
+  output, in order. A block naming ``../shared/data`` is skipped when that folder is missing,
+  one importing torch when torch is not installed.
 - ```bash blocks: installs are not run; every ``pointclm`` command must parse with the CLI's
   own parser, every ``python benchmarks/...`` script must exist and list the flags used in
   its ``--help``, and every cargo ``--example``/bench must exist in the crate.
 - ```rust blocks: the crate README's example is a doctest of the core crate (``cargo test -p
-  pointclm``); here we check that README.md shows exactly that code, and that the crate
-  still includes its README as a doctest.
+  pointclm``); here we check that every Rust block shown is exactly that code, and that the
+  crate still includes its README as a doctest.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from pointclm.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+#: Every page whose code blocks are checked: the README, then the documentation site's.
+PAGES = [README, *sorted((ROOT / "docs").rglob("*.md"))]
 CRATE = ROOT / "rust" / "pointclm"
 DATA = ROOT.parent / "shared" / "data"
 
@@ -39,10 +45,21 @@ DATA = ROOT.parent / "shared" / "data"
 BLOCK_BUDGET_S = 60.0
 
 _FENCE = re.compile(r"^```(\w*)\n(.*?)^```$", re.S | re.M)
+#: A fence with the optional ``<!-- skip: reason -->`` line before it.
+_MARKED = re.compile(r"(?:^<!-- skip: (.*?) -->\n)?^```(\w*)\n(.*?)^```$", re.S | re.M)
 
 
 def code_blocks(path: Path, lang: str) -> list[str]:
     return [body for tag, body in _FENCE.findall(path.read_text()) if tag == lang]
+
+
+def marked_blocks(path: Path, lang: str) -> list[tuple[str, str]]:
+    """``(skip reason or "", body)`` of each `lang` block of a page."""
+    return [(why, body) for why, tag, body in _MARKED.findall(path.read_text()) if tag == lang]
+
+
+def _name(path: Path) -> str:
+    return str(path.relative_to(ROOT))
 
 
 def claims(block: str) -> list[str]:
@@ -62,12 +79,28 @@ def assert_claims_printed(block: str, out: str) -> None:
 
 
 PY_BLOCKS = code_blocks(README, "python")
+#: (page, index on the page, skip reason, body) of every python block of every page.
+ALL_PY_BLOCKS = [
+    (page, k, why, body)
+    for page in PAGES
+    for k, (why, body) in enumerate(marked_blocks(page, "python"))
+]
 
 
-def test_every_block_has_a_checked_language():
-    tags = {tag for tag, _ in _FENCE.findall(README.read_text())}
+@pytest.mark.parametrize("page", PAGES, ids=_name)
+def test_every_block_has_a_checked_language(page):
+    tags = {tag for tag, _ in _FENCE.findall(page.read_text())}
     assert tags <= {"python", "bash", "rust", "text"}, tags
+
+
+def test_the_readme_and_the_docs_have_python_blocks():
     assert PY_BLOCKS, "README.md has no python block"
+    assert len(ALL_PY_BLOCKS) > len(PY_BLOCKS), "the docs pages have no python block"
+
+
+def test_skip_markers_are_rare():
+    skipped = [(_name(page), k) for page, k, why, _ in ALL_PY_BLOCKS if why]
+    assert len(skipped) <= 2, f"too many blocks skipped by a marker: {skipped}"
 
 
 def test_claims_are_checked_somewhere():
@@ -104,20 +137,30 @@ _OPTIONAL = (
 )
 
 
-@pytest.mark.parametrize("k", range(len(PY_BLOCKS)), ids=lambda k: f"python-{k}")
-def test_python_block_runs_and_prints_its_claims(k, monkeypatch):
-    block = PY_BLOCKS[k]
-    reason = _skip_reason(block)
+@pytest.mark.parametrize(
+    ("page", "k", "marked", "block"),
+    ALL_PY_BLOCKS,
+    ids=[f"{_name(page)}:python-{k}" for page, k, _, _ in ALL_PY_BLOCKS],
+)
+def test_python_block_runs_and_prints_its_claims(page, k, marked, block, monkeypatch):
+    reason = f"{_name(page)} marks it: {marked}" if marked else _skip_reason(block)
     if reason:
         pytest.skip(reason)
     monkeypatch.chdir(ROOT)
     out = io.StringIO()
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(out):
-        exec(compile(block, f"README.md python block {k}", "exec"), {"__name__": "__main__"})
+        code = compile(block, f"{_name(page)} python block {k}", "exec")
+        exec(code, {"__name__": "__main__"})
     elapsed = time.perf_counter() - t0
-    assert elapsed < BLOCK_BUDGET_S, f"block {k} took {elapsed:.1f} s"
+    assert elapsed < BLOCK_BUDGET_S, f"{_name(page)} block {k} took {elapsed:.1f} s"
     assert_claims_printed(block, out.getvalue())
+
+
+def test_a_skip_marker_is_read():
+    text = "<!-- skip: needs ros -->\n```python\nimport rclpy\n```\n```python\nx = 1\n```\n"
+    found = [(w, tag) for w, tag, _ in _MARKED.findall(text)]
+    assert found == [("needs ros", "python"), ("", "python")]
 
 
 # --- bash ---------------------------------------------------------------------------------
@@ -142,7 +185,7 @@ def commands(block: str) -> list[list[str]]:
     return out
 
 
-BASH_COMMANDS = [c for b in code_blocks(README, "bash") for c in commands(b)]
+BASH_COMMANDS = [c for page in PAGES for b in code_blocks(page, "bash") for c in commands(b)]
 
 
 def _flags(words: list[str]) -> list[str]:
@@ -198,9 +241,12 @@ def test_rust_example_is_the_crate_doctest():
     crate_readme = CRATE / "README.md"
     crate_blocks = code_blocks(crate_readme, "rust")
     assert crate_blocks, "the crate README has no rust example"
-    assert code_blocks(README, "rust") == crate_blocks, (
-        "README.md's Rust example must be the crate README's (which cargo test runs)"
-    )
+    shown = [(_name(page), b) for page in PAGES for b in code_blocks(page, "rust")]
+    assert shown, "no page shows the crate's Rust example"
+    for name, block in shown:
+        assert block in crate_blocks, (
+            f"{name}'s Rust example must be the crate README's (which cargo test runs)"
+        )
     lib = (CRATE / "src" / "lib.rs").read_text()
     assert '#[doc = include_str!("../README.md")]' in lib
 

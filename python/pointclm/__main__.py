@@ -2,4 +2,6 @@ import sys
 
 from .cli import main
 
-sys.exit(main())
+# Guarded so that importing the package's modules (mkdocstrings' inspection does) runs no CLI.
+if __name__ == "__main__":
+    sys.exit(main())
