@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from . import errors
 from ._core import Instance, Network, RegistrationResult, __version__
+from .clouds.joint import register_models
 from .config import Config
 from .point_clouds import CloudInstance, register_point_clouds
 from .refinement import RefinementContext, refine_poses
@@ -37,6 +38,7 @@ __all__ = [
     "register",
     "register_batch",
     "register_files",
+    "register_models",
     "register_point_clouds",
 ]
 

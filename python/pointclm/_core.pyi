@@ -58,6 +58,7 @@ __all__ = [
     "match_features",
     "nearest_descriptors",
     "nearest_neighbours",
+    "judge_jointly",
     "refine_poses",
     "looks_like_one_view",
     "estimate_sensor",

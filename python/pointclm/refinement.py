@@ -324,7 +324,10 @@ class RefinementContext:
             transformations, icp, named, num_threads
         )
         kept = _refined_poses(mats, columns, origin, bool(by_visibility))
-        return kept._replace(sliding=_refined_poses(*sliding, bool(by_visibility)))
+        s_mats, s_columns, s_origin = sliding
+        return kept._replace(
+            sliding=_refined_poses(s_mats, s_columns, s_origin, kept.by_visibility)
+        )
 
 
 def _refined_poses(
