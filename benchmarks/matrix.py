@@ -252,29 +252,26 @@ def exact_pose_test(scene, product: int) -> tuple[Tally, Tally]:  # type: ignore
     truth = scene.poses[idx]
     t = time.perf_counter()
     kept = ctx.refine(truth)
-    ok = pose_match_matrix(
-        kept.transformations,
-        truth,
-        MAX_ROTATION_DEG,
-        MAX_TRANSLATION_DIAGONALS * scene.diameters[product],
-        symmetries=scene.symmetries[product],
-    )
-    in_tol = int(sum(ok[i, kept.origin[i]] for i in range(len(kept.origin))))
+
+    def within_tolerance(poses) -> int:  # type: ignore[no-untyped-def]
+        """How many of `poses` lie within tolerance of the truth they started from."""
+        ok = pose_match_matrix(
+            poses.transformations,
+            truth,
+            MAX_ROTATION_DEG,
+            MAX_TRANSLATION_DIAGONALS * scene.diameters[product],
+            symmetries=scene.symmetries[product],
+        )
+        return int(sum(ok[i, o] for i, o in enumerate(poses.origin)))
+
+    in_tol = within_tolerance(kept)
     out.n30, out.found30 = len(idx), in_tol
     out.seconds, out.calls = time.perf_counter() - t, 1
     out.extra.update(r.rule for r in ctx.rejections(truth))
     out.extra["drifted"] += len(kept.origin) - in_tol
     out.extra["judged_by_view"] += int(kept.by_visibility)
     # Returned apart as sliding along a face: not rejected, but not kept either.
-    sliding = kept.sliding
-    ok = pose_match_matrix(
-        sliding.transformations,
-        truth,
-        MAX_ROTATION_DEG,
-        MAX_TRANSLATION_DIAGONALS * scene.diameters[product],
-        symmetries=scene.symmetries[product],
-    )
-    slid_in_tol = int(sum(ok[i, sliding.origin[i]] for i in range(len(sliding.origin))))
+    slid_in_tol = within_tolerance(kept.sliding)
     ambiguous.n30, ambiguous.found30 = len(idx), in_tol + slid_in_tol
     ambiguous.calls = 1
     return out, ambiguous

@@ -106,6 +106,21 @@ crate::config::config! {
 }
 
 impl RefineParams {
+    /// These parameters for scoring only: no rule rejects (but a pose that explains nothing),
+    /// duplicates are kept.
+    pub fn keeping_all(&self) -> Self {
+        Self {
+            min_fitness: 0.0,
+            min_relative_fitness: 0.0,
+            min_visible_fitness: 0.0,
+            max_contradiction: 1.0,
+            min_seen: 0.0,
+            max_slid_fitness: 1.0,
+            max_shared: 1.0,
+            ..self.clone()
+        }
+    }
+
     /// The defaults for clouds downsampled at `voxel`: every length of
     /// [`RefineParams::default`] (in voxels) times `voxel`.
     pub fn for_voxel(voxel: f64) -> Self {
@@ -372,21 +387,11 @@ impl RefineContext {
             }
         }
         let mut claimed = vec![false; target.len()];
-        let (kept, duplicates) = keep_surest(&fitted, &verdicts, &slid, &mut claimed, params);
+        let passed: Vec<bool> = verdicts.iter().map(Option::is_none).collect();
+        let (kept, duplicates) = keep_surest(&fitted, &passed, &slid, &mut claimed, params);
         // The sliding poses, judged after every kept one: a slide never takes a kept pose's
         // points.
-        let sliding_only: Vec<Option<Rejection>> = verdicts
-            .iter()
-            .zip(&slides)
-            .map(|(v, &s)| {
-                if s {
-                    None
-                } else {
-                    v.clone().or(Some(NOT_SLIDING))
-                }
-            })
-            .collect();
-        let (mut sliding, _) = keep_surest(&fitted, &sliding_only, &slid, &mut claimed, params);
+        let (mut sliding, _) = keep_surest(&fitted, &slides, &slid, &mut claimed, params);
         let room = 1.0 - params.max_slid_fitness;
         for r in &mut sliding {
             r.confidence *= ((1.0 - r.slid_fitness) / room).clamp(0.0, 1.0);
@@ -603,14 +608,6 @@ fn pass_rules(
         .collect()
 }
 
-/// A verdict that keeps a pose out of the sliding poses' round of [`keep_surest`].
-const NOT_SLIDING: Rejection = Rejection {
-    origin: 0,
-    rule: "not_sliding",
-    value: 0.0,
-    threshold: 0.0,
-};
-
 /// Whether `value` misses the floor `threshold` (a NaN value misses every rule).
 fn below(value: f64, threshold: f64) -> bool {
     value.is_nan() || value < threshold
@@ -621,13 +618,13 @@ fn above(value: f64, threshold: f64) -> bool {
     value.is_nan() || value > threshold
 }
 
-/// The fitted poses that pass (no verdict), surest first (ties: input order), each dropped when
+/// The fitted poses that are `eligible`, surest first (ties: input order), each dropped when
 /// it explains no scan point or more than `max_shared` of the scan points it explains are
 /// claimed (by a surer kept pose, or before the call: `claimed` holds the scan points kept
 /// poses explain, in and out); and the rejections of those dropped.
 fn keep_surest(
     fitted: &[(RigidTransform, Judged)],
-    verdicts: &[Option<Rejection>],
+    eligible: &[bool],
     slid: &[f64],
     claimed: &mut [bool],
     params: &RefineParams,
@@ -644,7 +641,7 @@ fn keep_surest(
     let mut dropped = Vec::new();
     for k in order {
         let (pose, j) = &fitted[k];
-        if verdicts[k].is_some() {
+        if !eligible[k] {
             continue;
         }
         if j.targets.is_empty() {

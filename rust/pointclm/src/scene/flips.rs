@@ -177,18 +177,11 @@ fn distinct_turns(
     (kept, kept_half)
 }
 
-/// `params` scoring only: nothing rejected but poses that explain nothing, duplicates kept.
+/// `params` scoring only, with ICP ([`RefineParams::keeping_all`]).
 fn keep_all(params: &RefineParams) -> RefineParams {
     RefineParams {
         icp: true,
-        min_fitness: 0.0,
-        min_relative_fitness: 0.0,
-        min_visible_fitness: 0.0,
-        max_contradiction: 1.0,
-        min_seen: 0.0,
-        max_slid_fitness: 1.0,
-        max_shared: 1.0,
-        ..params.clone()
+        ..params.keeping_all()
     }
 }
 

@@ -111,6 +111,9 @@ pub fn judge_jointly(
 }
 
 /// The scan points (ascending, distinct) within `radius` of some point of `model` at `pose`.
+/// Every one within reach, not only each model point's nearest as verification counts them
+/// ([`super::peeling::explained_scan_points`]): the models' voxels differ from the scan's here,
+/// and a coarse model would claim only a fraction of the fine scan it covers.
 fn explained(
     index: &PointIndex,
     model: &[[f64; 3]],

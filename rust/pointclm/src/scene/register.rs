@@ -531,17 +531,7 @@ impl<'o> Run<'o> {
             None,
             &self.rules,
         )?;
-        let keep_all = RefineParams {
-            min_fitness: 0.0,
-            min_relative_fitness: 0.0,
-            min_visible_fitness: 0.0,
-            max_contradiction: 1.0,
-            min_seen: 0.0,
-            max_slid_fitness: 1.0,
-            max_shared: 1.0,
-            ..self.rules.clone()
-        };
-        let mut fitted = blind.refine(poses, &keep_all)?.poses;
+        let mut fitted = blind.refine(poses, &self.rules.keeping_all())?.poses;
         // Back in the input order, so that both verdicts break ties as one refinement would.
         fitted.sort_by_key(|r| r.origin);
         let refitted: Vec<RigidTransform> = fitted.iter().map(|r| handed(r.pose)).collect();
@@ -580,14 +570,7 @@ impl<'o> Run<'o> {
     fn scored(&mut self, poses: &[RigidTransform]) -> Result<Refined> {
         let keep_all = RefineParams {
             icp: false,
-            min_fitness: 0.0,
-            min_relative_fitness: 0.0,
-            min_visible_fitness: 0.0,
-            max_contradiction: 1.0,
-            min_seen: 0.0,
-            max_slid_fitness: 1.0,
-            max_shared: 1.0,
-            ..self.rules.clone()
+            ..self.rules.keeping_all()
         };
         let mut scored = self.refine(poses, &keep_all)?;
         scored.poses.sort_by_key(|r| r.origin);
