@@ -176,7 +176,40 @@ def test_a_picture_folder_made_read_only_mid_run_stops_then_resumes(
     done = _run(_argv(data, out, *flags, "--ply-dir", str(ply), "--resume"))
     assert done.returncode == 0, done.stderr
     assert _read(out) == (data["reference"], False)
-    assert len(list(ply.glob("*.ply"))) == N_SCANS
+    # A cloud begun as the folder turned read-only leaves its hidden temporary file behind
+    # (a read-only folder cannot lose a file); the clouds themselves are all there.
+    assert len([p for p in ply.glob("*.ply") if not p.name.startswith(".")]) == N_SCANS
+
+
+WRITE_AS_FOLDER_TURNS = """
+import os, sys
+from pointclm.batch.results import OutputWriteError
+from pointclm.batch.worker import _writing
+from pointclm.io.files import check_output_path
+folder = sys.argv[1]
+try:
+    with _writing(os.path.join(folder, "a.ply")) as tmp:
+        os.chmod(folder, 0o555)
+        check_output_path(tmp)  # as the cloud and picture writers do before writing
+except OutputWriteError as e:
+    print(type(e).__name__, e.errno)
+"""
+
+
+def test_a_folder_turning_read_only_between_temp_file_and_write_stops_the_batch(
+    tmp_path: Path,
+) -> None:
+    # The race the mid-run test can hit: the writer's own check fails with a ValueError,
+    # which must stop the batch like any failed write, not be recorded as the scan's error.
+    folder = tmp_path / "ply"
+    folder.mkdir()
+    try:
+        done = _run([sys.executable, "-c", WRITE_AS_FOLDER_TURNS, str(folder)], preexec=PREEXEC)
+    finally:
+        folder.chmod(0o755)
+    if done.returncode == 99:
+        pytest.skip("root without CAP_SETPCAP: file modes do not hold")
+    assert done.stdout.split() == ["OutputWriteError", "13"], done.stderr
 
 
 def test_an_output_file_made_read_only_mid_run(data: dict[str, Any], tmp_path: Path) -> None:

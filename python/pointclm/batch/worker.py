@@ -9,9 +9,12 @@ this module between scans: both are loaded once per process, not once per scan.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -161,34 +164,42 @@ def _register_scan(
 
 
 def _pictures(job: BatchJob, reg: Any, scan: str, picture: str) -> dict[str, str]:
-    from ..io.files import atomic_path
     from ..visualize import save_ply, save_registration_png
 
     written = {}
     if job.png_dir is not None:
         path = os.path.join(job.png_dir, picture + ".png")
         title = f"{Path(job.model_file).name} in {Path(scan).name}"
-        try:
-            with atomic_path(path) as tmp:
-                save_registration_png(tmp, reg, title=title)
-        except OSError as e:
-            raise output_error(e, path) from None
+        with _writing(path) as tmp:
+            save_registration_png(tmp, reg, title=title)
         written["png"] = path
     if job.ply_dir is not None:
         path = os.path.join(job.ply_dir, picture + ".ply")
-        try:
-            with atomic_path(path) as tmp:
-                save_ply(
-                    tmp,
-                    reg.target_points,
-                    reg.source_points,
-                    reg.transformations,
-                    1.5 * reg.voxel_size,
-                )
-        except OSError as e:
-            raise output_error(e, path) from None
+        with _writing(path) as tmp:
+            save_ply(
+                tmp, reg.target_points, reg.source_points, reg.transformations, 1.5 * reg.voxel_size
+            )
         written["ply"] = path
     return written
+
+
+@contextlib.contextmanager
+def _writing(path: str) -> Iterator[Path]:
+    """`atomic_path(path)`, where a failure to write is an :class:`OutputWriteError`. The
+    writers check their folder before writing and say so with a ValueError: a folder made
+    read-only after the temporary file was created is the output's fault, not the scan's."""
+    from ..io.files import atomic_path
+
+    try:
+        with atomic_path(path) as tmp:
+            yield tmp
+    except OSError as e:
+        raise output_error(e, path) from None
+    except ValueError:
+        folder = os.path.dirname(path) or "."
+        if os.access(folder, os.W_OK | os.X_OK):
+            raise
+        raise OutputWriteError(errno.EACCES, os.strerror(errno.EACCES), path) from None
 
 
 def crash_for_tests(scan: str) -> None:
