@@ -220,7 +220,7 @@ def load_average() -> str:
 def report(args: argparse.Namespace, rows: list[dict[str, Any]], checks: dict[str, Any]) -> str:
     base = rows[0]
     lines_ = [
-        "## Many scans: `pointclm batch` (issue 17)",
+        "## Many scans: `pointclm batch`",
         "",
         f"- Date: {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC. Command: "
         f"`python benchmarks/batch.py {' '.join(sys.argv[1:])}`.",

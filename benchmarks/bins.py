@@ -1,4 +1,4 @@
-"""The bin-picking benchmark: dozens of copies of one part per scan (issue 18).
+"""The bin-picking benchmark: dozens of copies of one part per scan.
 
     pip install ".[bench]"      # the peers: KISS-Matcher and Open3D (benchmarks/peers.py)
     python benchmarks/bins.py [--scenes 2] [--validation-scenes 1] [--cache DIR]
@@ -27,7 +27,7 @@ the same voxel and the sensor position, in the same run:
   peeling rounds over the scan points no accepted copy explains, the scene-wide mutual check,
   relaxed by rank once ``HEAP_MIN_COPIES`` copies are accepted: ``heap_rank``).
 - **pointclm (scene-wide mutual)**: the same with ``heap_rank=None``: the mutual nearest check
-  in every round (stop 31's default).
+  in every round (the default before the ranked check).
 - **pointclm (heap)**: the same with ``heap=True`` (what a picking cell knows of its scans): the
   ranked check from the round after the first accepted copy.
 - **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
@@ -42,7 +42,7 @@ the same voxel and the sensor position, in the same run:
   scan exported to a world frame comes: the sensor's position is estimated from the scan
   (``pointclm._core.estimate_sensor``) and used once pass 0 confirms it.
 - **pointclm (no flips)**: the same with ``flips=False``: the accepted poses are not compared
-  with their half-turned alternatives (stop 26's behaviour).
+  with their half-turned alternatives.
 - **sequential KISS-Matcher** (``benchmarks/peers.py``) on the correspondences of pointclm's
   first pass (``PointCloudRegistration.correspondences``): noise bound 2 voxels, a pose kept
   while it explains at least 6 correspondences (twice the minimal sample), at most 80 poses;

@@ -1,7 +1,6 @@
 """Speed of the embedding network's Rust forward pass against torch's CPU forward, in one run
-on the same scenes, and the thread scaling of `register_batch` with the Rust network
-(tracker issue 5). Optionally (--packaging) the wheel size and a `pip install .` into a fresh
-venv without torch.
+on the same scenes, and the thread scaling of `register_batch` with the Rust network.
+Optionally (--packaging) the wheel size and a `pip install .` into a fresh venv without torch.
 
     python benchmarks/network_speed.py [--scenes 20] [--batch 200] [--packaging]
                                        [--out benchmarks/results/network_speed.md]

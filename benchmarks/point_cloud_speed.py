@@ -1,4 +1,4 @@
-"""Time of `register_point_clouds` per scene and per stage (issue 19's point-cloud figure).
+"""Time of `register_point_clouds` per scene and per stage.
 
     python benchmarks/point_cloud_speed.py [--scenes-per-model 2] [--threads 2] [--runs 2]
         [--cache DIR] [--out FILE]

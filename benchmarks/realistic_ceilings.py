@@ -1,6 +1,6 @@
 """How much a learned stage could add to the correspondence stage on realistic scenes.
 
-Issue 16 asks the learned embedding for +3 MF over the training-free pipeline on FPFH
+The target set for the learned embedding is +3 MF over the training-free pipeline on FPFH
 correspondences alone. This measures what perfect or learned knowledge of each row would buy
 that stage, on VALIDATION scenes built as ``realistic_thresholds.py`` builds its own (the five
 validation data models, 20 scenes each, and 30 random procedural shapes, 2 scenes each;

@@ -1,9 +1,9 @@
-"""Figures of the training-free pipeline (issue 2): accuracy, speed against the numpy/scipy/
+"""Figures of the training-free pipeline: accuracy, speed against the numpy/scipy/
 scikit-learn reference in the same run, per-stage times, batch scaling, and scale/memory at
 N = 10,000 and 50,000.
 
     python benchmarks/run_benchmarks.py [--quick] [--scenes 500] [--reference-scenes 100]
-                                        [--out BENCHMARKS.md]
+                                        [--out benchmarks/results/training_free.md]
 
 BLAS/OpenMP threads are set to 1 below, before numpy is imported, so that the reference is
 single-threaded like ``register(..., num_threads=1)``. The markdown goes to --out (between
@@ -275,7 +275,7 @@ def main() -> None:
     ap.add_argument("--reference-scenes", type=int, default=100, help="the first ones, for it")
     ap.add_argument("--batch-scenes", type=int, default=200)
     ap.add_argument("--batch-repeats", type=int, default=5)
-    ap.add_argument("--out", default="BENCHMARKS.md")
+    ap.add_argument("--out", default="benchmarks/results/training_free.md")
     args = ap.parse_args()
     if args.quick:
         args.scenes, args.reference_scenes = 20, 5
@@ -285,7 +285,7 @@ def main() -> None:
     scenes = list(make_scenes(max(args.scenes, args.batch_scenes), seed=0))
     n_ref = min(args.reference_scenes, args.scenes)
 
-    out = [BEGIN, "## Training-free pipeline (issue 2)", "", environment(command), ""]
+    out = [BEGIN, "## Training-free pipeline", "", environment(command), ""]
     out += accuracy_and_speed(scenes[: args.scenes], n_ref)
     out += [""] + batch_throughput(scenes[: args.batch_scenes], args.batch_repeats)
     out += [""] + scale([10_000, 50_000])

@@ -1,4 +1,4 @@
-"""Each stage's time against the arithmetic it needs (issue 19).
+"""Each stage's time against the arithmetic it needs.
 
     python benchmarks/stage_limits.py [--synthetic 100] [--realistic-cache DIR]
         [--clouds-cache DIR] [--bins-cache DIR] [--out FILE]
