@@ -90,15 +90,34 @@ def test_no_module_is_over_500_lines() -> None:
     assert not long, long
 
 
-def test_the_package_speaks_to_its_users_not_of_development_rounds() -> None:
-    # Round names ("stop 37", "issue 15") mean nothing to a user reading help() or the code.
-    rounds = re.compile(r"\b(stop|issue) \d+\b", re.IGNORECASE)
-    crates = Path(__file__).resolve().parents[1] / "rust"
-    files = [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.pyi"), *crates.rglob("*.rs")]
-    found = [
-        f"{path.name}:{n}"
+#: Development-round names ("stop 37", "issue 15", "round 3") mean nothing to a reader.
+ROUNDS = re.compile(r"\b(stop|issue|round) \d+\b", re.IGNORECASE)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _lines_naming_rounds(files: list[Path]) -> list[str]:
+    return [
+        f"{path.relative_to(ROOT)}:{n}"
         for path in files
         for n, line in enumerate(path.read_text().splitlines(), 1)
-        if rounds.search(line)
+        if ROUNDS.search(line)
     ]
+
+
+def test_the_package_speaks_to_its_users_not_of_development_rounds() -> None:
+    # help() and the code speak of what the function does, not of when it changed.
+    crates = ROOT / "rust"
+    files = [*PACKAGE.rglob("*.py"), *PACKAGE.rglob("*.pyi"), *crates.rglob("*.rs")]
+    found = _lines_naming_rounds(files)
+    assert not found, found
+
+
+def test_the_documents_and_benchmarks_name_no_development_rounds() -> None:
+    # The README, the docs site, BENCHMARKS.md, the changelog and the benchmark scripts (their
+    # docstrings, comments and the reports they print) are read by users; the history of each
+    # figure is in CHANGELOG.md by version and in git, not in round names.
+    files = [ROOT / "README.md", ROOT / "BENCHMARKS.md", ROOT / "CHANGELOG.md"]
+    files += sorted((ROOT / "docs").rglob("*.md")) + sorted((ROOT / "benchmarks").rglob("*.py"))
+    assert all(path.is_file() for path in files[:3])
+    found = _lines_naming_rounds(files)
     assert not found, found
