@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import __version__
 from ..datasets import make_scenes
+from ..errors import InputError
 from ..evaluation import evaluate
 from ..io.files import check_output_path
 from ..metrics import Summary, rotation_error_deg, score_scene, summarize
@@ -285,7 +286,7 @@ def _add_eval_parser(sub: Any) -> None:
 def _add_batch_parser(sub: Any) -> None:
     b = sub.add_parser(
         "batch",
-        help="register one model in many scans: one JSON line per scan, resumable",
+        help="register one model (or several) in many scans: one JSON line per scan, resumable",
         description="Find the copies of MODEL in every scan of SCANS (files, folders of "
         "point-cloud files, quoted glob patterns, or ROS bags: one scan per PointCloud2 "
         "message) and write one JSON line per scan to "
@@ -297,6 +298,21 @@ def _add_batch_parser(sub: Any) -> None:
     b.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
     b.add_argument(
         "scans", metavar="SCANS", nargs="+", help="scan files, folders, globs or ROS bags"
+    )
+    b.add_argument(
+        "--add-model",
+        metavar="FILE",
+        action="append",
+        default=[],
+        help="another part type (repeatable): each scan's copies of MODEL and of every "
+        "--add-model found and judged together, the line holding one result per model",
+    )
+    b.add_argument(
+        "--symmetry",
+        metavar="FILE|auto|none",
+        action="append",
+        help="the model's proper symmetries, as register --symmetry takes them: once for "
+        "every model, or once per model (MODEL, then each --add-model)",
     )
     b.add_argument("--out", required=True, help="the JSON Lines file of results")
     b.add_argument(
@@ -333,13 +349,23 @@ def _add_batch_parser(sub: Any) -> None:
 def cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from ..io import load_points
+    from .models import load_symmetries
 
     _check_bop_args(args)  # before the (long) batch: a bad path costs nothing
+    models = [args.model_file, *args.add_model]
+    if len(models) > 1 and args.bop_csv:
+        raise InputError(
+            f"--bop-csv lists one model's poses: with {len(models)} models, leave it out"
+        )
+    options = _method_options(args, lambda: load_points(args.model_file))
+    if args.symmetry:
+        symmetries = load_symmetries(args.symmetry, len(models))
+        options["symmetry"] = symmetries if len(models) > 1 else symmetries[0]
     summary = run_batch(
-        args.model_file,
+        models if len(models) > 1 else args.model_file,
         args.scans,
         args.out,
-        options=_method_options(args, lambda: load_points(args.model_file)),
+        options=options,
         resume=args.resume,
         engine=args.engine,
         workers=args.workers,
