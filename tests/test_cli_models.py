@@ -139,7 +139,8 @@ def test_one_model_keeps_its_output(files: dict[str, Any], capsys) -> None:  # t
          ["3 --symmetry for 2 model(s)", "one per model"]),
         (["--ground-truth", "GT"], ["1 --ground-truth for 2 model(s)"]),
         (["--png", "x.png"], ["--png", "2 models", "--out"]),
-        (["--bop-csv", "x.csv"], ["--bop-csv", "2 models"]),
+        (["--bop-csv", "x.csv"], ["0 --obj-id for 2 model(s)", "one object id per model"]),
+        (["--bop-csv", "x.csv", "--obj-id", "3"], ["1 --obj-id for 2 model(s)"]),
         (["--symmetry", "missing.json"], ["missing.json"]),
     ],
 )  # fmt: skip
@@ -148,6 +149,41 @@ def test_register_usage_errors_with_several_models(
 ) -> None:
     extra = [files["bunny_gt"] if e == "GT" else e for e in extra]
     _usage_error(capsys, ["register", files["bunny"], files["box"], files["scan"], *extra], *words)
+
+
+def test_several_models_in_one_bop_csv_an_object_id_each(
+    files: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from pointclm.io import read_bop_csv
+
+    out, csv = tmp_path / "r.json", tmp_path / "r.csv"
+    ids = ["--obj-id", "4", "--obj-id", "9", "--im-id", "2"]
+    _ok(capsys, ["register", files["bunny"], files["box"], files["scan"], "--out", str(out),
+                 "--bop-csv", str(csv), *ids])  # fmt: skip
+    models = json.loads(out.read_text())["models"]
+    rows = read_bop_csv(csv)
+    assert [r.obj_id for r in rows] == [4] * len(models[0]["instances"]) + [9] * len(
+        models[1]["instances"]
+    )
+    assert {r.im_id for r in rows} == {2}
+    poses = [i["T_target_source"] for m in models for i in m["instances"]]
+    for row, pose in zip(rows, poses, strict=True):
+        np.testing.assert_allclose(row.transformation, pose, atol=1e-6)
+    # And a batch's: one image per scan, each model's poses under its id.
+    lines, batch_csv = tmp_path / "b.jsonl", tmp_path / "b.csv"
+    _ok(capsys, ["batch", files["bunny"], files["scan"], files["bunnies"], "--add-model",
+                 files["box"], "--out", str(lines), "--bop-csv", str(batch_csv),
+                 "--obj-id", "4", "--obj-id", "9"])  # fmt: skip
+    records = [json.loads(x) for x in lines.read_text().splitlines()]
+    expected = [(im, oid, inst["T_target_source"], rec["seconds"])
+                for im, rec in enumerate(records)
+                for oid, res in zip((4, 9), rec["results"], strict=True)
+                for inst in res["instances"]]  # fmt: skip
+    rows = read_bop_csv(batch_csv)
+    assert [(r.im_id, r.obj_id) for r in rows] == [(im, oid) for im, oid, _, _ in expected]
+    for row, (_, _, pose, seconds) in zip(rows, expected, strict=True):
+        np.testing.assert_allclose(row.transformation, pose, atol=1e-6)
+        assert row.time == pytest.approx(seconds, abs=1e-6)  # the scan's whole time
 
 
 def test_register_a_missing_model_file_is_one_line(files: dict[str, Any], capsys) -> None:  # type: ignore[no-untyped-def]
@@ -226,7 +262,7 @@ def test_batch_symmetry_with_one_model_is_recorded_and_canonical(
         (["--symmetry", "auto", "--symmetry", "none", "--symmetry", "auto"],
          ["3 --symmetry for 2 model(s)"]),
         (["--png-dir", "pics"], ["--png-dir", "2 models"]),
-        (["--bop-csv", "x.csv"], ["--bop-csv", "2 models"]),
+        (["--bop-csv", "x.csv"], ["0 --obj-id for 2 model(s)"]),
     ],
 )  # fmt: skip
 def test_batch_usage_errors_with_several_models(

@@ -13,7 +13,6 @@ import numpy as np
 
 from .. import __version__
 from ..datasets import make_scenes
-from ..errors import InputError
 from ..evaluation import evaluate
 from ..io.files import check_output_path
 from ..metrics import Summary, rotation_error_deg, score_scene, summarize
@@ -351,12 +350,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from ..io import load_points
     from .models import load_symmetries
 
-    _check_bop_args(args)  # before the (long) batch: a bad path costs nothing
     models = [args.model_file, *args.add_model]
-    if len(models) > 1 and args.bop_csv:
-        raise InputError(
-            f"--bop-csv lists one model's poses: with {len(models)} models, leave it out"
-        )
+    _check_bop_args(args, len(models))  # before the (long) batch: a bad path costs nothing
     options = _method_options(args, lambda: load_points(args.model_file))
     if args.symmetry:
         symmetries = load_symmetries(args.symmetry, len(models))

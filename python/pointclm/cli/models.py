@@ -1,7 +1,7 @@
 """`pointclm register MODEL [MODEL ...] SCENE`: several part types found in one scan and judged
-together (:func:`pointclm.register_models`), one result per model: the report, its JSON and
-each model's ground-truth score; and the per-model ``--symmetry`` and ``--ground-truth`` flags
-`register` and `batch` share."""
+together (:func:`pointclm.register_models`), one result per model: the report, its JSON, each
+model's ground-truth score and the BOP CSV (an object id per model); and the per-model
+``--symmetry`` and ``--ground-truth`` flags."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from ..batch.options import scan_viewpoint
 from ..batch.records import FORMAT_VERSION
 from ..errors import InputError
 from .args import _write_json
+from .bop import _write_bop
 from .register import (
     _diagnosis,
     _load_ground_truth,
@@ -29,7 +30,7 @@ from .register import (
 NO_SYMMETRY = "none"
 
 #: The outputs that draw or list one model's result; with several models they are refused.
-_ONE_MODEL_OUTPUTS = ("png", "ply", "html", "bop_csv")
+_ONE_MODEL_OUTPUTS = ("png", "ply", "html")
 
 
 def per_model(values: list[str] | None, n: int, flag: str) -> list[str | None]:
@@ -116,6 +117,7 @@ def cmd_register_models(
         _report(reg, truth)
     if args.out:
         _write_json(args.out, models_json(args, regs, scores))
+    _write_bop(args, regs)
     return 0
 
 

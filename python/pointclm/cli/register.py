@@ -242,7 +242,7 @@ def _check_register_args(args: argparse.Namespace) -> None:
     for flag in ("out", "png", "ply", "html"):
         if getattr(args, flag):
             check_output_path(getattr(args, flag), f"--{flag}")
-    _check_bop_args(args)
+    _check_bop_args(args, len(args.model_files))
     if args.png:
         try:
             import matplotlib  # noqa: F401
