@@ -46,6 +46,8 @@ from . import preprocessing as pp
 from .interop.open3d import with_open3d_normals
 from .registration import as_threads
 from .scene_rules import SCENE_DEFAULTS
+from .symmetry import canonical_for
+from .symmetry import resolve as resolve_symmetry
 
 #: The core's declaration of `RefineParams` (lengths in voxels): every rule's default, read
 #: here so that it is stated once, in Rust (`pointclm::pointcloud::RefineParams`).
@@ -173,40 +175,30 @@ def refine_poses(
         The model and the scan, downsampled at `voxel_size`; an Open3D target's normals
         serve as `target_normals` when those are omitted (:mod:`pointclm.interop.open3d`).
     transformations : (K, 4, 4) array_like
-        Candidate poses ``T_target_source``. A rotation block off by rounding
-        (``||R^T R - I||_F <= 1e-3``, positive determinant) is replaced by the nearest
-        rotation; anything farther from a rotation is a ValueError.
+        Candidate poses ``T_target_source``; a rotation block off by rounding (``||R^T R -
+        I||_F <= 1e-3``, positive determinant) is replaced by the nearest rotation.
     voxel_size : float
         Sets the lengths: ICP at 3, 2 and 1.5 voxels, a model point explained within 1.5,
         depth cells of 1.5 voxels and one surface within 3 voxels along a ray.
     viewpoint : (3,) array_like, optional
-        The position of the sensor that took `target_points` (one view): poses are then
-        judged by what it could see of them (the module's acceptance rules), and ICP leaves
-        out the model's far side from it (a scan does not hold it).
+        The position of the sensor that took `target_points` (one view): poses are judged by
+        what it could see of them (module documentation); ICP leaves out the far side.
     icp : bool
         False: verification only, the poses are kept as given.
     min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness : float
         The acceptance rules, in [0, 1] (module documentation); all 0 (and `max_contradiction` 1):
         nothing is rejected but duplicates.
-    max_shared : float in [0, 1]
-        The share of a pose's explained scan points a surer pose may also explain before it
-        is a duplicate; 1 keeps duplicates.
-    max_slid_fitness : float in [0, 1]
-        The share of what a pose explains that the model slid along that surface may keep
-        (module documentation); 1 turns the test off.
+    max_shared, max_slid_fitness : float in [0, 1]
+        The share of a pose's explained scan points a surer pose may also explain (else it is
+        a duplicate; 1 keeps duplicates), and of what it explains that the model slid along
+        that surface may keep (module documentation; 1 turns the test off).
     target_normals : (M, 3) array_like, optional
-        Unit normals of `target_points` (either sign), e.g. those
-        :func:`pointclm.register_point_clouds` computed; estimated within 2 voxels when
-        omitted (pass them when refining against the same scan repeatedly).
+        Unit normals of `target_points` (either sign); estimated within 2 voxels if omitted.
     symmetry : dict, pointclm.symmetry.Symmetry or "auto", optional
-        The model's proper symmetries, as :func:`pointclm.register_point_clouds` takes them
-        (``"auto"``: detected on `source_points`): each returned pose (kept and sliding) is
-        the canonical one among its equivalents, as that function returns them. The scores
-        do not change: a symmetry maps the model onto itself.
+        The model's symmetries, as :func:`pointclm.register_point_clouds` takes them: poses
+        (kept and sliding) come back canonical among their equivalents; scores do not change.
     """
-    from .symmetry import canonical_for, resolve
-
-    declared = resolve(symmetry)  # a bad symmetry fails before the work
+    declared = resolve_symmetry(symmetry)  # a bad symmetry fails before the work
     clouds = (source_points, target_points, voxel_size)
     context = RefinementContext(
         *clouds, viewpoint=viewpoint, target_normals=target_normals, num_threads=num_threads
@@ -214,14 +206,22 @@ def refine_poses(
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
     named = dict(zip(_RULES, (*rules, max_shared, max_slid_fitness), strict=True))
     refined = context.refine(transformations, icp=icp, num_threads=num_threads, **named)
-    if declared is None:
+    return _canonical(refined, declared, source_points, num_threads)
+
+
+def _canonical(
+    refined: RefinedPoses, symmetry: Any, source_points: ArrayLike, num_threads: int | None
+) -> RefinedPoses:
+    """`refined` with its poses, kept and sliding, canonical under `symmetry` (checked; None:
+    `refined` as it is)."""
+    if symmetry is None:
         return refined
 
     def canonical(poses: np.ndarray) -> np.ndarray:
         if len(poses) == 0:
             return poses
         model = pp.as_points(source_points, "source_points")
-        return canonical_for(declared, model, poses, num_threads)
+        return canonical_for(symmetry, model, poses, num_threads)
 
     sliding = refined.sliding
     if sliding is not None:

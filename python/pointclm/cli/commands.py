@@ -298,21 +298,7 @@ def _add_batch_parser(sub: Any) -> None:
     b.add_argument(
         "scans", metavar="SCANS", nargs="+", help="scan files, folders, globs or ROS bags"
     )
-    b.add_argument(
-        "--add-model",
-        metavar="FILE",
-        action="append",
-        default=[],
-        help="another part type (repeatable): each scan's copies of MODEL and of every "
-        "--add-model found and judged together, the line holding one result per model",
-    )
-    b.add_argument(
-        "--symmetry",
-        metavar="FILE|auto|none",
-        action="append",
-        help="the model's proper symmetries, as register --symmetry takes them: once for "
-        "every model, or once per model (MODEL, then each --add-model)",
-    )
+    _add_model_flags(b)
     b.add_argument("--out", required=True, help="the JSON Lines file of results")
     b.add_argument(
         "--resume",
@@ -343,6 +329,25 @@ def _add_batch_parser(sub: Any) -> None:
     _add_method_flags(b)
     _add_bop_flags(b, batch=True)
     b.set_defaults(func=cmd_batch)
+
+
+def _add_model_flags(b: argparse.ArgumentParser) -> None:
+    """`batch`'s other part types and their symmetries."""
+    b.add_argument(
+        "--add-model",
+        metavar="FILE",
+        action="append",
+        default=[],
+        help="another part type (repeatable): each scan's copies of MODEL and of every "
+        "--add-model found and judged together, the line holding one result per model",
+    )
+    b.add_argument(
+        "--symmetry",
+        metavar="FILE|auto|none",
+        action="append",
+        help="the model's proper symmetries, as register --symmetry takes them: once for "
+        "every model, or once per model (MODEL, then each --add-model)",
+    )
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
