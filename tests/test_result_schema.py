@@ -40,7 +40,20 @@ def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[dict]]:
     argv = ["batch", files[0], *scans, "--out", str(out), "--quiet", "--ply-dir", str(tmp / "ply")]
     assert main(argv) == 0
     lines = [json.loads(line) for line in out.read_text().splitlines()]
-    return {"register": records, "batch": lines}
+    # Several models (the same one twice: judged together, the second finds nothing new).
+    several = tmp / "several.json"
+    argv = ["register", files[0], files[0], files[1], "--quiet", "--out", str(several)]
+    truth = ["--ground-truth", str(tmp / "truth.npy")]
+    assert main([*argv, *truth, *truth]) == 0
+    out = tmp / "several.jsonl"
+    argv = ["batch", files[0], *scans, "--add-model", files[0], "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    return {
+        "register": records,
+        "batch": lines,
+        "register_models": [json.loads(several.read_text())],
+        "batch_models": [json.loads(line) for line in out.read_text().splitlines()],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +84,44 @@ def test_register_and_batch_outputs_follow_the_schema(schema, outputs) -> None:
     for line in batch:
         assert line["format_version"] == FORMAT_VERSION
         assert _errors(schema, line, "batch_line") == []
+
+
+def test_several_model_outputs_follow_the_schema(schema, outputs) -> None:
+    (register,) = outputs["register_models"]
+    assert register["format_version"] == FORMAT_VERSION
+    assert [m["model"] for m in register["models"]] == [register["models"][0]["model"]] * 2
+    assert register["models"][0]["ground_truth"]["found"] == [0, 1]
+    assert _errors(schema, register, "register_models_output") == []
+    batch = outputs["batch_models"]
+    assert [line["status"] for line in batch] == [line["status"] for line in outputs["batch"]]
+    assert batch[0]["status"] == "ok" and batch[-1]["status"] == "error"
+    for line in batch:
+        assert line["format_version"] == FORMAT_VERSION and len(line["models"]) == 2
+        assert _errors(schema, line, "batch_models_line") == []
+
+
+@pytest.mark.parametrize(
+    ("path", "value"),
+    [
+        (["models"], []),  # several models means at least two
+        (["models", 0, "surprise"], 1),
+        (["models", 1, "instances"], None),
+        (["models", 0, "model"], 3),
+        (["format_version"], "1.2"),
+    ],
+)
+def test_the_schema_refuses_a_several_model_output_it_does_not_describe(
+    schema, outputs, path, value
+) -> None:
+    record = copy.deepcopy(outputs["register_models"][0])
+    target = record
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    assert _errors(schema, record, "register_models_output")
+    ok = copy.deepcopy(outputs["batch_models"][0])
+    del ok["results"]
+    assert _errors(schema, ok, "batch_models_line")
 
 
 def test_each_instance_carries_a_finite_symmetric_covariance(outputs) -> None:

@@ -295,3 +295,24 @@ def test_other_matching_options_return_canonical_poses_too():
     assert reg.instances
     for inst in reg.instances:
         assert np.allclose(reg.symmetry.canonical(inst.transformation), inst.transformation)
+
+
+def test_refine_poses_returns_canonical_poses_as_register_point_clouds_does():
+    rng = np.random.default_rng(14)
+    model = box([1.0, 2.0, 3.0], 3000)
+    t = random_pose(rng)
+    scan = _scene(box([1.0, 2.0, 3.0], 3000, seed=15), [t])
+    # The true pose and the same pose turned by a symmetry: one canonical pose, same scores.
+    turned = t @ np.array(HALF_X, dtype=float).reshape(4, 4)
+    plain = pointclm.refine_poses(model, scan, [turned], 0.1, icp=False)
+    declared = {"symmetries_discrete": [HALF_X, HALF_Y]}
+    refined = pointclm.refine_poses(model, scan, [turned], 0.1, icp=False, symmetry=declared)
+    assert len(refined.transformations) == 1
+    np.testing.assert_allclose(refined.transformations[0], BOX.canonical(t), atol=1e-9)
+    np.testing.assert_allclose(refined.fitness, plain.fitness)
+    assert not np.allclose(plain.transformations[0], refined.transformations[0])
+    auto = pointclm.refine_poses(model, scan, [t, turned], 0.1, symmetry="auto")
+    for pose in auto.transformations:
+        assert np.allclose(BOX.canonical(pose), pose, atol=1e-9)
+    with pytest.raises(ValueError, match="symmetry"):
+        pointclm.refine_poses(model, scan, [t], 0.1, symmetry="mirror")

@@ -46,6 +46,8 @@ from . import preprocessing as pp
 from .interop.open3d import with_open3d_normals
 from .registration import as_threads
 from .scene_rules import SCENE_DEFAULTS
+from .symmetry import canonical_for
+from .symmetry import resolve as resolve_symmetry
 
 #: The core's declaration of `RefineParams` (lengths in voxels): every rule's default, read
 #: here so that it is stated once, in Rust (`pointclm::pointcloud::RefineParams`).
@@ -162,6 +164,7 @@ def refine_poses(
     max_slid_fitness: float = MAX_SLID_FITNESS,
     target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
+    symmetry: Any = None,
 ) -> RefinedPoses:
     """Refine poses of `source_points` in `target_points` by point-to-plane ICP and keep
     those the scan supports, surest first.
@@ -172,39 +175,58 @@ def refine_poses(
         The model and the scan, downsampled at `voxel_size`; an Open3D target's normals
         serve as `target_normals` when those are omitted (:mod:`pointclm.interop.open3d`).
     transformations : (K, 4, 4) array_like
-        Candidate poses ``T_target_source``. A rotation block off by rounding
-        (``||R^T R - I||_F <= 1e-3``, positive determinant) is replaced by the nearest
-        rotation; anything farther from a rotation is a ValueError.
+        Candidate poses ``T_target_source``; a rotation block off by rounding (``||R^T R -
+        I||_F <= 1e-3``, positive determinant) is replaced by the nearest rotation.
     voxel_size : float
         Sets the lengths: ICP at 3, 2 and 1.5 voxels, a model point explained within 1.5,
         depth cells of 1.5 voxels and one surface within 3 voxels along a ray.
     viewpoint : (3,) array_like, optional
-        The position of the sensor that took `target_points` (one view): poses are then
-        judged by what it could see of them (the module's acceptance rules), and ICP leaves
-        out the model's far side from it (a scan does not hold it).
+        The position of the sensor that took `target_points` (one view): poses are judged by
+        what it could see of them (module documentation); ICP leaves out the far side.
     icp : bool
         False: verification only, the poses are kept as given.
     min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness : float
         The acceptance rules, in [0, 1] (module documentation); all 0 (and `max_contradiction` 1):
         nothing is rejected but duplicates.
-    max_shared : float in [0, 1]
-        The share of a pose's explained scan points a surer pose may also explain before it
-        is a duplicate; 1 keeps duplicates.
-    max_slid_fitness : float in [0, 1]
-        The share of what a pose explains that the model slid along that surface may keep
-        (module documentation); 1 turns the test off.
+    max_shared, max_slid_fitness : float in [0, 1]
+        The share of a pose's explained scan points a surer pose may also explain (else it is
+        a duplicate; 1 keeps duplicates), and of what it explains that the model slid along
+        that surface may keep (module documentation; 1 turns the test off).
     target_normals : (M, 3) array_like, optional
-        Unit normals of `target_points` (either sign), e.g. those
-        :func:`pointclm.register_point_clouds` computed; estimated within 2 voxels when
-        omitted (pass them when refining against the same scan repeatedly).
+        Unit normals of `target_points` (either sign); estimated within 2 voxels if omitted.
+    symmetry : dict, pointclm.symmetry.Symmetry or "auto", optional
+        The model's symmetries, as :func:`pointclm.register_point_clouds` takes them: poses
+        (kept and sliding) come back canonical among their equivalents; scores do not change.
     """
+    declared = resolve_symmetry(symmetry)  # a bad symmetry fails before the work
     clouds = (source_points, target_points, voxel_size)
     context = RefinementContext(
         *clouds, viewpoint=viewpoint, target_normals=target_normals, num_threads=num_threads
     )
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
     named = dict(zip(_RULES, (*rules, max_shared, max_slid_fitness), strict=True))
-    return context.refine(transformations, icp=icp, num_threads=num_threads, **named)
+    refined = context.refine(transformations, icp=icp, num_threads=num_threads, **named)
+    return _canonical(refined, declared, source_points, num_threads)
+
+
+def _canonical(
+    refined: RefinedPoses, symmetry: Any, source_points: ArrayLike, num_threads: int | None
+) -> RefinedPoses:
+    """`refined` with its poses, kept and sliding, canonical under `symmetry` (checked; None:
+    `refined` as it is)."""
+    if symmetry is None:
+        return refined
+
+    def canonical(poses: np.ndarray) -> np.ndarray:
+        if len(poses) == 0:
+            return poses
+        model = pp.as_points(source_points, "source_points")
+        return canonical_for(symmetry, model, poses, num_threads)
+
+    sliding = refined.sliding
+    if sliding is not None:
+        sliding = sliding._replace(transformations=canonical(sliding.transformations))
+    return refined._replace(transformations=canonical(refined.transformations), sliding=sliding)
 
 
 class RefinementContext:
@@ -410,32 +432,6 @@ def _number(value: float, name: str) -> float:
         raise ValueError(f"{name} must be a number in [0, 1], got {value!r}") from None
 
 
-def loose_poses(
-    visible_rmse: ArrayLike,
-    max_relative: float = MAX_RELATIVE_VISIBLE_RMSE,
-    min_poses: int = MIN_POSES_TO_COMPARE,
-) -> np.ndarray:
-    """Which of a scene's poses fit the scan loosely against the others: ``visible_rmse``
-    (`RefinedPoses.visible_rmse`) above `max_relative` times its median over the poses where
-    it is known. None among fewer than `min_poses` known values (the scene parameters
-    ``max_relative_visible_rmse`` and ``min_poses_to_compare`` say why)."""
-    return _core.loose_poses(_values(visible_rmse), float(max_relative), int(min_poses))
-
-
-def fit_tightness(visible_rmse: ArrayLike, min_poses: int = MIN_POSES_TO_COMPARE) -> np.ndarray:
-    """Each pose's factor of sureness from how tightly its visible side lies on the scan
-    against the scene's median pose: ``min(1, median / visible_rmse)``, 1 where unknown or
-    among fewer than `min_poses` known values. `register_point_clouds` multiplies
-    ``confidence`` by it, after :func:`loose_poses` dropped the loosest.
-
-    Why: visible fitness saturates near 1 for every copy a heap shows well, so it cannot order
-    them, while a pose turned a little about a near-symmetry (a Buddha 17 degrees about its
-    axis, a bed end for end) still pairs its points with its copy's surface, a little looser
-    than the right poses of the same scan do. On the 72 validation bins, wrong poses sat at a
-    median 1.15 times the scene's median and right ones at 1.0 (BENCHMARKS.md)."""
-    return _core.fit_tightness(_values(visible_rmse), int(min_poses))
-
-
 def pose_stability(
     source_points: ArrayLike,
     source_normals: ArrayLike,
@@ -472,27 +468,11 @@ def pose_stability(
     )
 
 
-def stability_factor(stability: ArrayLike, min_poses: int = MIN_POSES_TO_COMPARE) -> np.ndarray:
-    """Each pose's factor of sureness from :func:`pose_stability` against the scene's median
-    pose: ``min(1, stability / median)``, 1 where unknown (NaN) or among fewer than
-    `min_poses` known values. `register_point_clouds` multiplies ``confidence`` by it, with
-    :func:`fit_tightness`.
-
-    Why relative: copies of one part show the scan alike, so a right pose is pinned about as
-    firmly as the scene's median copy, whatever the part's shape; a pose resting on one face of
-    a copy or of the bin is pinned less. On the validation bins the first five were all right
-    in 71 of 72 scenes against 68 with :func:`fit_tightness` alone (BENCHMARKS.md)."""
-    return _core.stability_factor(_values(stability), int(min_poses))
-
-
-def _values(values: ArrayLike) -> np.ndarray:
-    """A 1-D float64 array of `values` (NaN: unknown)."""
-    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(-1))
-
-
-# The turned alternatives of a pose live in their own module; these names stay reachable here.
+# The turned alternatives of a pose and the scene-wide comparisons live in their own modules;
+# these names stay reachable here.
 from .flips import (  # noqa: E402, F401
     flip_turns,
     quarter_turns,
     resolve_flips,
 )
+from .scene_fit import fit_tightness, loose_poses, stability_factor  # noqa: E402, F401

@@ -10,6 +10,7 @@ recorded with an error has no line; nor does a scan no copy was found in.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -58,7 +59,7 @@ def write_batch_bop_csv(
     path: str | os.PathLike[str],
     *,
     scene_id: int = 0,
-    obj_id: int = 1,
+    obj_id: int | Sequence[int] = 1,
     im_id_from: str = "index",
     unit_to_mm: float = 1000.0,
 ) -> int:
@@ -66,7 +67,8 @@ def write_batch_bop_csv(
     batch's expanded scan list, which numbers them) to `path` in the BOP challenge's CSV;
     returns the number of poses written. `im_id_from`: "index" (the scan's position in
     `scans`) or "stem" (the number its file is named by). ``time`` is each scan's own total
-    (loading included); ``score`` its confidence.
+    (loading included); ``score`` its confidence. A batch of several models: `obj_id` one per
+    model, in order, and each image's ``time`` the scan's whole seconds.
 
     Raises
     ------
@@ -78,7 +80,7 @@ def write_batch_bop_csv(
         raise InputError(f"im_id_from must be one of {', '.join(IM_ID_RULES)}, got {im_id_from!r}")
     records, _ = _existing_records(Path(os.fspath(out)))
     by_scan = {r["scan"]: r for r in records}
-    results, images = [], []
+    results, images, objects = [], [], []
     owner: dict[int, str] = {}
     for index, scan in enumerate(scans):
         image = _im_id(scan, index, im_id_from)
@@ -89,6 +91,33 @@ def write_batch_bop_csv(
         owner[image] = scan
         record = by_scan.get(scan)
         if record is not None and record.get("status") == "ok":
-            results.append(_result(record))
-            images.append(image)
-    return write_bop_csv(results, path, scene_id, images, obj_id, unit_to_mm=unit_to_mm)
+            found = _results(record)
+            ids = _obj_ids(obj_id, len(found))
+            results += found
+            images += [image] * len(found)
+            objects += ids
+    return write_bop_csv(results, path, scene_id, images, objects, unit_to_mm=unit_to_mm)
+
+
+def _results(record: dict[str, Any]) -> list[Any]:
+    """A line's results, one per model: with several, the first carries the scan's seconds
+    and the others none, so the image's time (their sum) is the scan's."""
+    if "results" not in record:
+        return [_result(record)]
+    found = [_result(r) for r in record["results"]]
+    for k, r in enumerate(found):
+        r.timings = {"total": float(record.get("seconds", 0.0)) if k == 0 else 0.0}
+    return found
+
+
+def _obj_ids(obj_id: int | Sequence[int], n: int) -> list[int]:
+    """The object ids of a line's `n` results: `obj_id` for one, else one per model."""
+    if isinstance(obj_id, int):
+        obj_id = [obj_id]
+    ids = list(obj_id)
+    if len(ids) != n:
+        raise InputError(
+            f"--bop-csv: the batch has {n} model(s) per scan, and {len(ids)} object id(s) "
+            "(--obj-id) were given: give one per model, in the models' order"
+        )
+    return ids

@@ -18,10 +18,8 @@ from concurrent.futures.process import BrokenProcessPool
 from functools import partial
 from typing import Any
 
-import numpy as np
-
 from ..errors import PointclmError
-from .options import BatchJob
+from .options import BatchJob, ModelPoints
 from .worker import failed_record, init_process, process_scan, resolve_cached, run_scan
 
 __all__ = ["MAX_ATTEMPTS", "Task", "run_in_pool", "run_in_process"]
@@ -34,14 +32,14 @@ Task = tuple[int, str, str]
 Done = Generator[tuple[int, dict[str, Any]], None, None]
 
 
-def run_in_process(job: BatchJob, model_points: np.ndarray, tasks: list[Task]) -> Done:
+def run_in_process(job: BatchJob, model_points: ModelPoints, tasks: list[Task]) -> Done:
     """Each scan in turn, here; yields (position, record)."""
     embedding = resolve_cached(job.options["model"])
     for position, scan, picture in tasks:
         yield position, run_scan(job, model_points, embedding, scan, picture)
 
 
-def run_in_pool(job: BatchJob, model_points: np.ndarray, tasks: list[Task], workers: int) -> Done:
+def run_in_pool(job: BatchJob, model_points: ModelPoints, tasks: list[Task], workers: int) -> Done:
     """The scans over `workers` processes (spawned: no state forked from the caller); yields
     (position, record) as each completes, in any order."""
     todo = deque(tasks)

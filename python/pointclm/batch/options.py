@@ -20,6 +20,8 @@ __all__ = [
     "NO_VIEWPOINT",
     "OPTION_NAMES",
     "BatchJob",
+    "ModelPoints",
+    "check_models",
     "check_options",
     "recorded_options",
     "scan_viewpoint",
@@ -49,7 +51,11 @@ OPTION_NAMES = (
     "heap_rank",
     "flips",
     "scene",
+    "symmetry",
 )
+
+#: The model's points, or with several models (judged together) each one's, in order.
+ModelPoints = np.ndarray | list[np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -63,6 +69,13 @@ class BatchJob:
     recorded: dict[str, Any] = field(default_factory=dict)
     png_dir: str | None = None
     ply_dir: str | None = None
+    #: The models after `model_file`, judged together with it (none: one model).
+    more_models: tuple[str, ...] = ()
+
+    @property
+    def models(self) -> list[str]:
+        """Every model file, in order."""
+        return [self.model_file, *self.more_models]
 
 
 def scan_viewpoint(option: Any, scan: str | os.PathLike[str]) -> Any:
@@ -106,7 +119,35 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
     if "scene" in out:
         out["scene"] = SceneRules.resolve(out["scene"])
     out["model"] = _model_spec(out.get("model"))
+    if "symmetry" in out:
+        out["symmetry"] = _symmetry(out["symmetry"])
     return out
+
+
+def _symmetry(value: Any) -> Any:
+    """`symmetry` checked (:func:`pointclm.symmetry.resolve`): one value, or a list of one per
+    model (its length is checked against the models in `check_models`)."""
+    from ..symmetry import resolve
+
+    if isinstance(value, list | tuple):
+        return [resolve(v) for v in value]
+    return resolve(value)
+
+
+def check_models(options: dict[str, Any], n_models: int) -> dict[str, Any]:
+    """`options` whose symmetry fits `n_models` models: one value for every model, or a list
+    of one per model (for one model, that one value)."""
+    symmetry = options.get("symmetry")
+    if not isinstance(symmetry, list):
+        return options
+    if len(symmetry) not in (1, n_models):
+        raise InputError(
+            f"{len(symmetry)} symmetries for {n_models} model(s): give one for every model, "
+            "or one per model in the models' order"
+        )
+    if n_models == 1 or len(symmetry) == 1:
+        return {**options, "symmetry": symmetry[0]}
+    return options
 
 
 def recorded_options(options: dict[str, Any]) -> dict[str, Any]:
@@ -120,14 +161,26 @@ def recorded_options(options: dict[str, Any]) -> dict[str, Any]:
         name: p.default for name, p in inspect.signature(register_point_clouds).parameters.items()
     }
     # The thread count does not change results; the network is recorded on its own.
-    names = [n for n in OPTION_NAMES if n not in ("num_threads", "model")]
+    # The symmetry only when one is declared: lines written without it read the same.
+    names = [n for n in OPTION_NAMES if n not in ("num_threads", "model", "symmetry")]
     out = {n: options.get(n, defaults[n]) for n in names}
+    if options.get("symmetry") is not None:
+        out["symmetry"] = _recorded_symmetry(options["symmetry"])
     if isinstance(out["config"], Config):
         out["config"] = out["config"].to_dict()
     if isinstance(out["viewpoint"], tuple):
         out["viewpoint"] = list(out["viewpoint"])
     out["scene"] = SceneRules.resolve(out["scene"]).to_dict()
     return out
+
+
+def _recorded_symmetry(symmetry: Any) -> Any:
+    """A checked symmetry as JSON: "auto", null, a models_info entry, or a list of those."""
+    from ..symmetry import Symmetry
+
+    if isinstance(symmetry, list):
+        return [_recorded_symmetry(s) for s in symmetry]
+    return symmetry.to_bop() if isinstance(symmetry, Symmetry) else symmetry
 
 
 def _model_spec(model: Any) -> str | None:

@@ -13,17 +13,15 @@ from collections import deque
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
-
 from .local import MAX_ATTEMPTS, Done, Task
-from .options import BatchJob
+from .options import BatchJob, ModelPoints
 from .results import OutputWriteError
 from .worker import crash_for_tests, failed_record, resolve_cached, run_scan
 
 __all__ = ["run_on_ray"]
 
 
-def _scan_task(job: BatchJob, model_points: np.ndarray, scan: str, picture: str) -> dict[str, Any]:
+def _scan_task(job: BatchJob, model_points: ModelPoints, scan: str, picture: str) -> dict[str, Any]:
     crash_for_tests(scan)
     return run_scan(job, model_points, resolve_cached(job.options["model"]), scan, picture)
 
@@ -37,7 +35,7 @@ def _import_ray() -> Any:
 
 
 def run_on_ray(
-    job: BatchJob, model_points: np.ndarray, tasks: list[Task], workers: int, address: str | None
+    job: BatchJob, model_points: ModelPoints, tasks: list[Task], workers: int, address: str | None
 ) -> Done:
     """The scans as Ray tasks; yields (position, record) as each completes. Connects to the
     cluster at `address` (as ``ray.init(address=...)``), or to the one this process is

@@ -17,7 +17,7 @@ __all__ = [
 #: The version of the JSON `register --out` and `batch` write, their first field:
 #: MAJOR.MINOR, the minor one raised when fields are added, the major one when a field is
 #: renamed, removed or changes meaning. `pointclm/schemas/result.schema.json` describes it.
-FORMAT_VERSION = "1.2"
+FORMAT_VERSION = "1.3"
 
 #: The fields of a batch line that change from run to run; everything else is fixed by the
 #: scan, the model, the options and the seed.
@@ -82,5 +82,9 @@ def error_record(error: BaseException) -> dict[str, Any]:
 
 
 def without_timings(record: dict[str, Any]) -> dict[str, Any]:
-    """`record` without the fields that differ between two runs of the same batch."""
-    return {k: v for k, v in record.items() if k not in TIMING_FIELDS}
+    """`record` without the fields that differ between two runs of the same batch (in each
+    model's result too, with several models)."""
+    out = {k: v for k, v in record.items() if k not in TIMING_FIELDS}
+    if isinstance(out.get("results"), list):
+        out["results"] = [without_timings(r) for r in out["results"]]
+    return out

@@ -10,11 +10,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
-
 from ..errors import InputError
 from .local import Done, Task, run_in_pool, run_in_process
-from .options import BatchJob, check_options, recorded_options
+from .options import BatchJob, ModelPoints, check_models, check_options, recorded_options
 from .ray_engine import run_on_ray
 from .results import OrderedWriter, open_results
 from .scans import expand_scans, picture_names
@@ -24,6 +22,8 @@ __all__ = ["ENGINES", "BatchSummary", "register_files", "run_batch"]
 ENGINES = ("local", "ray")
 
 Paths = str | os.PathLike[str] | Iterable[str | os.PathLike[str]]
+#: One model file, or several (a list): their copies found in each scan and judged together.
+Models = str | os.PathLike[str] | list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...]
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ class BatchSummary:
 
 
 def register_files(
-    model_file: str | os.PathLike[str],
+    model_file: Models,
     scans: Paths,
     out: str | os.PathLike[str],
     *,
@@ -83,6 +83,12 @@ def register_files(
     ``if __name__ == "__main__":``. Each line also records the model file, the network and
     the options; `resume` refuses an `out` written with others.
 
+    Several models (`model_file` a list): each scan runs :func:`pointclm.register_models`,
+    its models' copies judged together, and its line holds ``models`` (the files) and, for
+    status "ok", ``results``: one entry per model, in order, as a one-model line holds it
+    (without pictures: `png_dir` and `ply_dir` draw one model). ``symmetry`` is then one value
+    for every model, or a list of one per model.
+
     Returns a :class:`BatchSummary`.
     """
     return run_batch(
@@ -107,7 +113,7 @@ def _python_names(diagnosis: str) -> str:
 
 
 def run_batch(
-    model_file: str | os.PathLike[str],
+    model_file: Models,
     scans: Paths,
     out: str | os.PathLike[str],
     *,
@@ -129,7 +135,7 @@ def run_batch(
     _check_engine(engine, workers, ray_address)
     job = _job(model_file, png_dir, ply_dir, options)
     scan_list = expand_scans(scans)
-    model_points = _load_model(job.model_file)
+    model_points = _load_models(job)
     fh, present = open_results(out, resume, _identity(job))
     try:
         _make_output_folders(job)  # only now: a failed check leaves no empty folder behind
@@ -144,8 +150,9 @@ def run_batch(
     done = _engine(engine, job, model_points, tasks, workers, ray_address)
     try:
         for position, record in done:
-            if diagnosis is not None and "diagnosis" in record:
-                record["diagnosis"] = diagnosis(record["diagnosis"])
+            for result in [record, *record.get("results", [])]:
+                if diagnosis is not None and "diagnosis" in result:
+                    result["diagnosis"] = diagnosis(result["diagnosis"])
             writer.add(position, record)
             counts["ok" if record["status"] == "ok" else "error"] += 1
             bar.set_postfix(failed=counts["error"], refresh=False)
@@ -170,11 +177,22 @@ def _check_engine(engine: str, workers: int, ray_address: str | None) -> None:
 
 
 def _job(
-    model_file: str | os.PathLike[str],
+    model_file: Models,
     png_dir: str | os.PathLike[str] | None,
     ply_dir: str | os.PathLike[str] | None,
     options: dict[str, Any],
 ) -> BatchJob:
+    if isinstance(model_file, list | tuple):
+        files = [os.fspath(f) for f in model_file]
+    else:
+        files = [os.fspath(model_file)]
+    if not files:
+        raise InputError("model_file: no model given (a file, or a list of several)")
+    if len(files) > 1 and (png_dir is not None or ply_dir is not None):
+        raise InputError(
+            "png_dir and ply_dir (--png-dir, --ply-dir) draw one model's result: with "
+            f"{len(files)} models, leave them out"
+        )
     if png_dir is not None:
         try:
             import matplotlib  # noqa: F401
@@ -182,20 +200,24 @@ def _job(
             raise ImportError(
                 "png_dir (--png-dir) needs matplotlib: pip install 'pointclm[viz]'"
             ) from None
-    checked = check_options(options)
+    checked = check_models(check_options(options), len(files))
     return BatchJob(
-        os.fspath(model_file),
+        files[0],
         checked,
         recorded_options(checked),
         None if png_dir is None else _check_output_folder(png_dir, "png_dir"),
         None if ply_dir is None else _check_output_folder(ply_dir, "ply_dir"),
+        tuple(files[1:]),
     )
 
 
 def _identity(job: BatchJob) -> dict[str, Any]:
     """What every line of one batch shares (a resumed batch must match it), as read back
     from JSON (tuples as lists)."""
-    identity = {"model": job.model_file, "network": job.options["model"], "options": job.recorded}
+    models: dict[str, Any] = (
+        {"models": job.models} if job.more_models else {"model": job.model_file}
+    )
+    identity = {**models, "network": job.options["model"], "options": job.recorded}
     return dict(json.loads(json.dumps(identity)))
 
 
@@ -225,16 +247,19 @@ def _make_output_folders(job: BatchJob) -> None:
                 raise InputError(f"{what} {folder} could not be made: {e}") from None
 
 
-def _load_model(model_file: str) -> np.ndarray:
+def _load_models(job: BatchJob) -> ModelPoints:
+    """The model's points, or with several models each one's."""
     from ..io import load_points
 
-    return load_points(model_file)
+    if job.more_models:
+        return [load_points(f) for f in job.models]
+    return load_points(job.model_file)
 
 
 def _engine(
     engine: str,
     job: BatchJob,
-    model_points: np.ndarray,
+    model_points: ModelPoints,
     tasks: list[Task],
     workers: int,
     ray_address: str | None,

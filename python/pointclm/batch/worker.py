@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .options import BatchJob, scan_viewpoint
+from .options import BatchJob, ModelPoints, scan_viewpoint
 from .records import FORMAT_VERSION, error_record, registration_record
 from .results import OutputWriteError, output_error
 
@@ -60,7 +60,7 @@ def resolve_cached(model: str | None) -> Any:
 
 
 def init_process(
-    job: BatchJob, model_points: np.ndarray, parent: int | None = None, slots: Any = None
+    job: BatchJob, model_points: ModelPoints, parent: int | None = None, slots: Any = None
 ) -> None:
     """Process-pool initializer: what every scan of this worker shares, loaded once.
     `parent`: the batch process's pid; this worker exits when that process is gone.
@@ -109,7 +109,7 @@ def process_scan(scan: str, picture: str, position: int = -1) -> dict[str, Any]:
 
 
 def run_scan(
-    job: BatchJob, model_points: np.ndarray, embedding: Any, scan: str, picture: str
+    job: BatchJob, model_points: ModelPoints, embedding: Any, scan: str, picture: str
 ) -> dict[str, Any]:
     """The record of one scan: ``status`` "ok" with the registration, or "error" with the
     exception's class and message. `picture` is the file name (no suffix) of its PNG/PLY."""
@@ -138,14 +138,14 @@ def _head(job: BatchJob, scan: str) -> dict[str, Any]:
     return {
         "format_version": FORMAT_VERSION,
         "scan": scan,
-        "model": job.model_file,
+        **({"models": job.models} if job.more_models else {"model": job.model_file}),
         "network": job.options.get("model"),
         "options": job.recorded,
     }
 
 
 def _register_scan(
-    job: BatchJob, model_points: np.ndarray, embedding: Any, scan: str, picture: str
+    job: BatchJob, model_points: ModelPoints, embedding: Any, scan: str, picture: str
 ) -> dict[str, Any]:
     from ..point_clouds import register_point_clouds
     from .scans import load_scan_points
@@ -155,12 +155,35 @@ def _register_scan(
     options = {**job.options, "model": embedding}
     options["viewpoint"] = scan_viewpoint(options.get("viewpoint"), scan)
     t_load = time.perf_counter() - t0
+    if isinstance(model_points, list):
+        return {"status": "ok", "results": _joint(job, model_points, points, options, t_load)}
     reg = register_point_clouds(model_points, points, **options)
-    record = registration_record(reg, reg.diagnosis)
-    # The scan was read here, not by register_point_clouds: its load time is this one.
+    record = _loaded_in(registration_record(reg, reg.diagnosis), t_load)
+    return {"status": "ok", **record, **_pictures(job, reg, scan, picture)}
+
+
+def _loaded_in(record: dict[str, Any], t_load: float) -> dict[str, Any]:
+    """`record` with the scan's load time: it was read here, not by the registration."""
     record["timings_s"]["load"] = t_load
     record["timings_s"]["total"] = record["timings_s"].get("total", 0.0) + t_load
-    return {"status": "ok", **record, **_pictures(job, reg, scan, picture)}
+    return record
+
+
+def _joint(
+    job: BatchJob,
+    models: list[np.ndarray],
+    points: np.ndarray,
+    options: dict[str, Any],
+    t_load: float,
+) -> list[dict[str, Any]]:
+    """One record per model, their copies judged together (`register_models`)."""
+    from ..clouds.joint import register_models
+
+    regs = register_models(models, points, **options)
+    return [
+        {"model": name, **_loaded_in(registration_record(reg, reg.diagnosis), t_load)}
+        for name, reg in zip(job.models, regs, strict=True)
+    ]
 
 
 def _pictures(job: BatchJob, reg: Any, scan: str, picture: str) -> dict[str, str]:

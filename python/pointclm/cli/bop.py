@@ -28,7 +28,12 @@ def _add_bop_flags(p: argparse.ArgumentParser, batch: bool = False) -> None:
         )
     else:
         p.add_argument("--im-id", type=_int_at_least(0), default=0, help="BOP image id (default 0)")
-    p.add_argument("--obj-id", type=_int_at_least(0), default=1, help="BOP object id (default 1)")
+    p.add_argument(
+        "--obj-id",
+        type=_int_at_least(0),
+        action="append",
+        help="BOP object id (default 1); with several models, once per model in order",
+    )
     p.add_argument(
         "--unit-to-mm",
         type=_finite_float,
@@ -39,9 +44,20 @@ def _add_bop_flags(p: argparse.ArgumentParser, batch: bool = False) -> None:
     )
 
 
-def _check_bop_args(args: argparse.Namespace) -> None:
+def _check_bop_args(args: argparse.Namespace, models: int = 1) -> None:
+    """The BOP flags checked before the work; ``args.obj_ids``: one object id per model."""
+    from ..errors import InputError
     from ..io.files import check_output_path
 
+    ids = args.obj_id or [1]
+    if len(ids) != models and (args.bop_csv or args.obj_id):
+        raise InputError(
+            f"{len(args.obj_id or [])} --obj-id for {models} model(s): with several models "
+            "--bop-csv needs one object id per model, in the models' order"
+            if models > 1
+            else f"{len(ids)} --obj-id for one model: give one"
+        )
+    args.obj_ids = ids
     if args.bop_csv:
         check_output_path(args.bop_csv, "--bop-csv")
         if args.unit_to_mm <= 0:
@@ -49,11 +65,13 @@ def _check_bop_args(args: argparse.Namespace) -> None:
 
 
 def _write_bop(args: argparse.Namespace, reg: Any) -> None:
+    """`reg`'s poses (a list: one result per model, `args.obj_ids` in order) as BOP's CSV."""
     from ..io.bop import write_bop_csv
 
     if args.bop_csv:
+        regs = reg if isinstance(reg, list) else [reg]
         write_bop_csv(
-            reg, args.bop_csv, args.scene_id, args.im_id, args.obj_id, unit_to_mm=args.unit_to_mm
+            regs, args.bop_csv, args.scene_id, args.im_id, args.obj_ids, unit_to_mm=args.unit_to_mm
         )
 
 
@@ -69,7 +87,7 @@ def _write_batch_bop(args: argparse.Namespace) -> int:
         expand_scans(args.scans),
         args.bop_csv,
         scene_id=args.scene_id,
-        obj_id=args.obj_id,
+        obj_id=args.obj_ids,
         im_id_from=args.im_id_from,
         unit_to_mm=args.unit_to_mm,
     )

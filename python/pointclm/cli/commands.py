@@ -285,7 +285,7 @@ def _add_eval_parser(sub: Any) -> None:
 def _add_batch_parser(sub: Any) -> None:
     b = sub.add_parser(
         "batch",
-        help="register one model in many scans: one JSON line per scan, resumable",
+        help="register one model (or several) in many scans: one JSON line per scan, resumable",
         description="Find the copies of MODEL in every scan of SCANS (files, folders of "
         "point-cloud files, quoted glob patterns, or ROS bags: one scan per PointCloud2 "
         "message) and write one JSON line per scan to "
@@ -298,6 +298,7 @@ def _add_batch_parser(sub: Any) -> None:
     b.add_argument(
         "scans", metavar="SCANS", nargs="+", help="scan files, folders, globs or ROS bags"
     )
+    _add_model_flags(b)
     b.add_argument("--out", required=True, help="the JSON Lines file of results")
     b.add_argument(
         "--resume",
@@ -330,16 +331,41 @@ def _add_batch_parser(sub: Any) -> None:
     b.set_defaults(func=cmd_batch)
 
 
+def _add_model_flags(b: argparse.ArgumentParser) -> None:
+    """`batch`'s other part types and their symmetries."""
+    b.add_argument(
+        "--add-model",
+        metavar="FILE",
+        action="append",
+        default=[],
+        help="another part type (repeatable): each scan's copies of MODEL and of every "
+        "--add-model found and judged together, the line holding one result per model",
+    )
+    b.add_argument(
+        "--symmetry",
+        metavar="FILE|auto|none",
+        action="append",
+        help="the model's proper symmetries, as register --symmetry takes them: once for "
+        "every model, or once per model (MODEL, then each --add-model)",
+    )
+
+
 def cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from ..io import load_points
+    from .models import load_symmetries
 
-    _check_bop_args(args)  # before the (long) batch: a bad path costs nothing
+    models = [args.model_file, *args.add_model]
+    _check_bop_args(args, len(models))  # before the (long) batch: a bad path costs nothing
+    options = _method_options(args, lambda: load_points(args.model_file))
+    if args.symmetry:
+        symmetries = load_symmetries(args.symmetry, len(models))
+        options["symmetry"] = symmetries if len(models) > 1 else symmetries[0]
     summary = run_batch(
-        args.model_file,
+        models if len(models) > 1 else args.model_file,
         args.scans,
         args.out,
-        options=_method_options(args, lambda: load_points(args.model_file)),
+        options=options,
         resume=args.resume,
         engine=args.engine,
         workers=args.workers,

@@ -1,5 +1,5 @@
-"""`pointclm register`: one model in one scan, its report, JSON, pictures and ground-truth
-score; the method flags `register` and `batch` share."""
+"""`pointclm register`: one model in one scan (several: `.models`), its report, JSON,
+pictures and ground-truth score; the method flags `register` and `batch` share."""
 
 from __future__ import annotations
 
@@ -206,9 +206,18 @@ def cmd_register(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..io import load_points
+    from .models import check_several, cmd_register_models, load_symmetries, load_truths
 
-    ground_truth = _check_register_args(args)
-    symmetry = _load_symmetry(args.symmetry)
+    several = len(args.model_files) > 1
+    if several:
+        check_several(args)
+    _check_register_args(args)
+    truths = load_truths(args.ground_truth, len(args.model_files))
+    symmetries = load_symmetries(args.symmetry, len(args.model_files))
+    if several:
+        return cmd_register_models(args, symmetries, truths)
+    args.model_file = args.model_files[0]
+    ground_truth, symmetry = truths[0], symmetries[0]
     stages = ["load", "register", *(f for f in ("png", "ply", "html") if getattr(args, f))]
     bar = tqdm(total=len(stages), desc="pointclm", unit="stage", disable=args.quiet, leave=False)
     with bar:
@@ -228,13 +237,12 @@ def cmd_register(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
-    """Everything that can be checked before the (long) work: outputs, extras, the ground
-    truth (read now, so a bad file costs nothing)."""
+def _check_register_args(args: argparse.Namespace) -> None:
+    """Everything that can be checked before the (long) work: outputs, extras, the network."""
     for flag in ("out", "png", "ply", "html"):
         if getattr(args, flag):
             check_output_path(getattr(args, flag), f"--{flag}")
-    _check_bop_args(args)
+    _check_bop_args(args, len(args.model_files))
     if args.png:
         try:
             import matplotlib  # noqa: F401
@@ -244,7 +252,6 @@ def _check_register_args(args: argparse.Namespace) -> np.ndarray | None:
         from ..model.weights import load_network
 
         load_network(args.model)  # a wrong name fails now, naming the shipped ones (cached)
-    return None if args.ground_truth is None else _load_ground_truth(args.ground_truth)
 
 
 def _register_files(
@@ -351,27 +358,37 @@ def _cloud_config(
 def _add_register_parser(sub: Any) -> None:
     r = sub.add_parser(
         "register",
-        help="find every copy of a model in a scene (point cloud or mesh files)",
-        description="Load MODEL and SCENE (.ply .pcd .off .xyz .txt .npy .npz; .las .laz .e57 "
+        help="find every copy of a model (or of several) in a scene (point cloud or mesh files)",
+        description="Load MODEL(s) and SCENE (.ply .pcd .off .xyz .txt .npy .npz; .las .laz .e57 "
         "with pointclm[io]), compute FPFH, "
         "match, and print one line per instance found (or why none was).",
     )
-    r.add_argument("model_file", metavar="MODEL", help="the object (mesh or point cloud)")
-    r.add_argument("scene_file", metavar="SCENE", help="the scan holding its copies")
+    r.add_argument(
+        "model_files",
+        metavar="MODEL",
+        nargs="+",
+        help="the object (mesh or point cloud); several: each part type's copies found and "
+        "judged together (a scan region one model's copy explains is not another's), one "
+        "result per model",
+    )
+    r.add_argument("scene_file", metavar="SCENE", help="the scan holding their copies")
     r.add_argument(
         "--ground-truth",
         metavar="FILE",
+        action="append",
         help="true T_target_source poses (.npy of (G, 4, 4), or a JSON list of 4x4): the "
         "report says which were found (RE < 15 deg, TE < 10%% of the model's diagonal) and the "
-        "picture and page draw the missed ones",
+        "picture and page draw the missed ones; with several models, one per model in order",
     )
     r.add_argument(
         "--symmetry",
-        metavar="FILE|auto",
+        metavar="FILE|auto|none",
+        action="append",
         help="the model's proper symmetries: a JSON file holding its BOP models_info entry "
         "(symmetries_discrete / symmetries_continuous, in the model's units: BOP writes mm), "
-        "or 'auto' to detect them; poses come out canonical among their equivalents, and "
-        "--ground-truth counts an equivalent pose as found",
+        "'auto' to detect them, or 'none'; poses come out canonical among their equivalents, "
+        "and --ground-truth counts an equivalent pose as found. With several models: once for "
+        "every model, or once per model in order",
     )
     r.add_argument("--out", help="write instances, diagnosis and timings to this JSON file")
     r.add_argument("--png", help="picture of the result (needs matplotlib)")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
 
-from ..refinement import RefinementContext
+from ..refinement import _RULE_DEFAULTS, RefinementContext, Rejection
 from .results import Pass, _xyz
 
 
@@ -43,40 +45,102 @@ def _diagnose(run: _Judged, found: int, by_visibility: bool, passes: list[Pass])
     return _rejected(run, first) + no_view
 
 
-#: How each rule reads in a diagnosis: what its value measures, and how it compares.
+#: How each rule reads in a diagnosis: what its value measures (short, then in words), and
+#: whether its threshold is a ceiling (the value must stay at or below it) or a floor.
 _RULE_WORDS = {
-    "min_seen": ("the share of the model the sensor could see", "needs at least"),
-    "min_visible_fitness": ("the share of what the sensor could see that the scan explains",
-                            "needs at least"),
-    "max_contradiction": ("the share of it lying where the sensor saw free space", "at most"),
-    "min_fitness": ("the share of the model explained", "needs at least"),
-    "min_relative_fitness": ("the share of the model explained, against the best pose's",
-                             "needs at least"),
-    "max_slid_fitness": ("the share still explained with the model slid along its surface "
-                         "(it fits anywhere on a larger surface)", "at most"),
-    "max_shared": ("the share of its scan points a surer pose explains", "at most"),
-    "explains_nothing": ("the scan points it explains", "needs at least"),
+    "min_seen": ("seen", "the share of the model the sensor could see", False),
+    "min_visible_fitness": ("visible fitness", "the share of what the sensor could see that "
+                            "the scan explains", False),
+    "max_contradiction": ("contradiction", "the share of what the sensor could see lying "
+                          "where it saw free space", True),
+    "min_fitness": ("fitness", "the share of the model explained", False),
+    "min_relative_fitness": ("fitness", "the share of the model explained, against the best "
+                             "candidate's", False),
+    "max_slid_fitness": ("slid fitness", "the share still explained with the model slid along "
+                         "its surface: it fits anywhere on a larger surface; these come back "
+                         "under ambiguous", True),
+    "max_shared": ("shared", "the share of its scan points a surer candidate explains", True),
+    "explains_nothing": ("scan points explained", "a pose explaining no scan point", False),
 }  # fmt: skip
+
+#: Candidates a diagnosis names one by one (at least the nearest miss of every rule).
+LISTED_MISSES = 3
+
+
+def _fails(rule: str, value: float, threshold: float) -> bool:
+    """Whether `value` misses `threshold` as `rule` compares them (NaN misses every rule)."""
+    ceiling = _RULE_WORDS.get(rule, ("", "", False))[2]
+    return not (value <= threshold if ceiling else value >= threshold)
+
+
+def _pair(value: float, threshold: float, ceiling: bool) -> tuple[str, str]:
+    """`value` and `threshold` with the fewest decimals (2 to 6) at which the printed value
+    still misses the printed threshold: a rounding never reads as a pass."""
+    for digits in (2, 3, 4, 6):
+        v, t = f"{value:.{digits}f}", f"{threshold:.{digits}f}"
+        if (float(v) > float(t)) if ceiling else (float(v) < float(t)):
+            return v, t
+    return repr(float(value)), repr(float(threshold))
+
+
+def miss_text(rule: str, value: float, threshold: float, rules: Mapping[str, float]) -> str:
+    """One rejection as a diagnosis names it: the measured value against the threshold and the
+    rule, e.g. ``visible fitness 0.21 < 0.30 (min_visible_fitness)``."""
+    short, _, ceiling = _RULE_WORDS.get(rule, (rule, rule, False))
+    if rule == "explains_nothing":
+        return "explains no scan point (explains_nothing: a pose must explain at least one)"
+    if math.isnan(value):
+        bound = "<=" if ceiling else ">="
+        return f"{short} not measurable ({rule} needs {bound} {threshold:.2f})"
+    v, t = _pair(value, threshold, ceiling)
+    text = f"{short} {v} {'>' if ceiling else '<'} {t} ({rule}"
+    share = rules.get(rule)
+    if rule == "min_relative_fitness" and share:
+        text += f": {share:g} x the best candidate's fitness {threshold / share:.3f}"
+    return text + ")"
+
+
+def explain_rejections(
+    rejections: Sequence[Rejection], candidates: int, rules: Mapping[str, float] | None = None
+) -> str:
+    """Why verification rejected `candidates` candidate poses (`rejections`: the core's
+    verdicts, :meth:`pointclm.RefinementContext.rejections`, under `rules`, by name; the
+    defaults otherwise): how many each rule rejected, then the nearest misses one by one
+    (candidate ``k`` is the correspondence stage's instance ``k``), each with its measured
+    value, the threshold and the rule. A verdict whose value does not miss its threshold is
+    never quoted as a reason."""
+    rules = {**_RULE_DEFAULTS, **(rules or {})}
+    missed = [r for r in rejections if _fails(r.rule, r.value, r.threshold)]
+    by_rule: dict[str, list[Rejection]] = {}
+    for r in missed:
+        by_rule.setdefault(r.rule, []).append(r)
+    ranked = sorted(by_rule.items(), key=lambda kv: -len(kv[1]))
+    counts = ", ".join(
+        f"{len(rs)} by {rule} ({_RULE_WORDS.get(rule, (rule, rule, False))[1]})"
+        for rule, rs in ranked
+    )
+    listed = [min(rs, key=_gap) for _, rs in ranked]
+    rest = sorted((r for r in missed if r not in listed), key=_gap)
+    listed += rest[: max(0, LISTED_MISSES - len(listed))]
+    misses = "; ".join(
+        f"candidate {r.origin}, {miss_text(r.rule, r.value, r.threshold, rules)}" for r in listed
+    )
+    nearest = "the nearest miss" if len(listed) == 1 else "the nearest misses"
+    return f"{counts}. {nearest.capitalize()}: {misses}." if listed else ""
+
+
+def _gap(r: Rejection) -> float:
+    """How far a rejection's value is from its threshold (NaN: farthest)."""
+    gap = abs(r.value - r.threshold)
+    return math.inf if math.isnan(gap) or r.rule == "explains_nothing" else gap
 
 
 def _rejected(run: _Judged, first: Pass) -> str:
-    """Why verification rejected every candidate pose: for each rule that rejected some, how
-    many and the nearest miss, its value against the threshold (one more ICP of the
-    candidates, only when nothing was found)."""
+    """Why verification rejected every candidate pose (one more ICP of the candidates, only
+    when nothing was found): `explain_rejections` of the core's verdicts."""
     poses = np.asarray(first.result.transformations).reshape(-1, 4, 4)
     rejected = run.refiner.rejections(poses, num_threads=run.num_threads)
     n = len(first.result)
-    by_rule: dict[str, list[tuple[float, float]]] = {}
-    for r in rejected:
-        by_rule.setdefault(r.rule, []).append((r.value, r.threshold))
-    parts = []
-    for rule, values in sorted(by_rule.items(), key=lambda kv: -len(kv[1])):
-        what, compare = _RULE_WORDS.get(rule, (rule, "against"))
-        ceiling = compare == "at most"
-        value, threshold = (min if ceiling else max)(values, key=lambda vt: vt[0])
-        parts.append(
-            f"{len(values)} by {rule} ({what}: nearest {value:.0%}, {compare} {threshold:.0%})"
-        )
     judged = (
         f" as seen from the viewpoint {_xyz(run.viewpoint or (0, 0, 0))}"
         if run.viewpoint is not None
@@ -88,8 +152,11 @@ def _rejected(run: _Judged, first: Pass) -> str:
         if run.viewpoint is not None
         else " A partial or occluded view explains little of a model."
     )
-    return f"nothing found: verification rejected all {n} candidate pose(s){judged}: " + (
-        "; ".join(parts) + "." + tail
+    why = explain_rejections(rejected, n)
+    return (
+        f"nothing found: verification rejected all {n} candidate pose(s){judged}"
+        + (f": {why}" if why else ".")
+        + tail
     )
 
 
