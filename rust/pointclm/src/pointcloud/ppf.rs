@@ -14,7 +14,7 @@
 //! returned by their summed votes, to be refined and verified like any other candidate.
 
 use std::collections::HashMap;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::hash::BuildHasherDefault;
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -90,6 +90,26 @@ impl PpfParams {
             }
         }
         Ok(())
+    }
+
+    /// Whether `key` is the feature of two points on one plane: parallel normals, both at a
+    /// right angle to the line between the points. Such pairs are left out of the table (so
+    /// they never vote): any plane of a scene (a bin's floor and walls, every face of every
+    /// copy) holds them at every distance, so they say only "on a plane" and vote alike for
+    /// every model point of every face, while for a flat-faced part they are a fifth of the
+    /// model's pairs and most of the voting time. The pairs across faces, edges and curved
+    /// surface, which fix a pose, all stay.
+    fn is_coplanar(&self, key: u64) -> bool {
+        let bins = self.angle_bins as u64;
+        let (between_normals, second, first) =
+            (key % bins, (key / bins) % bins, (key / bins / bins) % bins);
+        let step = self.angle_step();
+        // The bins whose range holds a right angle: one for an odd count, two for an even.
+        let right = |k: u64| {
+            let (lo, hi) = (k as f64 * step, (k + 1) as f64 * step);
+            lo <= FRAC_PI_2 + 1e-12 && FRAC_PI_2 - 1e-12 <= hi
+        };
+        between_normals == 0 && right(first) && right(second)
     }
 
     fn angle_step(&self) -> f64 {
@@ -204,6 +224,7 @@ impl PpfModel {
                 // The key bounds the distance (and leaves out i == j).
                 if let Some(key) =
                     feature_key(&pts[i], &nrm[i], &pts[j], &nrm[j], &params, &cos_edges)
+                        .filter(|&key| !params.is_coplanar(key))
                 {
                     let cell = (i * params.alpha_bins()) as u32;
                     keyed.push((key, cell, PpfParams::in_turns(frames[i].alpha(&pts[j]))));

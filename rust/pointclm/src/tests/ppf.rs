@@ -173,3 +173,91 @@ fn turns_between_angles_wrap_around_the_circle() {
         assert_eq!(bin((k as f64 + 0.5) * step + 1.0, 1.0), k);
     }
 }
+
+/// The surface of an axis-aligned box of sides `size` centred at the origin, sampled on a
+/// grid of step `step`, with outward normals.
+fn box_surface(size: [f64; 3], step: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let (mut pts, mut nrm) = (Vec::new(), Vec::new());
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (nu, nv) = (
+            (size[u] / step).round() as usize,
+            (size[v] / step).round() as usize,
+        );
+        for side in [-1.0, 1.0] {
+            for i in 0..=nu {
+                for j in 0..=nv {
+                    let mut p = [0.0; 3];
+                    p[axis] = side * size[axis] / 2.0;
+                    p[u] = -size[u] / 2.0 + size[u] * i as f64 / nu as f64;
+                    p[v] = -size[v] / 2.0 + size[v] * j as f64 / nv as f64;
+                    let mut n = [0.0; 3];
+                    n[axis] = side;
+                    pts.push(p);
+                    nrm.push(n);
+                }
+            }
+        }
+    }
+    (pts, nrm)
+}
+
+#[test]
+fn pairs_on_one_plane_are_not_tabled_and_a_box_is_found_on_a_floor() {
+    let size = [0.095, 0.036, 0.068];
+    let (mp, mn) = box_surface(size, 0.002);
+    let diameter = Vector3::from(size).norm();
+    let params = PpfParams::for_diameter(diameter);
+    let model = PpfModel::new(&mp, &mn, params).unwrap();
+    // Two points of one face: the feature is on the table's blind side.
+    let key = feature_key(&mp[0], &mn[0], &mp[40], &mn[40], &params, &model.cos_edges).unwrap();
+    assert!(params.is_coplanar(key) && !model.table.contains_key(&key));
+    // A pair across an edge is tabled.
+    let top = mn.iter().position(|n| n[2] == 1.0).unwrap();
+    let key = feature_key(
+        &mp[0],
+        &mn[0],
+        &mp[top],
+        &mn[top],
+        &params,
+        &model.cos_edges,
+    );
+    assert!(key.is_some_and(|k| !params.is_coplanar(k)));
+    // The box lying on a floor ten times its size, its bottom face unseen.
+    let truth = pose([0.0, 0.0, 1.0], 0.7, [0.3, -0.2, size[2] / 2.0]);
+    let (mut pts, mut nrm): (Vec<_>, Vec<_>) = posed(&truth, &mp, &mn)
+        .into_iter()
+        .filter(|(_, n)| n[2] > -0.5)
+        .unzip();
+    for i in 0..300 {
+        for j in 0..300 {
+            pts.push([-0.5 + 0.004 * i as f64, -0.8 + 0.004 * j as f64, 0.0]);
+            nrm.push([0.0, 0.0, 1.0]);
+        }
+    }
+    let rows: Vec<usize> = (0..pts.len()).collect();
+    let poses = model.poses(&pts, &nrm, &rows, 0).unwrap();
+    // Right up to the box's half turns (its four proper symmetries).
+    let turns = [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ];
+    let right = |p: &PpfPose| {
+        turns.iter().any(|d| {
+            let flip = nalgebra::Matrix3::from_diagonal(&Vector3::from(*d));
+            let t = RigidTransform {
+                rotation: truth.rotation * flip,
+                translation: truth.translation,
+            };
+            close(&p.transform, &t, params.distance_step, 12.0)
+        })
+    };
+    let rank = poses.iter().position(right);
+    assert!(
+        matches!(rank, Some(r) if r < 3),
+        "{rank:?} of {}",
+        poses.len()
+    );
+}
