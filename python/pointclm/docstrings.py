@@ -117,8 +117,10 @@ PARAMETERS: dict[str, str] = _entries(
     viewpoint="""
         viewpoint : array_like, optional
             The scan's sensor position: scan normals point towards it, and verification judges
-            each pose by what the sensor there could see of it. Default: the ``VIEWPOINT`` a PCD
-            `target` file records (:func:`file_viewpoint`); else, for a scan in its sensor's
+            each pose by what the sensor there could see of it. Default: the origin for an
+            organised frame (an (H, W, 3) `target` array, or an organised PCD file: a depth
+            frame is in its sensor's coordinates); the ``VIEWPOINT`` a PCD `target` file
+            records (:func:`file_viewpoint`); else, for a scan in its sensor's
             frame (one view from the origin, every point in front of it, as depth cameras
             write frames), the origin, kept when verification from there keeps the pose the
             model share ranks first; else the sensor's position is estimated on each side of

@@ -26,6 +26,7 @@ from . import _core
 from . import preprocessing as pp
 from .clouds.core_path import CoreCall, register_in_core
 from .clouds.results import CloudInstance, Pass, PointCloudRegistration
+from .clouds.scans import file_viewpoint, load_cloud, read_scan
 from .clouds.sensor import _voxel_size, default_voxel_size
 from .config import Config
 from .docstrings import fill
@@ -145,26 +146,6 @@ def cloud_base_config(
     return base.with_overrides(overrides)
 
 
-def _load(cloud: Any, name: str) -> np.ndarray:
-    if isinstance(cloud, str | os.PathLike):
-        from .io import load_points
-
-        return load_points(cloud)
-    return pp.as_points(cloud, name)
-
-
-def file_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
-    """The sensor position a scan file records, or None: a PCD file's ``VIEWPOINT``
-    translation (:func:`pointclm.io.pcd.read_pcd_viewpoint`; PCL's default, the origin with
-    no rotation, counts as none, since PCL writes it for every cloud whatever its sensor).
-    Other formats record none."""
-    if not str(path).lower().endswith(".pcd"):
-        return None
-    from .io.pcd import read_pcd_viewpoint
-
-    return read_pcd_viewpoint(path)
-
-
 @fill
 def register_point_clouds(
     source: ArrayLike | str | os.PathLike[str],
@@ -196,6 +177,9 @@ def register_point_clouds(
     ----------
     source, target : array_like or path
         (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are sampled).
+        `target` may also be an organised frame, a numpy array (H, W, 3) in its sensor's
+        coordinates: its pixels without a return (NaN, infinite or all zero) are dropped and
+        its sensor, the origin, is the default viewpoint.
     %(voxel_size)s
     %(cloud_config)s
     %(cloud_seed)s
@@ -218,10 +202,11 @@ def register_point_clouds(
     t0 = time.perf_counter()
     emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
-    src, tgt, view = _loaded(source, target, view)
+    src, scan = load_cloud(source, "source"), read_scan(target, view)
+    tgt, view = scan.points, scan.viewpoint
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
-                    flips, sc, num_threads, viewpoint is None, emb, normals, refine, k,
+                    flips, sc, num_threads, scan.stated_by, emb, normals, refine, k,
                     window, symmetry)  # fmt: skip
     return _finished(register_in_core(src, tgt, call.checked()), t_load, t0)
 
@@ -244,15 +229,6 @@ def unexplained_points(
         radius,
         num_threads=as_threads(num_threads),
     )
-
-
-def _loaded(
-    source: Any, target: Any, view: tuple[float, float, float] | None
-) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float] | None]:
-    """The clouds (arrays or files) and the viewpoint: `view`, else the one a scan file
-    records."""
-    src, tgt = _load(source, "source"), _load(target, "target")
-    return src, tgt, _recorded_viewpoint(target) if view is None else view
 
 
 def _finished(reg: PointCloudRegistration, t_load: float, t0: float) -> PointCloudRegistration:
@@ -313,14 +289,6 @@ def _window_diagonals(window: float | str | None, mutual: bool, k: int) -> float
     if not mutual or k != 1:
         raise InputError("mutual_window needs mutual=True and k=1: it makes the check local")
     return side
-
-
-def _recorded_viewpoint(target: Any) -> tuple[float, float, float] | None:
-    """The sensor position a `target` file records (:func:`file_viewpoint`), or None."""
-    if not isinstance(target, str | os.PathLike):
-        return None
-    found = file_viewpoint(target)
-    return None if found is None else pp.as_point(found, "viewpoint")
 
 
 def _config(

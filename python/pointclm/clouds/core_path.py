@@ -49,8 +49,10 @@ class CoreCall:
     flips: bool
     scene: SceneRules
     num_threads: int | None
-    #: Whether `viewpoint` is the one the scan file records (not the caller's).
-    recorded: bool = False
+    #: Who states `viewpoint` when the caller did not: the scan file's VIEWPOINT, or the
+    #: origin of an organised frame (the words the result and the warning use); "" for the
+    #: caller's own.
+    stated_by: str = ""
     #: The learned embedding of every pass's correspondences; None: training-free.
     model: Embedding | None = None
     #: Whether the correspondence stage gets the normals at both ends of each pair.
@@ -152,13 +154,13 @@ def _embedding(model: Embedding, call: CoreCall) -> Callable[..., np.ndarray]:
 def _disputed(out: dict[str, Any], call: CoreCall) -> bool:
     """Whether the scan disputes the viewpoint given (or recorded), said with a warning."""
     if out["viewpoint_disputed"] and call.viewpoint is not None:
-        warn_disputed(call.viewpoint, call.recorded, stacklevel=5)  # register_point_clouds' caller
+        warn_disputed(call.viewpoint, call.stated_by, stacklevel=5)  # register_point_clouds' caller
     return bool(out["viewpoint_disputed"])
 
 
 def _recorded(call: CoreCall) -> str:
-    """What the orientation adds when the viewpoint was the scan file's."""
-    return " (the file's VIEWPOINT)" if call.recorded and call.viewpoint is not None else ""
+    """What the orientation adds when the scan itself stated the viewpoint."""
+    return f" ({call.stated_by})" if call.stated_by and call.viewpoint is not None else ""
 
 
 def _pass(p: dict[str, Any]) -> Pass:

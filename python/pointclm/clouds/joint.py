@@ -17,9 +17,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .. import _core
+from .. import preprocessing as pp
 from ..refinement import MAX_SHARED
 from ..registration import as_threads
 from .results import CloudInstance, PointCloudRegistration
+from .scans import read_scan
 
 __all__ = ["register_models"]
 
@@ -44,14 +46,18 @@ def register_models(
     every copy and never displace one. `symmetry` is one value for every model or a list, one
     per model.
     """
-    from ..point_clouds import _load, register_point_clouds
+    from ..point_clouds import register_point_clouds
 
     if isinstance(models, (str, os.PathLike, np.ndarray)) or len(models) == 0:
         raise ValueError("models must be a non-empty list of models (arrays or files)")
     per_model = symmetry if isinstance(symmetry, list) else [symmetry] * len(models)
     if len(per_model) != len(models):
         raise ValueError(f"{len(per_model)} symmetries for {len(models)} models: give one each")
-    scan = _load(target, "target")
+    # Read once; the viewpoint the scan states (a file's, an organised frame's origin) is
+    # passed on as given.
+    given = options.pop("viewpoint", None)
+    read = read_scan(target, None if given is None else pp.as_point(given, "viewpoint"))
+    scan, options["viewpoint"] = read.points, read.viewpoint
     found = [
         register_point_clouds(m, scan, symmetry=s, num_threads=num_threads, **options)
         for m, s in zip(models, per_model, strict=True)

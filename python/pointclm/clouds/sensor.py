@@ -44,10 +44,11 @@ def _voxel_size(
     return voxel
 
 
-def warn_disputed(view: tuple[float, float, float], from_file: bool, stacklevel: int) -> None:
-    """The :class:`pointclm.errors.ViewpointDisagreementWarning` of a disputed viewpoint,
-    attributed to the frame `stacklevel` up."""
-    source = "the scan file's VIEWPOINT" if from_file else "the viewpoint given"
+def warn_disputed(view: tuple[float, float, float], stated_by: str, stacklevel: int) -> None:
+    """The :class:`pointclm.errors.ViewpointDisagreementWarning` of a disputed viewpoint
+    (`stated_by` the scan, in those words, or "" for the caller's), attributed to the frame
+    `stacklevel` up."""
+    source = stated_by or "the viewpoint given"
     warnings.warn(
         f"the scan does not look like one view from {source} {_xyz(view)}: some of its "
         "points lie behind a surface that covers them all round as seen from there (a scan "

@@ -27,7 +27,7 @@ import numpy as np
 from .lzf import LZF_MAX_EXPANSION, lzf_decompress
 from .pointcloud import PointCloud, check_integers, finite_cloud
 
-__all__ = ["parse_pcd", "pcd_viewpoint", "read_pcd_viewpoint"]
+__all__ = ["parse_pcd", "pcd_is_organised", "pcd_viewpoint", "read_pcd_viewpoint"]
 
 _MAX_HEADER_LINES = 256
 _TYPE_CHARS = {("F", 4): "f4", ("F", 8): "f8"}
@@ -50,6 +50,8 @@ class _Header:
     data_start: int
     #: The VIEWPOINT line's words (tx ty tz qw qx qy qz), () when the header has none.
     viewpoint: tuple[str, ...] = ()
+    #: Rows of an organised cloud (a depth frame); 1 for an unorganised one.
+    height: int = 1
 
 
 def _parse_header(raw: bytes) -> _Header:
@@ -66,7 +68,8 @@ def _parse_header(raw: bytes) -> _Header:
     if n_points < 0 or width < 0 or height < 0:
         raise ValueError("malformed PCD header (negative WIDTH, HEIGHT or POINTS)")
     data = entries["DATA"][0].lower() if entries["DATA"] else ""
-    return _Header(tuple(fields), n_points, data, pos, tuple(entries.get("VIEWPOINT", ())))
+    viewpoint = tuple(entries.get("VIEWPOINT", ()))
+    return _Header(tuple(fields), n_points, data, pos, viewpoint, height)
 
 
 #: The header's keywords (any other line means this is not a PCD file).
@@ -301,24 +304,27 @@ _DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 def pcd_viewpoint(raw: bytes) -> np.ndarray | None:
     """The sensor position (3,) a PCD file's header records in its ``VIEWPOINT`` line (the
     translation ``tx ty tz``; the orientation ``qw qx qy qz`` is not needed to know where the
-    sensor was), or None when there is no such line or it holds PCL's default (the origin,
-    no rotation), which PCL writes whatever the sensor.
+    sensor was). PCL writes its default (the origin, no rotation) whatever the sensor, so that
+    default (or no line) says where the sensor was only for an organised cloud (``HEIGHT`` >
+    1): a depth frame in its sensor's coordinates, whose sensor is the origin; for an
+    unorganised one it gives None.
 
     Raises ValueError for a malformed header or a VIEWPOINT that is not 7 finite numbers.
     """
-    words = _parse_header(raw).viewpoint
-    if not words:
-        return None
-    try:
-        values = tuple(float(w) for w in words)
-    except ValueError:
-        values = ()
-    if len(values) != 7 or not np.isfinite(values).all():
-        raise ValueError(
-            f"malformed PCD header: VIEWPOINT needs 7 numbers, got {' '.join(words)!r}"
-        )
+    header = _parse_header(raw)
+    words = header.viewpoint
+    values: tuple[float, ...] = _DEFAULT_VIEWPOINT
+    if words:
+        try:
+            values = tuple(float(w) for w in words)
+        except ValueError:
+            values = ()
+        if len(values) != 7 or not np.isfinite(values).all():
+            raise ValueError(
+                f"malformed PCD header: VIEWPOINT needs 7 numbers, got {' '.join(words)!r}"
+            )
     if values == _DEFAULT_VIEWPOINT:
-        return None
+        return np.zeros(3) if header.height > 1 else None
     return np.array(values[:3])
 
 
@@ -328,9 +334,21 @@ _HEADER_BYTES = 1 << 16
 
 def read_pcd_viewpoint(path: str | os.PathLike[str]) -> np.ndarray | None:
     """:func:`pcd_viewpoint` of the PCD file at `path`, reading only its header."""
-    with open(path, "rb") as f:
-        head = f.read(_HEADER_BYTES)
     try:
-        return pcd_viewpoint(head)
+        return pcd_viewpoint(_head(path))
     except ValueError as e:
         raise ValueError(f"{os.fspath(path)}: {e}") from None
+
+
+def pcd_is_organised(path: str | os.PathLike[str]) -> bool:
+    """Whether the PCD file at `path` holds an organised cloud (``HEIGHT`` > 1), reading
+    only its header."""
+    try:
+        return _parse_header(_head(path)).height > 1
+    except ValueError as e:
+        raise ValueError(f"{os.fspath(path)}: {e}") from None
+
+
+def _head(path: str | os.PathLike[str]) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(_HEADER_BYTES)
