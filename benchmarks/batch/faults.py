@@ -1,7 +1,7 @@
 """`pointclm batch` under faults: SIGKILL at random moments, a full disk, a read-only output,
 worker processes killed again and again, a scan truncated while the batch runs.
 
-    python benchmarks/batch_faults.py [--kills 100] [--scans 40] [--quick] [--no-mount]
+    python -m benchmarks.batch.faults [--kills 100] [--scans 40] [--quick] [--no-mount]
 
 Every fault runs the command (``python -m pointclm batch``, the local engine, 1 or 2
 workers) in a subprocess on ``--scans`` small scans (two posed copies of the bundled bunny,
@@ -21,7 +21,7 @@ for writing, so a batch cannot meet EROFS half way); ``read-only folder`` (mode 
 root child drops CAP_DAC_OVERRIDE so the mode applies); ``worker killed`` (a worker of 2
 killed each time a line was written since the last kill, at most every 0.3 s); ``scan
 truncated`` (the last scan cut to half its bytes once the first line is out). Then
-(``--no-ray`` leaves them out) benchmarks/batch_faults_ray.py's: the same faults with Ray as
+(``--no-ray`` leaves them out) benchmarks/batch/faults_ray.py's: the same faults with Ray as
 the executor, and an output made read-only while the batch runs. Prints a markdown table.
 """
 
@@ -46,16 +46,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pointclm.batch import without_timings
+from pointclm.datasets import load_shape
+from pointclm.io import write_ply
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "python"))
-
-from pointclm.batch import without_timings  # noqa: E402
-from pointclm.datasets import load_shape  # noqa: E402
-from pointclm.io import write_ply  # noqa: E402
+from benchmarks.common.report import pointclm_env
 
 SEED = 3
-ENV = {**os.environ, "PYTHONPATH": str(ROOT / "python")}
+ENV = pointclm_env()
 
 
 def make_data(root: Path, n: int) -> tuple[Path, Path]:
@@ -408,7 +406,7 @@ def main() -> None:
         rows.append(fault_worker_kills(model, scans, tmp, reference, args.worker_kills))
         rows.append(fault_truncated(model, scans, tmp, reference))
         if not args.no_ray:
-            from batch_faults_ray import ray_rows
+            from benchmarks.batch.faults_ray import ray_rows
 
             rows += ray_rows(model, scans, tmp, reference, args.ray_kills, args.worker_kills)
     print_table(f"{args.scans} scans, one run {full_time:.1f} s", rows, t0)

@@ -1,8 +1,8 @@
-"""The faults of benchmarks/batch_faults.py with Ray as the executor, and an output that
+"""The faults of benchmarks/batch/faults.py with Ray as the executor, and an output that
 becomes read-only while a batch runs (local pool and Ray); `batch_faults.py` runs these
 after its own, or alone:
 
-    python benchmarks/batch_faults_ray.py [--scans 40] [--kills 5] [--worker-kills 4]
+    python -m benchmarks.batch.faults_ray [--scans 40] [--kills 5] [--worker-kills 4]
 
 Ray cases (skipped, and said so, without ``pip install 'pointclm[ray]'``): a Ray worker
 process (``ray::_scan_task``) killed each time a line was written since the last kill; a
@@ -27,9 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from batch_faults import (  # noqa: E402
+from benchmarks.batch.faults import (  # noqa: E402
     ENV,
     _cmdline,
     _drop_dac,
@@ -313,7 +311,7 @@ def main() -> None:
     ap.add_argument("--kills", type=int, default=5)
     ap.add_argument("--worker-kills", type=int, default=4)
     args = ap.parse_args()
-    from batch_faults import print_table
+    from benchmarks.batch.faults import print_table
 
     with tempfile.TemporaryDirectory() as name:
         tmp = Path(name)

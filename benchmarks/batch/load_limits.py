@@ -1,7 +1,7 @@
 """What unusual loads cost: a large unused ``.npz`` member, many thread counts, and the learned
 embedding on many consistent correspondences.
 
-    python benchmarks/load_limits.py [npz] [threads] [learned]
+    python -m benchmarks.batch.load_limits [npz] [threads] [learned]
 
 - npz: an archive of 1,000 points and a 1 GB float64 member of zeros (about 1 MB on disk),
   named ``extra`` (not used), ``normals`` and ``colors`` (refused: not the points' shape);

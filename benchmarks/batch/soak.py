@@ -1,7 +1,7 @@
 """pointclm called for a long time and from many threads: memory, file descriptors and threads
 after thousands of calls, and 8 threads calling at once with mixed ``num_threads``.
 
-    python benchmarks/soak.py [--quick] [soak] [concurrency]
+    python -m benchmarks.batch.soak [--quick] [soak] [concurrency]
 
 - soak: 10,000 ``pointclm.register`` calls (``--quick``: 1,000) on synthetic scenes of 50 to
   2,000 correspondences (one call in 20 with the learned ``model="default"``, one in 100 on
@@ -30,7 +30,6 @@ import gc
 import os
 import platform
 import random
-import sys
 import threading
 import time
 from datetime import datetime, timezone
@@ -38,13 +37,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "python"))
-
-import pointclm  # noqa: E402
-from pointclm.batch import registration_record, without_timings  # noqa: E402
-from pointclm.datasets import load_shape, make_scene  # noqa: E402
+import pointclm
+from pointclm.batch import registration_record, without_timings
+from pointclm.datasets import load_shape, make_scene
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 CORES = os.cpu_count() or 1

@@ -1,8 +1,8 @@
 """`pointclm batch` on many realistic scans: scans/s with 1 and 2 local workers and with Ray on
 the same CPUs, Ray's overhead per scan, and a batch killed half way then resumed.
 
-    python benchmarks/batch.py [--scans 200] [--workers 2] [--cache out/batch_scans]
-                               [--out benchmarks/results/batch.md] [--no-ray] [--chunks 4]
+    python -m benchmarks.batch.throughput [--scans 200] [--workers 2] [--cache out/batch_scans]
+                               [--out benchmarks/results/batch/batch.md] [--no-ray] [--chunks 4]
 
 The scans (realistic scenes of the bundled bunny among clutter, seen by a virtual range
 sensor: `pointclm.datasets.scenes`) are written once into ``--cache`` as binary PCD files
@@ -25,20 +25,23 @@ import signal
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pointclm
+from pointclm.batch import register_files, without_timings
+from pointclm.datasets.scenes import SceneParams, make_realistic_scene
+from pointclm.io import write_ply
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(ROOT / "python"))
-
-import pointclm  # noqa: E402
-from pointclm.batch import register_files, without_timings  # noqa: E402
-from pointclm.datasets.scenes import SceneParams, make_realistic_scene  # noqa: E402
-from pointclm.io import write_ply  # noqa: E402
+from benchmarks.common.report import (
+    RESULTS,
+    command,
+    git_commit,
+    load_average,
+    pointclm_env,
+    utc_now,
+)
 
 #: Scans/s of 2 workers over 1 worker, and Ray's over local's, that the issue asks for.
 TARGET_SPEEDUP = 1.8
@@ -166,7 +169,7 @@ def kill_and_resume(model: Path, scans: list[str], out: Path, workers: int) -> d
     out.unlink(missing_ok=True)
     argv = [sys.executable, "-m", "pointclm", "batch", str(model), *scans, "--out", str(out)]
     argv += ["--workers", str(workers), "--quiet"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "python")}
+    env = pointclm_env()
     proc = subprocess.Popen(argv, env=env, start_new_session=True, stdout=subprocess.DEVNULL)
     while proc.poll() is None:
         if out.exists() and out.read_bytes().count(b"\n") >= len(scans) // 2:
@@ -206,24 +209,12 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
-def git_commit() -> str:
-    run = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-    )
-    return run.stdout.strip() or "unknown"
-
-
-def load_average() -> str:
-    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
-
-
 def report(args: argparse.Namespace, rows: list[dict[str, Any]], checks: dict[str, Any]) -> str:
     base = rows[0]
     lines_ = [
         "## Many scans: `pointclm batch`",
         "",
-        f"- Date: {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/batch.py {' '.join(sys.argv[1:])}`.",
+        f"- Date: {utc_now()}. Command: `{command(__spec__.name)}`.",
         f"- Machine: {machine()}. Load average (1, 5, 15 min) before: {checks['load_before']}; "
         f"after: {load_average()} (shared with other jobs: rates are indicative, ratios are "
         "taken in the same run).",
@@ -289,7 +280,7 @@ def main() -> None:
     ap.add_argument("--scans", type=int, default=200, help="realistic scans (default 200)")
     ap.add_argument("--workers", type=int, default=2, help="local workers and Ray CPUs")
     ap.add_argument("--cache", default="out/batch_scans", help="folder of the scans and runs")
-    ap.add_argument("--out", default=str(HERE / "results" / "batch.md"), help="markdown report")
+    ap.add_argument("--out", default=str(RESULTS / "batch" / "batch.md"), help="markdown report")
     ap.add_argument("--no-ray", action="store_true", help="skip the Ray row")
     ap.add_argument(
         "--chunks", type=int, default=4, help="interleave the runs over this many chunks"

@@ -1,11 +1,11 @@
 """The bin-picking benchmark: dozens of copies of one part per scan.
 
-    pip install ".[bench]"      # the peers: KISS-Matcher and Open3D (benchmarks/peers.py)
-    python benchmarks/bins.py [--scenes 2] [--validation-scenes 1] [--cache DIR]
+    pip install ".[bench]"      # the peers: KISS-Matcher and Open3D (benchmarks/common/peers.py)
+    python -m benchmarks.bins.run [--scenes 2] [--validation-scenes 1] [--cache DIR]
                               [--models held-out|validation|all|m1,m2] [--out FILE]
                               [--skip-missing-peers]
 
-The report goes to ``out/bins.md`` (not committed); ``--out benchmarks/results/bins.md``
+The report goes to ``out/bins.md`` (not committed); ``--out benchmarks/results/bins/bins.md``
 replaces the committed one. A peer that is not installed stops the run before any scene is
 built, naming the package; ``--skip-missing-peers`` runs the other methods instead.
 
@@ -43,7 +43,7 @@ the same voxel and the sensor position, in the same run:
   (``pointclm._core.estimate_sensor``) and used once pass 0 confirms it.
 - **pointclm (no flips)**: the same with ``flips=False``: the accepted poses are not compared
   with their half-turned alternatives.
-- **sequential KISS-Matcher** (``benchmarks/peers.py``) on the correspondences of pointclm's
+- **sequential KISS-Matcher** (``benchmarks/common/peers.py``) on the correspondences of pointclm's
   first pass (``PointCloudRegistration.correspondences``): noise bound 2 voxels, a pose kept
   while it explains at least 6 correspondences (twice the minimal sample), at most 80 poses;
   the correspondences are rescaled for it (:func:`kiss_in_its_units`). Its time is pointclm's
@@ -83,18 +83,13 @@ procedural box/cylinder) can be posed right and scored wrong.
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
-import platform
-import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmarks.common import report
 
 #: The matching a user sets for a heap: every scan point's best model match among the top
 #: 10,000, not only mutual ones (a model point has one true match per visible copy, and the
@@ -143,7 +138,7 @@ def choose_methods(requested: str, skip_missing_peers: bool) -> list[str]:
     """The methods of `requested` (comma-separated names) in `METHODS`' order. A method whose
     peer is not installed stops the run here, before any scene is built, unless
     `skip_missing_peers`: then it is left out, and said so."""
-    from peers import missing_peers, require_peers
+    from benchmarks.common.peers import missing_peers, require_peers
 
     names = [m for m in requested.split(",") if m]
     unknown = [m for m in names if m not in METHODS]
@@ -320,7 +315,7 @@ def kiss_in_its_units(corr: np.ndarray, noise_bound: float) -> list[np.ndarray]:
     0.1: its settings are meant for metre-scale LiDAR maps (it refuses a voxel under 0.01 and
     clamps noise bounds over 1), and a rigid fit does not care about units. The translations
     are scaled back."""
-    from peers import sequential_kiss
+    from benchmarks.common.peers import sequential_kiss
 
     scale = 0.1 / noise_bound
     poses = sequential_kiss(corr * scale, 0.1, KISS_MIN_INLIERS, 80)
@@ -412,7 +407,8 @@ def main() -> None:
     ap.add_argument(
         "--out",
         default=DEFAULT_OUT,
-        help=f"the report (default {DEFAULT_OUT}; benchmarks/results/bins.md is the committed one)",
+        help=f"the report (default {DEFAULT_OUT}; benchmarks/results/bins/bins.md is the "
+        "committed one)",
     )
     ap.add_argument(
         "--skip-missing-peers",
@@ -485,24 +481,20 @@ def main() -> None:
                 )
             print(f"{model} seed {seed}: built in {t_build:.1f} s, {sc.n_copies} copies")
 
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
-    ).stdout.strip()
     try:
         import open3d as o3d
 
         o3d_version = o3d.__version__
     except ImportError:
         o3d_version = "absent"
-    argv = " ".join(sys.argv[1:])
     lines = [
         "## Bin-picking benchmark",
         "",
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/bins.py {argv}`.",
-        f"- Hardware: {platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+        f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
+        f"- Hardware: {report.hardware()} "
         "(shared with other jobs: times are indicative, ratios taken in the same run); every "
-        f"method with its default threads. pointclm {pointclm.__version__} (git {commit}), "
+        f"method with its default threads. pointclm {pointclm.__version__} "
+        f"(git {report.git_commit()}), "
         f"Open3D {o3d_version}.",
         f"- Scenes: {lo}-{hi} copies; median {int(np.median(n_raw))} raw scan points, "
         f"{int(np.median(n_down)) if n_down else 0} after downsampling. RE < 15 deg, TE < 10 % "

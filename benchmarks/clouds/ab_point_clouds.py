@@ -1,6 +1,6 @@
-"""Two builds of pointclm compared on `point_cloud_speed.py`'s scenes: same poses, and time.
+"""Two builds of pointclm compared on `point_cloud_speed`'s scenes: same poses, and time.
 
-    python benchmarks/ab_point_clouds.py BUILD_A BUILD_B [--rounds 4] [--no-viewpoint]
+    python -m benchmarks.clouds.ab_point_clouds BUILD_A BUILD_B [--rounds 4] [--no-viewpoint]
         [--scenes-per-model 2] [--threads 2] [--cache DIR]
 
 BUILD_A and BUILD_B are checkouts of the repository, each with its extension built
@@ -23,13 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.common.report import ROOT
+
 _ONE_ROUND = r"""
 import json, sys, time
-sys.path.insert(0, sys.argv[1])
 import numpy as np
 import pointclm
-from point_cloud_speed import speed_scenes
-per, threads, cache, blind = int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5] == "1"
+from benchmarks.clouds.point_cloud_speed import speed_scenes
+per, threads, cache, blind = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4] == "1"
 scenes = speed_scenes(per, cache)
 def call(sc):
     view = None if blind else sc.viewpoint
@@ -56,17 +57,17 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", default="out/realistic_scenes")
     args = ap.parse_args()
-    here = str(Path(__file__).resolve().parent)
     times: dict[str, list[np.ndarray]] = {b: [] for b in args.builds}
     poses: dict[str, list] = {}
     for r in range(args.rounds):
         for build in args.builds if r % 2 == 0 else args.builds[::-1]:
             env = dict(os.environ, PYTHONPATH=str(Path(build) / "python"))
-            argv = [here, str(args.scenes_per_model), str(args.threads), args.cache]
+            argv = [str(args.scenes_per_model), str(args.threads), args.cache]
             argv.append("1" if args.no_viewpoint else "0")
             out = subprocess.run(
                 [sys.executable, "-c", _ONE_ROUND, *argv],
                 env=env,
+                cwd=ROOT,
                 capture_output=True,
                 text=True,
                 check=True,

@@ -1,6 +1,6 @@
 """Correspondences from clouds: top-k matching and the normal term, measured scene by scene.
 
-    python benchmarks/cloud_normals.py --models stanford/dragon stanford/happy --scenes 10
+    python -m benchmarks.clouds.cloud_normals --models stanford/dragon stanford/happy --scenes 10
 
 For each realistic scene (``pointclm.datasets.scenes.make_realistic_scene``, seeds from
 ``--seed``, apart from the threshold-picking banks' seeds) the script keeps the two described

@@ -1,7 +1,7 @@
 """Verification started from the truth: the share of visible copies that `refine_poses` keeps
 when given their exact poses, and the rule that rejects each one it does not keep.
 
-    python benchmarks/exact_poses.py [--seeds 3] [--min-visible 0.3] [--out FILE]
+    python -m benchmarks.clouds.exact_poses [--seeds 3] [--min-visible 0.3] [--out FILE]
 
 A right pose that verification rejects is lost whatever the correspondence stage proposes, so
 this is the ceiling of recall on each kind of scene. Scenes: bins of 20-80 copies of procedural

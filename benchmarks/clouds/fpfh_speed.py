@@ -1,7 +1,7 @@
 """FPFH + correspondence search: pointclm vs Open3D, same clouds, same threads, same run.
 
     pip install open3d-cpu   # only for this benchmark
-    python benchmarks/fpfh_speed.py [--repeats 5] [--threads 2]
+    python -m benchmarks.clouds.fpfh_speed [--repeats 5] [--threads 2]
 
 Clouds: a realistic scene (``pointclm.datasets.scenes``, the Stanford bunny among clutter)
 cropped or subsampled to 20,000 scene points, and the bunny model sampled to 5,000 points; both
@@ -16,10 +16,10 @@ markdown table to stdout and, with --out, to a file.
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
-import platform
 import time
+
+from benchmarks.common import report
 
 
 def main() -> None:
@@ -98,12 +98,11 @@ def main() -> None:
 
     total = {n: med(n, 0) + med(n, 1) for n in rows}
     lines = [
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. "
-        f"Command: `python benchmarks/fpfh_speed.py --repeats {args.repeats} "
-        f"--threads {args.threads}`.",
-        f"- Hardware: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
+        f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
+        f"- Hardware: {report.hardware()}; "
         f"{args.threads} threads for both (OMP_NUM_THREADS for Open3D, a pool for pointclm).",
-        f"- Versions: pointclm {pointclm.__version__}, open3d {o3d.__version__}.",
+        f"- Versions: pointclm {pointclm.__version__} (git {report.git_commit()}), "
+        f"open3d {o3d.__version__}.",
         f"- Clouds: scene {len(target)} points, model {len(source)} points; radius "
         f"{rad:.4g} (5 voxels), max_nn {nn}. Max |FPFH difference| on the model: {max_diff:.2e}.",
         "",

@@ -1,7 +1,7 @@
 """Time of `register_point_clouds` on whole depth frames: an RGB-D camera's 640 x 480 frame
 (about 280k-300k points with the bin's walls and floor) and one model, on 2 threads.
 
-    python benchmarks/frame_speed.py [--seeds 2] [--threads 2] [--out FILE]
+    python -m benchmarks.clouds.frame_speed [--seeds 2] [--threads 2] [--out FILE]
 
 Frames: ``pointclm.datasets.sensed`` scenes under the ``rgbd_0.6m`` camera with structured-light
 noise: packed grids, rows and piles of touching boxes (``make_packed_boxes``, two products,
@@ -18,13 +18,13 @@ reference column is left empty.
 from __future__ import annotations
 
 import argparse
-import datetime
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks.common import report
 
 LAYOUTS = ("grid", "row", "pile")
 
@@ -94,12 +94,14 @@ def _s(v: float | None) -> str:
 
 
 def write_report(rows: list[dict], args: argparse.Namespace) -> None:
+    import pointclm
+
     lines = [
         "## Whole depth frames: time per frame",
         "",
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/frame_speed.py --seeds {args.seeds} --threads {args.threads}`.",
-        f"- Hardware: {platform.machine()}, {args.threads} threads on a shared machine.",
+        f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
+        f"- Hardware: {report.hardware()}, {args.threads} threads on a shared machine; "
+        f"pointclm {pointclm.__version__} (git {report.git_commit()}).",
         "",
         "| frame | points | default s | heap s | heap peeling s | copies default / heap "
         "| reference s | default / reference | heap / reference |",

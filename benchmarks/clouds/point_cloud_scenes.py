@@ -1,7 +1,7 @@
 """`register_point_clouds` end to end on the realistic scenes: clouds in, poses out.
 
-    python benchmarks/point_cloud_scenes.py [--models heldout|validation] [--scenes-per-model 4]
-                                            [--variant "peel=False" ...] [--cache DIR]
+    python -m benchmarks.clouds.point_cloud_scenes [--models heldout|validation]
+        [--scenes-per-model 4] [--variant "peel=False" ...] [--cache DIR]
 
 Each scene of ``realistic_models.py`` (N = 1000 parameters, the same seeds: benchmark seeds
 for the held-out models, threshold-sweep seeds for the validation ones) is registered from its
@@ -19,14 +19,11 @@ from __future__ import annotations
 
 import argparse
 import ast
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def parse_variant(text: str) -> dict[str, Any]:
@@ -40,8 +37,9 @@ def parse_variant(text: str) -> dict[str, Any]:
 
 def main() -> None:
     import pointclm
-    import realistic_models as rm
     from pointclm.metrics import score_scene
+
+    from benchmarks.clouds.scenes import cloud_scenes, data_folder
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--models", default="heldout", choices=("heldout", "validation"))
@@ -55,8 +53,8 @@ def main() -> None:
         help="scans in their sensor's frame, no viewpoint given (a depth camera's output)",
     )
     args = ap.parse_args()
-    data_dir = rm.data_folder(args.data_dir)
-    scenes = rm.cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
+    data_dir = data_folder(args.data_dir)
+    scenes = cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
     models = list(dict.fromkeys(sc.model for sc in scenes))
     print(f"{len(scenes)} scenes of {', '.join(models)}", flush=True)
     for text in args.variant or ["", "peel=False"]:

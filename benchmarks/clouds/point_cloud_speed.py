@@ -1,6 +1,6 @@
 """Time of `register_point_clouds` per scene and per stage.
 
-    python benchmarks/point_cloud_speed.py [--scenes-per-model 2] [--threads 2] [--runs 2]
+    python -m benchmarks.clouds.point_cloud_speed [--scenes-per-model 2] [--threads 2] [--runs 2]
         [--cache DIR] [--out FILE]
 
 Scenes: the held-out models' realistic benchmark scenes (``realistic_models.py``'s
@@ -15,23 +15,20 @@ machine shows as a run apart.
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
-import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchmarks.clouds.scenes import benchmark_seeds, load_scenes, scene_params
+from benchmarks.common import report
 
 
 def speed_scenes(per_model: int, cache: str | Path) -> list:
     """The held-out models' benchmark scenes timed here, `per_model` each (built into `cache`
     the first time)."""
     from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
-    from realistic_models import benchmark_seeds, load_scenes, scene_params
 
     data_dir = default_data_dir()
     if data_dir is None:
@@ -84,10 +81,9 @@ def main() -> None:
     lines = [
         "# `register_point_clouds` time per scene",
         "",
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/point_cloud_speed.py {' '.join(sys.argv[1:])}`.",
-        f"- Hardware: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
-        f"pointclm {pointclm.__version__}, {args.threads} threads.",
+        f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
+        f"- Hardware: {report.hardware()}; pointclm {pointclm.__version__} "
+        f"(git {report.git_commit()}), {args.threads} threads.",
         f"- {len(scenes)} held-out scenes; median scan "
         f"{int(np.median([len(s.target_points) for s in scenes]))} raw points.",
         "",

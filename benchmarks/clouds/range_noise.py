@@ -12,14 +12,13 @@ of ranges than the scenes hold: their copies lie within 1.14-1.46 of each other'
 ``e = 6`` gives far copies up to 10 times the noise of near ones, as z^2 noise over a
 threefold range would.
 
-    python benchmarks/range_noise.py [--models validation] [--scenes-per-model 3]
+    python -m benchmarks.clouds.range_noise [--models validation] [--scenes-per-model 3]
                                      [-a 0.2] [-e 6] [--cache DIR]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +26,7 @@ import pointclm
 import pointclm.point_clouds as pc
 from pointclm.metrics import score_scene
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import realistic_models as rm  # noqa: E402
+from benchmarks.clouds.scenes import cloud_scenes, data_folder
 
 
 def _never_loose(visible_rmse: object, *args: object, **kwargs: object) -> np.ndarray:
@@ -43,9 +41,7 @@ def main() -> None:
     ap.add_argument("-e", type=float, default=6.0, help="exponent of the range")
     ap.add_argument("--cache", default="out/realistic_scenes")
     args = ap.parse_args()
-    scenes = rm.cloud_scenes(
-        args.models, args.scenes_per_model, Path(args.cache), rm.data_folder(None)
-    )
+    scenes = cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_folder(None))
     rule = pc.loose_poses
     totals = {"rule on": np.zeros(3, int), "rule off": np.zeros(3, int)}
     spreads = []

@@ -11,13 +11,12 @@ metre or two away, still looks like one view from the origin, which is guessed a
 a known limit). A pose is right within 5 degrees and 2 cm. Reports, per setting: motions where
 the carton was found, right poses first, wrong poses in all, and the median time.
 
-    python benchmarks/real_frame.py [--motions 12] [--data-dir ../shared/data]
+    python -m benchmarks.clouds.real_frame [--motions 12] [--data-dir ../shared/data]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -26,8 +25,7 @@ import pointclm
 from pointclm.io.reader import load_points
 from scipy.spatial.transform import Rotation
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import realistic_models as rm  # noqa: E402
+from benchmarks.clouds.scenes import data_folder
 
 
 def _right(found: np.ndarray, truth: np.ndarray) -> bool:
@@ -41,7 +39,7 @@ def main() -> None:
     ap.add_argument("--motions", type=int, default=12)
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
     args = ap.parse_args()
-    data = Path(rm.data_folder(args.data_dir))
+    data = Path(data_folder(args.data_dir))
     model = load_points(data / "pcl/milk.pcd")
     scan = load_points(data / "pcl/milk_cartoon_all_small_clorox.pcd")
     print(f"model {len(model)} points, frame {len(scan)} points, {args.motions} motions")

@@ -1,7 +1,7 @@
 """The realistic benchmark: pointclm vs sequential RANSAC on the same FPFH correspondences.
 
     pip install open3d-cpu          # only for the RANSAC baseline
-    python benchmarks/realistic.py [--scenes 100] [--model default] [--out FILE]
+    python -m benchmarks.clouds.realistic [--scenes 100] [--model default] [--out FILE]
 
 Scenes: ``pointclm.datasets.scenes.make_realistic_scene(seed)`` for seeds 0..n-1 (Stanford
 bunny, 2-8 instances, partial views from a virtual range sensor, real range scans for about
@@ -11,7 +11,7 @@ An instance is registered when RE < 15 deg and TE < 10 % of the model's diagonal
 Methods, all on the same correspondences, in the same run:
 - pointclm, training-free: ``register_point_clouds``' defaults scaled to the voxel
   (``Config()``'s thresholds for raw poses, ``REFINED_THRESHOLDS`` for refined ones);
-- the same with the thresholds ``benchmarks/realistic_thresholds.py`` picks for it on the
+- the same with the thresholds ``benchmarks/clouds/realistic_thresholds.py`` picks for it on the
   validation models' scenes that picked the networks' (``VALIDATION_PICK``);
 - pointclm with each learned embedding of ``--model`` (its recommended point-cloud thresholds,
   raw or refined; the Rust network, so no torch needed);
@@ -33,15 +33,13 @@ Methods, all on the same correspondences, in the same run:
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
-import platform
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
-from peers import sequential_ransac
+
+from benchmarks.common import report
+from benchmarks.common.peers import sequential_ransac
 
 #: The training-free sweep's best on the 80 realistic scenes of the validation models
 #: (armadillo, bed) that picked each network's thresholds: the two compared on the same
@@ -82,7 +80,7 @@ def main() -> None:
         "--model", default="default", help="learned embedding(s), comma-separated ('' to skip)"
     )
     ap.add_argument("--skip-ransac", action="store_true", help="leave the slow baseline out")
-    ap.add_argument("--out", default="benchmarks/results/realistic.md")
+    ap.add_argument("--out", default="benchmarks/results/clouds/realistic.md")
     args = ap.parse_args()
 
     import pointclm
@@ -157,17 +155,12 @@ def main() -> None:
                 scores[row].append(score_scene(poses, sc.poses, 15.0, te))
         print(f"scene {seed}: built in {time.perf_counter() - t0:.2f} s", flush=True)
 
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
-    ).stdout.strip()
     hist, edges = np.histogram(np.asarray(ratios) * 100, bins=[0, 1, 2, 5, 10, 20, 100])
     lines = [
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC. Command: "
-        f"`python benchmarks/realistic.py --scenes {args.scenes} --model {args.model!r}"
-        f"{' --skip-ransac' if args.skip_ransac else ''}`.",
-        f"- Hardware: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
+        f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
+        f"- Hardware: {report.hardware()}; "
         "pointclm with 1 thread, Open3D with its default threads. "
-        f"pointclm {pointclm.__version__} (git {commit}).",
+        f"pointclm {pointclm.__version__} (git {report.git_commit()}).",
         f"- Scenes: seeds 0..{args.scenes - 1}; median {int(np.median([s[0] for s in stats]))} "
         f"scene points, {int(np.median([s[1] for s in stats]))} correspondences, "
         f"{np.mean([s[2] for s in stats]):.1f} instances per scene. RE < 15 deg, TE < 10 % "

@@ -22,8 +22,8 @@ the paper's definition (RE < 15 deg, TE < 10 % of the diagonal):
 - with ``--model``, each network (Rust forward pass) against training-free on the scenes of
   the models it never trained on, on all rows and on the rows the learned score ranks first.
 
-    python benchmarks/realistic_ceilings.py [--scenes-per-model 20] [--procedural 30]
-        [--out benchmarks/results/realistic_ceilings.md]
+    python -m benchmarks.clouds.realistic_ceilings [--scenes-per-model 20] [--procedural 30]
+        [--out benchmarks/results/clouds/realistic_ceilings.md]
 """
 
 from __future__ import annotations
@@ -41,8 +41,10 @@ import pointclm
 from pointclm.datasets.procedural import is_procedural
 from pointclm.evaluation import register_scaled, scene_cues
 from pointclm.metrics import SceneScore, score_scene, summarize
-from realistic_models import data_folder, load_scenes, oracle
-from realistic_thresholds import validation_jobs
+
+from benchmarks.clouds.methods import oracle
+from benchmarks.clouds.realistic_thresholds import validation_jobs
+from benchmarks.clouds.scenes import data_folder, load_scenes
 
 #: Thresholds an oracle or a learned score may pick from (the sweep's counts).
 GRID = [
@@ -177,7 +179,8 @@ def network_rows(
     its best grid thresholds, on all rows and on the rows the learned score ranks first."""
     from pointclm.embedding import resolve
     from pointclm.training.config import REALISTIC_MODELS, TRAIN_SHAPES
-    from realistic_thresholds import trained_on
+
+    from benchmarks.clouds.realistic_thresholds import trained_on
 
     net = resolve(model)
     trained = trained_on(model, (*TRAIN_SHAPES, *REALISTIC_MODELS))

@@ -9,8 +9,9 @@ stage alone, with ``--refine`` also for its poses refined and verified on the cl
 ``register_point_clouds`` returns), and for each network of ``--model``. The held-out models
 (``HELDOUT_MODELS``: the bunny and the common3d meshes) are refused: they only report.
 
-    python benchmarks/realistic_thresholds.py [--scenes-per-model 10] [--refine] [--model default]
-    python benchmarks/realistic_thresholds.py --bank VAL_BANK.npz [--model default ...]
+    python -m benchmarks.clouds.realistic_thresholds [--scenes-per-model 10] [--refine]
+        [--model default]
+    python -m benchmarks.clouds.realistic_thresholds --bank VAL_BANK.npz [--model default ...]
 
 **Seeds.** Model ``m``'s sweep scenes are ``make_realistic_scene(seed)`` for the seeds
 ``realistic_models.threshold_seeds(m, n)`` (2,000,000 + 1000 x the model's slot + k), built
@@ -45,7 +46,8 @@ from pointclm.evaluation import scene_cues
 from pointclm.metrics import score_scene, summarize
 from pointclm.point_clouds import REFINED_THRESHOLDS, scaled_config
 from pointclm.training.realistic import SceneBank, bank_cues, score_bank
-from realistic_models import data_folder, load_scenes, scene_params, threshold_seeds
+
+from benchmarks.clouds.scenes import data_folder, load_scenes, scene_params, threshold_seeds
 
 TAU_S = (0.7, 0.8, 0.85, 0.9, 0.95)
 TAU_N = (1, 2, 3, 5, 10)

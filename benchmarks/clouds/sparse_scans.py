@@ -10,7 +10,7 @@ Reports per share: correct / predicted / copies, precision, recall and F1 pooled
 models (RE < 15 deg, TE < the scene's bound), and the median scan spacing in model voxels
 (the model's diagonal / 40). A call that finds too few matches to register counts as no pose.
 
-    python benchmarks/sparse_scans.py [--models heldout|validation] [--scenes-per-model 2]
+    python -m benchmarks.clouds.sparse_scans [--models heldout|validation] [--scenes-per-model 2]
                                       [--fractions 1,0.3,0.1,0.03] [--noise 0.25,0.5]
                                       [--outliers 0.05,0.2] [--cache DIR]
 
@@ -24,7 +24,6 @@ added to every full scan: that many times its point count, uniform in its boundi
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,8 +31,7 @@ import pointclm
 from pointclm.metrics import score_scene
 from pointclm.point_clouds import VOXELS_PER_DIAGONAL
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import realistic_models as rm  # noqa: E402
+from benchmarks.clouds.scenes import cloud_scenes, data_folder
 
 
 def _spacing(points: np.ndarray) -> float:
@@ -60,8 +58,8 @@ def main() -> None:
         help="register without the sensor's position (the scan stays in the scene's frame)",
     )
     args = ap.parse_args()
-    data_dir = rm.data_folder(args.data_dir)
-    scenes = rm.cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
+    data_dir = data_folder(args.data_dir)
+    scenes = cloud_scenes(args.models, args.scenes_per_model, Path(args.cache), data_dir)
     models = list(dict.fromkeys(sc.model for sc in scenes))
     print(f"{len(scenes)} scenes of {', '.join(models)}\n")
     print("| scan | correct / predicted / copies | precision | recall | F1 | spacing |")

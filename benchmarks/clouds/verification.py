@@ -9,7 +9,7 @@ within 15 degrees and 10 % of the diagonal of a true pose. Then, per scene, the 
 with the default rules with and without the viewpoint (MF, precision, recall, refinement
 time). Thresholds may only be picked on the validation models (the default list here).
 
-    PYTHONPATH=python python benchmarks/verification.py --scenes 6 --out rows.json
+    PYTHONPATH=python python -m benchmarks.clouds.verification --scenes 6 --out rows.json
 """
 
 from __future__ import annotations

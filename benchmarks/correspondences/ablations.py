@@ -7,7 +7,7 @@
   negatives.
 - Tables 8 and 10: tau_S and tau_N sweeps.
 
-    python benchmarks/ablations.py [--scenes 200] [--model default]
+    python -m benchmarks.correspondences.ablations [--scenes 200] [--model default]
         [--negatives-pair HARDEST.safetensors RANDOM.safetensors]
 
 Reported for information: the defaults were chosen on validation shapes, not from these tables.

@@ -7,7 +7,8 @@
    network with its recommended thresholds, with the network's forward time and the whole
    pipeline's time per scene on this CPU.
 
-    python benchmarks/learned_embedding.py [--scenes 500] [--val-scenes 96] [--threads 2]
+    python -m benchmarks.correspondences.learned_embedding [--scenes 500] [--val-scenes 96]
+        [--threads 2]
 
 Needs torch and the training meshes' shape bank (written by `pointclm train`; rebuilt from
 `--data-dir ../shared/data` if missing).

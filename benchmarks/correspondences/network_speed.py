@@ -2,8 +2,8 @@
 on the same scenes, and the thread scaling of `register_batch` with the Rust network.
 Optionally (--packaging) the wheel size and a `pip install .` into a fresh venv without torch.
 
-    python benchmarks/network_speed.py [--scenes 20] [--batch 200] [--packaging]
-                                       [--out benchmarks/results/network_speed.md]
+    python -m benchmarks.correspondences.network_speed [--scenes 20] [--batch 200] [--packaging]
+                                       [--out benchmarks/results/correspondences/network_speed.md]
 
 Forward pass: for k = 1 and 2, `torch.set_num_threads(k)` and the Rust pool at k threads
 (`Network.embed(corr, num_threads=k)`). Batch: `register_batch` of the same scenes with
@@ -24,7 +24,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
@@ -41,8 +40,9 @@ import pointclm  # noqa: E402
 from pointclm.datasets import make_scene  # noqa: E402
 from pointclm.model import load_network  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
+from benchmarks.common import report  # noqa: E402
+
+ROOT = report.ROOT
 NETWORKS = ("default", "paper")
 THREADS = (1, 2)
 FORWARD_TARGET = 1.5
@@ -51,10 +51,6 @@ BATCH_TARGET = 1.8
 
 def verdict(ok: bool) -> str:
     return "met" if ok else "**NOT met**"
-
-
-def load() -> str:
-    return ", ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def tool_version(cmd: list[str]) -> str:
@@ -73,15 +69,14 @@ def environment(command: str) -> str:
         if line.startswith("flags") and not flags:
             have = set(line.split(":", 1)[1].split())
             flags = " ".join(f for f in ("avx2", "fma", "avx512f") if f in have)
-    rev = tool_version(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"])
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     return (
-        f"- Date: {now}. Command: `{command}`.\n"
+        f"- Date: {report.utc_now()}. Command: `{command}`.\n"
         f"- Hardware: {cpu} ({flags}), {os.cpu_count()} logical cores "
-        f"({len(os.sched_getaffinity(0))} usable); load average at start {load()}. The "
+        f"({len(os.sched_getaffinity(0))} usable); load average at start "
+        f"{report.load_average()}. The "
         "machine is shared with other jobs, so each comparison alternates its two sides and "
         "reports ratios measured in the same run.\n"
-        f"- Versions: pointclm {pointclm.__version__} (git {rev}), Python "
+        f"- Versions: pointclm {pointclm.__version__} (git {report.git_commit()}), Python "
         f"{platform.python_version()}, numpy {np.__version__}, torch {torch_version()}, "
         f"{tool_version(['rustc', '--version'])}, {tool_version(['maturin', '--version'])}.\n"
         "- Rust side: the extension built with `cargo build --release -p pointclm-py` "
@@ -146,7 +141,8 @@ def child_batch(threads: int, count: int) -> dict[str, object]:
 
 def in_child(*args: object) -> object:
     out = subprocess.run(
-        [sys.executable, __file__, "--child", *map(str, args)],
+        [*report.module_command(__spec__.name), "--child", *map(str, args)],
+        cwd=ROOT,
         capture_output=True,
         text=True,
         check=True,
@@ -225,7 +221,7 @@ def packaging() -> str:
         py = venv / "bin" / "python"
         env = dict(os.environ, CARGO_TARGET_DIR=str(tmp_path / "target"))
         env.pop("PYTHONPATH", None)
-        load_before = load()
+        load_before = report.load_average()
         t0 = time.perf_counter()
         subprocess.run(
             [str(py), "-m", "pip", "install", "-q", str(ROOT)],
@@ -253,7 +249,7 @@ def packaging() -> str:
             f"`CARGO_TARGET_DIR`, so the Rust code compiles from scratch; crate sources already "
             f"in ~/.cargo): {install:.0f} s "
             f"wall on this shared {os.cpu_count()}-core machine (load average before "
-            f"{load_before}, after {load()}). In that venv `import torch` "
+            f"{load_before}, after {report.load_average()}). In that venv `import torch` "
             f"fails and `pointclm.register(make_scene(0).correspondences, model='default')` "
             f"finds {out[0]} instances (first call, loading the weights included: "
             f"{1e3 * float(out[1]):.0f} ms)."
@@ -275,11 +271,13 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=200, help="scenes for register_batch")
     ap.add_argument("--rounds", type=int, default=3, help="repetitions (best is kept)")
     ap.add_argument("--packaging", action="store_true", help="also build a wheel, pip install")
-    ap.add_argument("--out", type=Path, default=HERE / "results" / "network_speed.md")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=report.RESULTS / "correspondences" / "network_speed.md",
+    )
     args = ap.parse_args()
-    command = "python benchmarks/network_speed.py " + " ".join(sys.argv[1:])
-
-    header = environment(command.strip())
+    header = environment(report.command(__spec__.name))
     assert all(len(c) == 1000 for c in scenes_for(args.scenes))
 
     rows, checks = [], []
@@ -310,7 +308,7 @@ def main() -> None:
         f"{min(r for n, _, r in checks if n == 'paper'):.2f}x).\n"
     )
 
-    load_before = load()
+    load_before = report.load_average()
     best = batch_throughput(args.batch, args.rounds)
     scaling = best[2] / best[1]
     batch = (
@@ -318,7 +316,8 @@ def main() -> None:
         f"recommended config, `make_scene(0..{args.batch - 1})`), scenes per second of the "
         f"best of {args.rounds} runs per thread count (each in its own child process, the "
         "order alternating); results identical at 1 and 2 threads (checked by a digest of "
-        f"poses and labels). Load average before: {load_before}; after: {load()}.\n\n"
+        f"poses and labels). Load average before: {load_before}; after: "
+        f"{report.load_average()}.\n\n"
         "| threads | scenes/s |\n|---|---|\n"
         + "".join(f"| {k} | {best[k]:.1f} |\n" for k in THREADS)
         + f"\nTarget: 2 threads >= {BATCH_TARGET}x the 1-thread throughput: "

@@ -2,13 +2,13 @@
 scikit-learn reference in the same run, per-stage times, batch scaling, and scale/memory at
 N = 10,000 and 50,000.
 
-    python benchmarks/run_benchmarks.py [--quick] [--scenes 500] [--reference-scenes 100]
+    python -m benchmarks.correspondences.protocol [--quick] [--scenes 500] [--reference-scenes 100]
                                         [--out out/training_free.md]
 
 BLAS/OpenMP threads are set to 1 below, before numpy is imported, so that the reference is
 single-threaded like ``register(..., num_threads=1)``. The markdown goes to --out (between
 the markers of its section, keeping the rest of the file) and to stdout; the committed report
-is ``--out benchmarks/results/training_free.md``, whose tables BENCHMARKS.md quotes.
+is ``--out benchmarks/results/correspondences/training_free.md``, whose tables BENCHMARKS.md quotes.
 """
 
 from __future__ import annotations
@@ -19,11 +19,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -35,12 +33,11 @@ from pointclm.datasets import make_scenes  # noqa: E402
 from pointclm.metrics import score_scene, summarize  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-from reference_numpy import register_reference  # noqa: E402
+from benchmarks.common import report  # noqa: E402
+from benchmarks.correspondences.reference_numpy import register_reference  # noqa: E402
 
 BEGIN, END = "<!-- training-free:begin -->", "<!-- training-free:end -->"
-TITLE = "# Training-free pipeline: the output of `benchmarks/run_benchmarks.py`"
+TITLE = "# Training-free pipeline: the output of `python -m benchmarks.correspondences.protocol`"
 PAPER = "| paper Table 1, PointCLM (trained; GTX 1080Ti) | - | 92.60 | 99.69 | 96.01 | - | 60 | - |"
 STAGES = ("pruning", "clustering", "poses")
 WARMUP = 5
@@ -60,20 +57,14 @@ def environment(command: str) -> str:
         if line.startswith("model name"):
             cpu = line.split(":", 1)[1].strip()
             break
-    try:
-        git = ["git", "rev-parse", "--short", "HEAD"]
-        rev = subprocess.run(git, cwd=HERE, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        rev = ""
-    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     return (
-        f"- Date: {now}. Command: `{command}`.\n"
+        f"- Date: {report.utc_now()}. Command: `{command}`.\n"
         f"- Hardware: {cpu}, {os.cpu_count()} logical cores "
-        f"({len(os.sched_getaffinity(0))} usable); load average at start {load}. The machine "
+        f"({len(os.sched_getaffinity(0))} usable); load average at start "
+        f"{report.load_average()}. The machine "
         "is shared, so speed targets are checked as ratios measured in the same run, and "
         "times are medians.\n"
-        f"- Versions: pointclm {pointclm.__version__}{f' (git {rev})' if rev else ''}, "
+        f"- Versions: pointclm {pointclm.__version__} (git {report.git_commit()}), "
         f"Python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"scikit-learn {sklearn.__version__}.\n"
         "- Threads: pointclm `num_threads=1` unless stated; the reference runs with "
@@ -218,10 +209,11 @@ def batch_throughput(scenes, repeats: int) -> list[str]:
 def scale(sizes: list[int]) -> list[str]:
     # Through sh, which forks python rather than exec'ing it, so that the child's ru_maxrss
     # starts from sh's small RSS and not from this process's.
-    cmd = ["/bin/sh", "-c", '"$@"; exit $?', "sh", sys.executable, str(HERE / "scale_child.py")]
+    child = report.module_command("benchmarks.correspondences.scale_child")
+    cmd = ["/bin/sh", "-c", '"$@"; exit $?', "sh", *child]
     rows = []
     for n in tqdm(sizes, desc="scale"):
-        proc = subprocess.run([*cmd, str(n)], capture_output=True, text=True)
+        proc = subprocess.run([*cmd, str(n)], capture_output=True, text=True, cwd=report.ROOT)
         if proc.returncode != 0:
             raise RuntimeError(f"scale child N={n} failed:\n{proc.stderr}")
         rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
@@ -284,7 +276,7 @@ def main() -> None:
         args.scenes, args.reference_scenes = 20, 5
         args.batch_scenes, args.batch_repeats = 20, 2
     start = time.perf_counter()
-    command = " ".join(["python benchmarks/run_benchmarks.py", *sys.argv[1:]])
+    command = report.command(__spec__.name)
     scenes = list(make_scenes(max(args.scenes, args.batch_scenes), seed=0))
     n_ref = min(args.reference_scenes, args.scenes)
 

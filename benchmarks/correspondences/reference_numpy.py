@@ -10,7 +10,8 @@ Steps: spatial consistency ``beta``; density pruning (paper form); normalised-La
 eigengap for the number of instances; scikit-learn spectral clustering; per-cluster RANSAC on
 3-point Kabsch hypotheses; refit on all inliers; merging of duplicate poses.
 
-Run ``python benchmarks/reference_numpy.py`` for a 20-scene accuracy and timing check.
+Run ``python -m benchmarks.correspondences.reference_numpy`` for a 20-scene accuracy and timing
+check.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""One scale measurement in a fresh process: ``python benchmarks/scale_child.py N [SEED]``.
+"""One scale measurement in a fresh process:
+``python -m benchmarks.correspondences.scale_child N [SEED]``.
 
 Builds ``make_planted_scene(N, SEED)``, reads the peak RSS (baseline: interpreter, numpy,
 pointclm and the scene), runs ``pointclm.register`` once with the default config and threads,

@@ -1,6 +1,6 @@
 """Each stage's time against the arithmetic it needs.
 
-    python benchmarks/stage_limits.py [--synthetic 100] [--realistic-cache DIR]
+    python -m benchmarks.correspondences.stage_limits [--synthetic 100] [--realistic-cache DIR]
         [--clouds-cache DIR] [--bins-cache DIR] [--out FILE]
 
 For every stage of the training-free correspondence pipeline (`register`, one thread) this
@@ -52,15 +52,14 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_v] = "1"
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+from benchmarks.common import report  # noqa: E402
 
 PAIR_FLOPS = 16
 AFFINITY_FLOPS = 16
@@ -234,9 +233,9 @@ def cloud_table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float
 
 def cloud_scenes(cache: Path, per_model: int) -> list[tuple[Any, ...]]:
     """The realistic held-out scenes with their clouds (``realistic_models.py``'s cache)."""
-    sys.path.insert(0, str(Path(__file__).parent))
     from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
-    from realistic_models import benchmark_seeds, load_scenes, scene_params
+
+    from benchmarks.clouds.scenes import benchmark_seeds, load_scenes, scene_params
 
     dd = str(default_data_dir())
     jobs = [
@@ -270,10 +269,10 @@ def synthetic(count: int) -> tuple[list[Any], Callable[[Any], Any]]:
 
 
 def realistic(cache: Path, per_model: int) -> tuple[list[Any], Callable[[Any], Any]]:
-    sys.path.insert(0, str(Path(__file__).parent))
     from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
     from pointclm.point_clouds import cloud_config
-    from realistic_models import benchmark_seeds, load_scenes, scene_params
+
+    from benchmarks.clouds.scenes import benchmark_seeds, load_scenes, scene_params
 
     dd = str(default_data_dir())
     jobs = [
@@ -310,10 +309,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     lines = [
         "# Stage times against their arithmetic (one thread)",
         "",
-        f"- Date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; pointclm "
-        f"{pointclm.__version__}; {platform.machine()}, {os.cpu_count()} cores "
-        f"({platform.processor() or 'cpu'}).",
-        f"- Command: `python benchmarks/stage_limits.py {' '.join(argv or sys.argv[1:])}`",
+        f"- Date: {report.utc_now()}; pointclm {pointclm.__version__} "
+        f"(git {report.git_commit()}); {report.hardware()}.",
+        f"- Command: `{report.command(__spec__.name, argv)}`",
         f"- Peak (numpy matrix product, one thread, same run): f32 {peak['f32']:.1f} GFLOP/s, "
         f"f64 {peak['f64']:.1f} GFLOP/s.",
         f"- Each scene: the fastest of {REPEATS} calls; the arithmetic models are in the "

@@ -1,7 +1,7 @@
 """What Open3D input costs: the check every array now passes through, reading Open3D clouds,
 and a registration from Open3D objects against the same one from arrays.
 
-    python benchmarks/interop.py [--points 1000000] [--repeats 5]
+    python -m benchmarks.interop.conversions [--points 1000000] [--repeats 5]
 
 Prints a Markdown table (best of `--repeats`). Needs open3d (``pip install ".[test]"``).
 """

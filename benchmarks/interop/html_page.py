@@ -1,6 +1,6 @@
 """The HTML page of a result: its size, and how long headless Chromium takes to open it.
 
-    python benchmarks/html_page.py --copies 20 --opens 5
+    python -m benchmarks.interop.html_page --copies 20 --opens 5
 
 Builds a bin of ``--copies`` bunnies (``pointclm.datasets.bins.make_bin_scene``, its depth
 camera as viewpoint), registers it with ``heap=True``, writes the page with

@@ -1,7 +1,7 @@
 """The validation matrix: registration and exact-pose verification on sensed scenes varying
 camera, sensor, layout, part and model form.
 
-    python benchmarks/matrix.py [--quick] [--cells SUBSTR,...] [--scenes 4] [--out FILE]
+    python -m benchmarks.matrix.run [--quick] [--cells SUBSTR,...] [--scenes 4] [--out FILE]
 
 Every axis takes at least three values (``pointclm.datasets.cameras.CAMERAS``,
 ``sensor_effects.SENSORS``, ``layouts.LAYOUTS``, ``parts.PARTS``, ``parts.MODEL_FORMS``). The
@@ -447,7 +447,7 @@ def _write(results: dict, pooled: dict, args, argv, seeds: list[int], t0: float)
     cut = len(seeds) // 2 or 1
     results["meta"] = {
         "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
-        "command": "python benchmarks/matrix.py "
+        "command": "python -m benchmarks.matrix.run "
         + " ".join(argv if argv is not None else sys.argv[1:]),
         "hardware": f"{platform.machine()}, {os.cpu_count()} cores",
         "seconds": time.perf_counter() - t0,
@@ -464,7 +464,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--cells", help="comma-separated substrings of the cell names to run")
     ap.add_argument("--scenes", type=int, default=4, help="scenes per cell (half validation)")
     ap.add_argument("--random", type=int, default=8, help="random combinations of the axes")
-    ap.add_argument("--out", default="benchmarks/results/matrix.json")
+    ap.add_argument("--out", default="benchmarks/results/matrix/matrix.json")
     ap.add_argument("--table", help="also write the markdown table here")
     ap.add_argument("--data-dir", default=None)
     args = ap.parse_args(argv)
