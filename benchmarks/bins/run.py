@@ -90,6 +90,12 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import report
+from benchmarks.common.peers import (
+    missing_peers,
+    require_peers,
+    sequential_kiss,
+    sequential_ransac_fpfh,
+)
 
 #: The matching a user sets for a heap: every scan point's best model match among the top
 #: 10,000, not only mutual ones (a model point has one true match per visible copy, and the
@@ -138,7 +144,6 @@ def choose_methods(requested: str, skip_missing_peers: bool) -> list[str]:
     """The methods of `requested` (comma-separated names) in `METHODS`' order. A method whose
     peer is not installed stops the run here, before any scene is built, unless
     `skip_missing_peers`: then it is left out, and said so."""
-    from benchmarks.common.peers import missing_peers, require_peers
 
     names = [m for m in requested.split(",") if m]
     unknown = [m for m in names if m not in METHODS]
@@ -234,88 +239,11 @@ def score(pred: np.ndarray, scene, seconds: float) -> SceneResult:
     )
 
 
-def _o3d_cloud(points: np.ndarray, voxel: float, towards: np.ndarray | None):
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(voxel)
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
-    if towards is None:
-        # The model's normals point away from its centroid.
-        pc.orient_normals_towards_camera_location(np.asarray(pc.points).mean(0))
-        pc.normals = o3d.utility.Vector3dVector(-np.asarray(pc.normals))
-    else:
-        pc.orient_normals_towards_camera_location(towards)
-    feat = reg.compute_fpfh_feature(
-        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
-    )
-    return pc, np.asarray(feat.data)
-
-
-def sequential_ransac_fpfh(
-    model: np.ndarray,
-    scan: np.ndarray,
-    voxel: float,
-    sensor: np.ndarray,
-    max_fits: int,
-    min_fitness: float = RANSAC_MIN_FITNESS,
-    seed: int = 0,
-) -> list[np.ndarray]:
-    """Open3D's feature-matching RANSAC in a loop, removing explained scan points (module
-    documentation)."""
-    import open3d as o3d
-    from scipy.spatial import cKDTree
-
-    reg = o3d.pipelines.registration
-    o3d.utility.random.seed(seed)
-    src, fsrc = _o3d_cloud(model, voxel, None)
-    tgt, ftgt = _o3d_cloud(scan, voxel, sensor)
-    src_pts = np.asarray(src.points)
-    tgt_pts = np.asarray(tgt.points)
-    source_feature = reg.Feature()
-    source_feature.data = fsrc
-    left = np.arange(len(tgt_pts))
-    dist = 1.5 * voxel
-    poses: list[np.ndarray] = []
-    while len(poses) < max_fits and len(left) >= 3:
-        sub = tgt.select_by_index(left.tolist())
-        feature = reg.Feature()
-        feature.data = np.ascontiguousarray(ftgt[:, left])
-        res = reg.registration_ransac_based_on_feature_matching(
-            src,
-            sub,
-            source_feature,
-            feature,
-            True,
-            dist,
-            reg.TransformationEstimationPointToPoint(False),
-            3,
-            [
-                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-                reg.CorrespondenceCheckerBasedOnDistance(dist),
-            ],
-            reg.RANSACConvergenceCriteria(100_000, 0.999),
-        )
-        icp = reg.registration_icp(
-            src, sub, dist, res.transformation, reg.TransformationEstimationPointToPoint()
-        )
-        if icp.fitness < min_fitness:
-            break
-        pose = np.asarray(icp.transformation).copy()
-        poses.append(pose)
-        near, _ = cKDTree(src_pts @ pose[:3, :3].T + pose[:3, 3]).query(
-            tgt_pts[left], distance_upper_bound=dist
-        )
-        left = left[~np.isfinite(near)]
-    return poses
-
-
 def kiss_in_its_units(corr: np.ndarray, noise_bound: float) -> list[np.ndarray]:
     """Sequential KISS-Matcher with the correspondences rescaled so that the noise bound is
     0.1: its settings are meant for metre-scale LiDAR maps (it refuses a voxel under 0.01 and
     clamps noise bounds over 1), and a rigid fit does not care about units. The translations
     are scaled back."""
-    from benchmarks.common.peers import sequential_kiss
 
     scale = 0.1 / noise_bound
     poses = sequential_kiss(corr * scale, 0.1, KISS_MIN_INLIERS, 80)
@@ -469,7 +397,12 @@ def main() -> None:
                     t = tk - built - reg.timings["matching"]
                 else:
                     poses = sequential_ransac_fpfh(
-                        sc.model_points, sc.scan, sc.voxel_size, sc.sensor, args.ransac_max_fits
+                        sc.model_points,
+                        sc.scan,
+                        sc.voxel_size,
+                        sc.sensor,
+                        args.ransac_max_fits,
+                        RANSAC_MIN_FITNESS,
                     )
                 r = score(np.asarray(poses), sc, time.perf_counter() - t)
                 table.add(model, method, r)

@@ -13,6 +13,8 @@ this module costs nothing. A benchmark checks for them before it starts
   correspondences (SPEC section 5).
 - :func:`sequential_ransac`: Open3D's ``registration_ransac_based_on_correspondence``
   (3-point samples), seeded through ``open3d.utility.random.seed`` so reruns agree.
+- :func:`sequential_ransac_fpfh`: Open3D's ``registration_ransac_based_on_feature_matching``
+  on the clouds themselves (its own FPFH matches), then ICP, in a loop (the bins' peer).
 """
 
 from __future__ import annotations
@@ -137,3 +139,82 @@ def sequential_ransac(
         return np.asarray(res.transformation)
 
     return _sequential(corr, threshold, min_inliers, max_instances, fit)
+
+
+def _o3d_cloud(points: np.ndarray, voxel: float, towards: np.ndarray | None):
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(voxel)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+    if towards is None:
+        # The model's normals point away from its centroid.
+        pc.orient_normals_towards_camera_location(np.asarray(pc.points).mean(0))
+        pc.normals = o3d.utility.Vector3dVector(-np.asarray(pc.normals))
+    else:
+        pc.orient_normals_towards_camera_location(towards)
+    feat = reg.compute_fpfh_feature(
+        pc, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)
+    )
+    return pc, np.asarray(feat.data)
+
+
+def sequential_ransac_fpfh(
+    model: np.ndarray,
+    scan: np.ndarray,
+    voxel: float,
+    sensor: np.ndarray,
+    max_fits: int,
+    min_fitness: float = 0.2,
+    seed: int = 0,
+) -> list[np.ndarray]:
+    """Open3D's feature-matching RANSAC on clouds, in a loop: the loop a user writes with
+    Open3D alone (`benchmarks.bins.run`'s peer). Both clouds are downsampled at `voxel`, with
+    normals (the scan's towards `sensor`) and FPFH at pointclm's radii; each fit is refined by
+    ICP and kept while it explains at least `min_fitness` of the model, and the scan points it
+    explains are removed before the next, at most `max_fits` fits."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+    src, fsrc = _o3d_cloud(model, voxel, None)
+    tgt, ftgt = _o3d_cloud(scan, voxel, sensor)
+    src_pts = np.asarray(src.points)
+    tgt_pts = np.asarray(tgt.points)
+    source_feature = reg.Feature()
+    source_feature.data = fsrc
+    left = np.arange(len(tgt_pts))
+    dist = 1.5 * voxel
+    poses: list[np.ndarray] = []
+    while len(poses) < max_fits and len(left) >= 3:
+        sub = tgt.select_by_index(left.tolist())
+        feature = reg.Feature()
+        feature.data = np.ascontiguousarray(ftgt[:, left])
+        res = reg.registration_ransac_based_on_feature_matching(
+            src,
+            sub,
+            source_feature,
+            feature,
+            True,
+            dist,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
+            [
+                reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                reg.CorrespondenceCheckerBasedOnDistance(dist),
+            ],
+            reg.RANSACConvergenceCriteria(100_000, 0.999),
+        )
+        icp = reg.registration_icp(
+            src, sub, dist, res.transformation, reg.TransformationEstimationPointToPoint()
+        )
+        if icp.fitness < min_fitness:
+            break
+        pose = np.asarray(icp.transformation).copy()
+        poses.append(pose)
+        near, _ = cKDTree(src_pts @ pose[:3, :3].T + pose[:3, 3]).query(
+            tgt_pts[left], distance_upper_bound=dist
+        )
+        left = left[~np.isfinite(near)]
+    return poses

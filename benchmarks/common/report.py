@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime
 import os
 import platform
+import shlex
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -28,7 +29,7 @@ def utc_now() -> str:
 def command(module: str, argv: Sequence[str] | None = None) -> str:
     """The command line that reruns `module` with `argv` (the process's own by default)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    return " ".join(["python -m", module, *args])
+    return " ".join(["python -m", module, *map(shlex.quote, args)])
 
 
 def hardware() -> str:
