@@ -21,7 +21,7 @@ for writing, so a batch cannot meet EROFS half way); ``read-only folder`` (mode 
 root child drops CAP_DAC_OVERRIDE so the mode applies); ``worker killed`` (a worker of 2
 killed each time a line was written since the last kill, at most every 0.3 s); ``scan
 truncated`` (the last scan cut to half its bytes once the first line is out). Then
-(``--no-ray`` leaves them out) benchmarks/batch/faults_ray.py's: the same faults with Ray as
+(``--no-ray`` leaves them out) faults_ray's: the same faults with Ray as
 the executor, and an output made read-only while the batch runs. Prints a markdown table.
 """
 
@@ -383,7 +383,7 @@ def main() -> None:
     ap.add_argument("--worker-kills", type=int, default=10)
     ap.add_argument("--quick", action="store_true", help="10 kills, 20 scans")
     ap.add_argument("--no-mount", action="store_true", help="no tmpfs faults (root only)")
-    ap.add_argument("--no-ray", action="store_true", help="without batch_faults_ray.py's cases")
+    ap.add_argument("--no-ray", action="store_true", help="without faults_ray's cases")
     ap.add_argument("--ray-kills", type=int, default=5, help="SIGKILLs of a Ray batch")
     args = ap.parse_args()
     if args.quick:

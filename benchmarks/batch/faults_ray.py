@@ -1,5 +1,5 @@
 """The faults of benchmarks/batch/faults.py with Ray as the executor, and an output that
-becomes read-only while a batch runs (local pool and Ray); `batch_faults.py` runs these
+becomes read-only while a batch runs (local pool and Ray); `faults` runs these
 after its own, or alone:
 
     python -m benchmarks.batch.faults_ray [--scans 40] [--kills 5] [--worker-kills 4]

@@ -3,7 +3,7 @@
     python -m benchmarks.clouds.point_cloud_scenes [--models heldout|validation]
         [--scenes-per-model 4] [--variant "peel=False" ...] [--cache DIR]
 
-Each scene of ``realistic_models.py`` (N = 1000 parameters, the same seeds: benchmark seeds
+Each scene of ``realistic_models`` (N = 1000 parameters, the same seeds: benchmark seeds
 for the held-out models, threshold-sweep seeds for the validation ones) is registered from its
 clouds alone: ``register_point_clouds(scene.source_points, scene.target_points,
 voxel_size=scene.voxel_size, viewpoint=scene.viewpoint, num_threads=1, **variant)``, so FPFH,

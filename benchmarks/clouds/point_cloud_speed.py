@@ -3,7 +3,7 @@
     python -m benchmarks.clouds.point_cloud_speed [--scenes-per-model 2] [--threads 2] [--runs 2]
         [--cache DIR] [--out FILE]
 
-Scenes: the held-out models' realistic benchmark scenes (``realistic_models.py``'s
+Scenes: the held-out models' realistic benchmark scenes (``realistic_models``'s
 ``benchmark_seeds``; a scan of about 23k points after downsampling, a model of about 1.8k),
 with their sensor position. Each run calls ``register_point_clouds(..., viewpoint=,
 num_threads=)`` once per scene, after one warm-up call; the table gives the median over the

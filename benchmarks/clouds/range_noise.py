@@ -5,7 +5,7 @@ visible side fits the scan more than 1.3 times as loosely as the median pose's
 (`pointclm.refinement.loose_poses`). A depth sensor's noise grows with range (as z^2 for
 structured light and stereo), so copies far from it fit looser than near ones. This adds
 Gaussian noise of ``a * (range / median range)^e`` model voxels to each scan point of the
-realistic scenes (``point_cloud_scenes.py``'s) and registers each with its sensor position,
+realistic scenes (``point_cloud_scenes``'s) and registers each with its sensor position,
 the rule on and off; it reports correct / predicted / copies and F1 for both, and the spread
 of the copies' ranges (farthest / nearest centre). A larger ``e`` stands for a wider spread
 of ranges than the scenes hold: their copies lie within 1.14-1.46 of each other's range, so

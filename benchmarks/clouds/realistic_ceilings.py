@@ -2,7 +2,7 @@
 
 The target set for the learned embedding is +3 MF over the training-free pipeline on FPFH
 correspondences alone. This measures what perfect or learned knowledge of each row would buy
-that stage, on VALIDATION scenes built as ``realistic_thresholds.py`` builds its own (the five
+that stage, on VALIDATION scenes built as ``realistic_thresholds`` builds its own (the five
 validation data models, 20 scenes each, and 30 random procedural shapes, 2 scenes each;
 held-out models are refused). Every row registers raw poses (no clouds) and is scored by MF,
 the paper's definition (RE < 15 deg, TE < 10 % of the diagonal):
@@ -17,7 +17,7 @@ the paper's definition (RE < 15 deg, TE < 10 % of the diagonal):
   each match and its spatial- and normal-consistency degrees, trained on half the scenes and
   applied to the other half (two folds by scene); the share of rows kept and the thresholds
   are picked on the training fold with out-of-fold scores;
-- the oracle embedding of ``realistic.py`` (one direction per true instance): perfect
+- the oracle embedding of ``realistic`` (one direction per true instance): perfect
   grouping, the ceiling of any embedding;
 - with ``--model``, each network (Rust forward pass) against training-free on the scenes of
   the models it never trained on, on all rows and on the rows the learned score ranks first.

@@ -309,7 +309,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             f"## Validation models, pooled ({', '.join(val)})",
             "",
             "In-sample: thresholds and defaults are picked on these models "
-            "(`realistic_thresholds.py`, on other seeds), so these are not results.",
+            "(`realistic_thresholds`, on other seeds), so these are not results.",
             "",
             *_table([r for r in rows if r["model"] in val], methods),
             "",

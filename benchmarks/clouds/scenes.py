@@ -38,7 +38,7 @@ def benchmark_seeds(model: str, n: int) -> list[int]:
 
 
 def threshold_seeds(model: str, n: int) -> list[int]:
-    """Seeds of `model`'s first `n` threshold-sweep scenes (``realistic_thresholds.py``)."""
+    """Seeds of `model`'s first `n` threshold-sweep scenes (``realistic_thresholds``)."""
     return _seeds(THRESHOLD_SEED_BASE, model, n)
 
 

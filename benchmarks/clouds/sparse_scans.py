@@ -1,7 +1,7 @@
 """`register_point_clouds` on sparser or noisier sensors: the realistic scenes with their scans
 thinned (``--fractions``) or with Gaussian noise added (``--noise``, in model voxels).
 
-Each scene of ``realistic_models.py`` (as ``point_cloud_scenes.py`` builds them: benchmark
+Each scene of ``realistic_models`` (as ``point_cloud_scenes`` builds them: benchmark
 seeds for the held-out models, threshold seeds for the validation ones) keeps a random share
 of its scan points (``--fractions``; seed 0), as a sensor of lower resolution would see it,
 and is registered with the default voxel (``voxel_size`` not given) and the sensor's position

@@ -3,7 +3,7 @@
 
 Builds ``make_planted_scene(N, SEED)``, reads the peak RSS (baseline: interpreter, numpy,
 pointclm and the scene), runs ``pointclm.register`` once with the default config and threads,
-reads the peak RSS again and prints one JSON line. `run_benchmarks.py` starts it through
+reads the peak RSS again and prints one JSON line. `protocol` starts it through
 ``sh`` so that its ``ru_maxrss`` does not start from the parent's RSS (on Linux a forked child
 inherits the parent's peak, and exec keeps it).
 """

@@ -232,7 +232,7 @@ def cloud_table(name: str, rows: Sequence[dict[str, Any]], peak: dict[str, float
 
 
 def cloud_scenes(cache: Path, per_model: int) -> list[tuple[Any, ...]]:
-    """The realistic held-out scenes with their clouds (``realistic_models.py``'s cache)."""
+    """The realistic held-out scenes with their clouds (``clouds/realistic_models.py``'s cache)."""
     from pointclm.datasets.scenes import HELDOUT_MODELS, default_data_dir
 
     from benchmarks.clouds.scenes import benchmark_seeds, load_scenes, scene_params
@@ -250,7 +250,7 @@ def cloud_scenes(cache: Path, per_model: int) -> list[tuple[Any, ...]]:
 
 
 def bin_scenes(cache: Path, per_model: int) -> list[tuple[Any, ...]]:
-    """The held-out bins (``bins.py``'s scenes and cache)."""
+    """The held-out bins (``bins/run.py``'s scenes and cache)."""
     from pointclm.datasets.bins import BIN_MODELS_HELD_OUT, BinParams, bin_scene_cached
 
     scenes = []
@@ -290,16 +290,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument(
         "--realistic-cache",
         type=Path,
-        help="realistic_models.py's scene cache (held-out models, N = 1000); omitted: none",
+        help="clouds/realistic_models.py's scene cache (held-out models, N = 1000); omitted: none",
     )
     ap.add_argument("--realistic-per-model", type=int, default=4)
     ap.add_argument(
         "--clouds-cache",
         type=Path,
-        help="realistic_models.py's scene cache, for register_point_clouds; omitted: none",
+        help="clouds/realistic_models.py's scene cache, for register_point_clouds; omitted: none",
     )
     ap.add_argument("--clouds-per-model", type=int, default=2)
-    ap.add_argument("--bins-cache", type=Path, help="bins.py's scene cache; omitted: none")
+    ap.add_argument("--bins-cache", type=Path, help="bins/run.py's scene cache; omitted: none")
     ap.add_argument("--bins-per-model", type=int, default=1)
     ap.add_argument("--out", type=Path, help="also write the report here (markdown)")
     args = ap.parse_args(argv)
