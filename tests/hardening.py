@@ -7,7 +7,7 @@
   ``ValueError`` (any subclass), ``FileNotFoundError`` or ``MemoryError``; anything else
   (TypeError, OverflowError, IndexError, a Rust panic) fails the case.
 - :data:`CASES` counts the generated cases per property; with ``POINTCLM_CASE_COUNTS=FILE``
-  each module adds its counts to that JSON file (what ``benchmarks/results/hardening.md``
+  each module adds its counts to that JSON file (what ``benchmarks/results/batch/hardening.md``
   reports).
 """
 

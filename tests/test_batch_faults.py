@@ -1,4 +1,4 @@
-"""`pointclm batch` under faults (a short version of benchmarks/batch_faults.py): killed at
+"""`pointclm batch` under faults (a short version of benchmarks/batch/faults.py): killed at
 random moments, a file-size limit, a read-only folder, workers killed, a scan truncated while
 the batch runs. Each ends with a clear message and exit code; the output holds whole lines of
 the uninterrupted run, in order, with at most one line cut short; ``--resume`` completes it

@@ -1,6 +1,6 @@
 """`pointclm batch` under faults with Ray as the executor (skipped without ray), and an
 output made read-only while a batch runs (local pool and Ray): a short version of
-benchmarks/batch_faults_ray.py. Each ends with a clear message and exit code; the output
+benchmarks/batch/faults_ray.py. Each ends with a clear message and exit code; the output
 holds whole lines of the uninterrupted run, in order, with at most one line cut short;
 ``--resume`` completes it to the uninterrupted run's lines."""
 

@@ -1,11 +1,7 @@
 """The validation matrix's instrument: sensed scenes, sensor effects, symmetry-aware scoring,
-and two quick cells of ``benchmarks/matrix.py``."""
+and two quick cells of ``benchmarks/matrix/run.py``."""
 
 from __future__ import annotations
-
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,21 +11,10 @@ from pointclm.datasets.sensed import SensedSceneParams, make_packed_boxes, make_
 from pointclm.datasets.sensor_effects import SENSORS, SensorModel, sense
 from pointclm.metrics import pose_match_matrix, symmetric_errors
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.matrix import run as mx
+
 SMALL = Camera(200, 150, 165.0, 165.0, 100.0, 75.0, 0.6)
 IDEAL = SensorModel("gaussian", sigma0=0.0)
-
-
-def _matrix():
-    name = "matrix_bench"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / "matrix.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _turned(pose: np.ndarray, deg: float) -> np.ndarray:
@@ -108,7 +93,6 @@ def test_model_forms_are_in_the_part_frame():
 
 
 def test_scoring_exact_shifted_and_symmetric():
-    mx = _matrix()
     rng = np.random.default_rng(0)
     truth = np.tile(np.eye(4), (3, 1, 1))
     truth[:, :3, 3] = rng.uniform(-0.2, 0.2, size=(3, 3))
@@ -139,7 +123,6 @@ def test_scoring_exact_shifted_and_symmetric():
 def test_quick_cells():
     import dataclasses
 
-    mx = _matrix()
     cells = {c.name: c for c in mx.all_cells(0)}
     assert {"base", "boxes2 grid", "corr bunny structured_light"} <= set(cells)
     for axis, values in mx.AXES.items():

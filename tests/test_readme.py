@@ -11,8 +11,10 @@ HTML comment on the line before it, ``<!-- skip: needs ros -->`` (keep that rare
   output, in order. A block naming ``../shared/data`` is skipped when that folder is missing,
   one importing torch when torch is not installed.
 - ```bash blocks: installs are not run; every ``pointclm`` command must parse with the CLI's
-  own parser, every ``python benchmarks/...`` script must exist and list the flags used in
-  its ``--help``, and every cargo ``--example``/bench must exist in the crate.
+  own parser, every ``python -m benchmarks.<suite>.<name>`` module must exist and list the
+  flags used in its ``--help`` (the suites run as modules from the repository root; a
+  ``python benchmarks/...`` path is refused), and every cargo ``--example``/bench must exist
+  in the crate.
 - ```rust blocks: the crate README's example is a doctest of the core crate (``cargo test -p
   pointclm``); here we check that every Rust block shown is exactly that code, and that the
   crate still includes its README as a doctest.
@@ -199,15 +201,15 @@ def _check_pointclm(args: list[str]) -> None:
         pytest.fail(f"`pointclm {shlex.join(args)}` does not parse (exit {e.code})")
 
 
-def _check_script(script: str, args: list[str]) -> None:
-    path = ROOT / script
-    assert path.is_file(), f"{script} does not exist"
+def _check_benchmark(module: str, args: list[str]) -> None:
+    path = ROOT / (module.replace(".", "/") + ".py")
+    assert path.is_file(), f"{module} does not exist ({path.relative_to(ROOT)})"
     run = subprocess.run(
-        [sys.executable, str(path), "--help"], cwd=ROOT, capture_output=True, text=True
+        [sys.executable, "-m", module, "--help"], cwd=ROOT, capture_output=True, text=True
     )
     assert run.returncode == 0, run.stderr
     for flag in _flags(args):
-        assert re.search(rf"{re.escape(flag)}\b", run.stdout), f"{script} has no {flag}"
+        assert re.search(rf"{re.escape(flag)}\b", run.stdout), f"{module} has no {flag}"
 
 
 def _check_cargo(args: list[str]) -> None:
@@ -226,8 +228,10 @@ def test_bash_command_exists(words):
     head, args = words[0], words[1:]
     if head == "pointclm":
         _check_pointclm(args)
+    elif head == "python" and args[:1] == ["-m"] and args[1].startswith("benchmarks."):
+        _check_benchmark(args[1], args[2:])
     elif head == "python" and args and args[0].startswith("benchmarks/"):
-        _check_script(args[0], args[1:])
+        pytest.fail(f"run the benchmarks as modules: python -m {args[0][:-3].replace('/', '.')}")
     elif head == "cargo":
         _check_cargo(args)
     else:

@@ -1,12 +1,11 @@
 """The multi-model realistic benchmark: model split, seeds kept apart, the scene cache, the
-report, and the N = 50,000 child's measurement (`benchmarks/realistic_models.py`)."""
+report, and the N = 50,000 child's measurement (`benchmarks/clouds/realistic_models.py`)."""
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -22,23 +21,10 @@ from pointclm.datasets.scenes import (
     make_realistic_scene,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load(name: str = "realistic_models") -> types.ModuleType:
-    """A benchmark script as a module. The scripts import their siblings (peers.py,
-    realistic.py, realistic_models.py) by name, as a script does."""
-    if str(ROOT / "benchmarks") not in sys.path:
-        sys.path.insert(0, str(ROOT / "benchmarks"))
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-rm = _load()
+from benchmarks.bins import run as bins
+from benchmarks.clouds import realistic_models as rm
+from benchmarks.clouds import scale
+from benchmarks.clouds import scenes as sc
 
 
 def test_split_covers_every_model_once() -> None:
@@ -68,53 +54,53 @@ def test_benchmark_seeds_miss_threshold_and_training_seeds() -> None:
     from pointclm.training.realistic import scene_seed
 
     models = (*HELDOUT_MODELS, *VALIDATION_MODELS)
-    bench = [s for m in models for s in rm.benchmark_seeds(m, 1000)]
-    thresholds = [s for m in models for s in rm.threshold_seeds(m, 1000)]
+    bench = [s for m in models for s in sc.benchmark_seeds(m, 1000)]
+    thresholds = [s for m in models for s in sc.threshold_seeds(m, 1000)]
     assert len(set(bench)) == len(bench) == 1000 * len(models)  # no two models share a seed
     assert not set(bench) & set(thresholds)
-    assert rm.benchmark_seeds("common3d/spot", 3) == rm.benchmark_seeds("common3d/spot", 5)[:3]
+    assert sc.benchmark_seeds("common3d/spot", 3) == sc.benchmark_seeds("common3d/spot", 5)[:3]
     # The training banks (run seed s) and their validation banks (s + 1), for the first runs.
     banks = {scene_seed(b, i, k) for b in range(3) for i in range(12) for k in range(200)}
-    lo, hi = rm.BENCHMARK_SEED_BASE, rm.THRESHOLD_SEED_BASE + rm.SEED_RANGE
+    lo, hi = sc.BENCHMARK_SEED_BASE, sc.THRESHOLD_SEED_BASE + sc.SEED_RANGE
     assert not any(lo <= s < hi for s in banks)
     assert max(bench + thresholds) < hi
     # ... and the bunny benchmark's and the tests' small seeds.
     assert min(bench + thresholds) > 10_000
     with pytest.raises(ValueError, match="scenes per model"):
-        rm.benchmark_seeds("torus", rm.SCENES_PER_SLOT + 1)
+        sc.benchmark_seeds("torus", sc.SCENES_PER_SLOT + 1)
     with pytest.raises(ValueError, match="unknown model"):
-        rm.threshold_seeds("bunny", 1)
+        sc.threshold_seeds("bunny", 1)
     # Random procedural shapes get blocks after the named models', inside the same range.
     from pointclm.datasets.procedural import procedural_family_names
 
     shapes = procedural_family_names(40, 7)
-    extra = [s for m in shapes for s in rm.threshold_seeds(m, 2)]
+    extra = [s for m in shapes for s in sc.threshold_seeds(m, 2)]
     assert not set(extra) & set(thresholds) and max(extra) < hi
-    assert rm.threshold_seeds(shapes[0], 2) == rm.threshold_seeds(shapes[0], 3)[:2]
+    assert sc.threshold_seeds(shapes[0], 2) == sc.threshold_seeds(shapes[0], 3)[:2]
     with pytest.raises(ValueError, match="unknown model"):
-        rm.threshold_seeds("superquadric-x", 1)
+        sc.threshold_seeds("superquadric-x", 1)
 
 
 def test_scene_params_by_n() -> None:
-    small = rm.scene_params("stanford/bunny", 1000, None)
+    small = sc.scene_params("stanford/bunny", 1000, None)
     assert small.mutual and small.n_correspondences == 1000 and small.top_k == 10_000
-    big = rm.scene_params("stanford/bunny", 5000, None)
+    big = sc.scene_params("stanford/bunny", 5000, None)
     assert not big.mutual and big.top_k == 5000 and big.n_correspondences is None
     # Only the matching differs: the same seed lays out the same scene.
     assert SceneParams(**{**big.__dict__, "mutual": True, "top_k": 10_000}) == SceneParams(
         **{**small.__dict__, "n_correspondences": None}
     )
     with pytest.raises(ValueError, match="positive"):
-        rm.scene_params("stanford/bunny", 0, None)
+        sc.scene_params("stanford/bunny", 0, None)
 
 
 def test_cache_round_trip_and_keys(tmp_path: Path) -> None:
     params = SceneParams(model="bunny", data_dir=None, instances=(2, 2), clutter=(0, 0))
     scene = make_realistic_scene(3, params)
-    path = rm.cache_path(tmp_path, "bunny", 3, params)
-    rm.save_scene(path, scene)
-    back = rm.load_scene(path)
-    for k in rm._ARRAYS:
+    path = sc.cache_path(tmp_path, "bunny", 3, params)
+    sc.save_scene(path, scene)
+    back = sc.load_scene(path)
+    for k in sc._ARRAYS:
         np.testing.assert_array_equal(getattr(back, k), getattr(scene, k))
     assert (back.voxel_size, back.diameter, back.model, back.seed) == (
         scene.voxel_size,
@@ -126,13 +112,13 @@ def test_cache_round_trip_and_keys(tmp_path: Path) -> None:
     with np.load(path, allow_pickle=False) as z:  # plain arrays only
         assert "correspondences" in z.files
     other = SceneParams(model="bunny", data_dir=None, instances=(2, 2), clutter=(0, 1))
-    assert rm.cache_path(tmp_path, "bunny", 3, other) != path
-    assert rm.cache_path(tmp_path, "bunny", 4, params) != path
+    assert sc.cache_path(tmp_path, "bunny", 3, other) != path
+    assert sc.cache_path(tmp_path, "bunny", 4, params) != path
     # The data folder's location is not part of the key.
     moved = SceneParams(model="bunny", data_dir="/elsewhere", instances=(2, 2), clutter=(0, 0))
-    assert rm.cache_path(tmp_path, "bunny", 3, moved) == path
+    assert sc.cache_path(tmp_path, "bunny", 3, moved) == path
     # A cached scene is read, not rebuilt.
-    assert rm.load_scenes([("bunny", 3, params)], tmp_path, 1, progress=False)[0].seed == 3
+    assert sc.load_scenes([("bunny", 3, params)], tmp_path, 1, progress=False)[0].seed == 3
 
 
 def test_summary_counts_predictions_over_ground_truth() -> None:
@@ -161,7 +147,7 @@ def test_quick_run_writes_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert "| pointclm, training-free, correspondences alone |" in text
     record = json.loads(out.with_suffix(".json").read_text())
     assert {r["method"] for r in record["rows"]} >= {"pointclm", "pointclm+refine", "oracle"}
-    assert {r["seed"] for r in record["rows"]} == set(rm.benchmark_seeds("torus", 1))
+    assert {r["seed"] for r in record["rows"]} == set(sc.benchmark_seeds("torus", 1))
     with pytest.raises(SystemExit, match="unknown model"):
         rm.main(["--models", "no-such-model", "--out", str(out)])
 
@@ -186,7 +172,6 @@ def test_a_missing_peer_is_named_before_any_scene_is_built(
 def test_bins_names_a_missing_peer_up_front_and_writes_beside_the_results(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    bins = _load("bins")
     assert not bins.DEFAULT_OUT.startswith("benchmarks/results")
     monkeypatch.setitem(sys.modules, "kiss_matcher", None)
     monkeypatch.setitem(sys.modules, "open3d", None)
@@ -212,9 +197,9 @@ def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
         top_k=600,
         n_correspondences=None,
     )
-    path = rm.cache_path(tmp_path, "bunny", 1, params)
-    rm.save_scene(path, make_realistic_scene(1, params))
-    rm.main(["--scale-child", str(path), "--threads", "1"])
+    path = sc.cache_path(tmp_path, "bunny", 1, params)
+    sc.save_scene(path, make_realistic_scene(1, params))
+    scale.main([str(path), "--threads", "1"])
     r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert r["n"] == 600 and r["threads"] == 1 and r["gt"] == 2
     assert r["seconds"] > 0 and r["peak_mb"] >= r["baseline_mb"] > 0
@@ -230,7 +215,7 @@ def test_scale_child_reports_time_and_memory(tmp_path: Path, capsys) -> None:
 def test_validation_scripts_refuse_held_out_models(
     monkeypatch: pytest.MonkeyPatch, script: str, models: str, refused: str
 ) -> None:
-    module = _load(script)
+    module = importlib.import_module(f"benchmarks.clouds.{script}")
     monkeypatch.setattr(sys, "argv", ["x", "--models", models])
     with pytest.raises(SystemExit, match=f"not validation models: {refused}"):
         module.main()
@@ -241,7 +226,8 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
     from pointclm.metrics import score_scene
     from pointclm.point_clouds import scaled_config
 
-    rt = _load("realistic_thresholds")
+    from benchmarks.clouds import realistic_thresholds as rt
+
     scene = make_realistic_scene(2, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
     params = {"tau_s": 0.8, "tau_n": 1, "min_cluster_size": 3}
     cfg = scaled_config(scene.voxel_size, pointclm.Config(**params))
@@ -257,7 +243,8 @@ def test_threshold_scorer_matches_refine_poses_on_the_raw_poses() -> None:
 
 
 def test_ceiling_row_features_rank_true_inliers_first() -> None:
-    rc = _load("realistic_ceilings")
+    from benchmarks.clouds import realistic_ceilings as rc
+
     scene = make_realistic_scene(3, SceneParams(model="bunny", data_dir=None, instances=(3, 3)))
     before = scene.correspondences.copy()
     x = rc.row_features(scene)
@@ -271,7 +258,8 @@ def test_ceiling_row_features_rank_true_inliers_first() -> None:
 
 
 def test_ceiling_keeps_the_highest_scores_and_at_least_three() -> None:
-    rc = _load("realistic_ceilings")
+    from benchmarks.clouds import realistic_ceilings as rc
+
     score = np.array([0.1, 0.9, 0.5, 0.7, 0.2])
     np.testing.assert_array_equal(rc._kept(score, 0.4), [1, 2, 3])
     np.testing.assert_array_equal(rc._kept(score, 0.8), [1, 2, 3, 4])

@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import types
-from pathlib import Path
-
 import numpy as np
 import pytest
 from pointclm.datasets import make_scenes
@@ -14,18 +10,7 @@ from pointclm.metrics import score_scene, summarize
 pytest.importorskip("scipy")
 pytest.importorskip("sklearn")
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "reference_numpy.py"
-
-
-def _load_reference() -> types.ModuleType:
-    spec = importlib.util.spec_from_file_location("reference_numpy", _PATH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-ref = _load_reference()
+from benchmarks.correspondences import reference_numpy as ref  # noqa: E402
 
 
 def test_kabsch_recovers_pose() -> None:

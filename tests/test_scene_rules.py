@@ -139,7 +139,7 @@ def test_a_bad_scene_flag_is_a_usage_error(bad: str, capsys: pytest.CaptureFixtu
 def test_register_point_clouds_is_the_core_s_scene_pipeline(options: dict) -> None:
     # `register_point_clouds` hands every option to the core's pipeline and builds its result
     # from the core's answer (its Python stages were compared with the core and removed:
-    # benchmarks/results/scene_core.md), on a small bin of procedural boxes.
+    # benchmarks/results/clouds/scene_core.md), on a small bin of procedural boxes.
     from pointclm.datasets.bins import make_bin_scene
     from test_bins import SMALL
 

@@ -1,5 +1,5 @@
-"""Long use and many threads, in short (benchmarks/soak.py is the long version): repeated calls
-leak no memory, file descriptors or threads; 8 threads calling register, register_batch and
+"""Long use and many threads, in short (benchmarks/batch/soak.py is the long version): repeated
+calls leak no memory, file descriptors or threads; 8 threads calling register, register_batch and
 register_point_clouds at once with mixed ``num_threads`` get the serial results, finish, and
 never hold more threads than the pool cache's budget plus the pools of the calls running."""
 

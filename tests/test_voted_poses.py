@@ -60,7 +60,7 @@ def test_the_votes_find_most_visible_copies(scene, described) -> None:
     assert np.all(np.diff(votes) <= 0)
     np.testing.assert_allclose(poses[:, 3], np.broadcast_to([0, 0, 0, 1], (len(poses), 4)))
     # Most of the eight most visible boxes have a voted pose on them: ADD-S under a tenth of
-    # the diagonal (a box's symmetric poses count as one, as in benchmarks/bins.py). Boxes are
+    # the diagonal (a box's symmetric poses count as one, as in benchmarks/bins/run.py). Boxes are
     # hard for pair features (flat faces give many pairs one feature); 7 of 8 are found.
     pts = scene.model_points[:: max(1, len(scene.model_points) // 300)]
     found = 0

@@ -5,7 +5,7 @@ scenes hold consistent groups of wrong matches that yield wrong poses. The cloud
 both: ICP pulls each pose onto its copy, and the share of the model the scan then explains
 (Open3D's ``fitness``) rejects poses over clutter and duplicates of one copy. With the
 sensor's position, each pose is judged instead by what the sensor could see of the model at
-that pose, so that copies hidden in part by others are kept (``benchmarks/verification.py``).
+that pose, so that copies hidden in part by others are kept (``benchmarks/clouds/verification.py``).
 
 Acceptance rules of :func:`refine_poses`
 ----------------------------------------

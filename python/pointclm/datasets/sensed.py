@@ -1,6 +1,6 @@
 """Sensed scenes: any layout of any parts, seen by any camera through any sensor model.
 
-The scenes of the validation matrix (``benchmarks/matrix.py``) and of the packed-box
+The scenes of the validation matrix (``benchmarks/matrix/run.py``) and of the packed-box
 generator (:func:`make_packed_boxes`). One scene is built in four steps, all drawn from one
 generator seeded by the parameters and the seed (the same arguments give the same scene):
 

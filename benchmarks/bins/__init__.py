@@ -1,0 +1,1 @@
+"""The bin-picking suite: bins of 20-80 parts seen by one depth camera."""

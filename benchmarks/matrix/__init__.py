@@ -1,0 +1,1 @@
+"""The validation matrix: every scene kind times every sensor, pooled per row."""
