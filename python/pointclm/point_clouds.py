@@ -176,10 +176,8 @@ def register_point_clouds(
     Parameters
     ----------
     source, target : array_like or path
-        (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are sampled).
-        `target` may also be an organised frame, a numpy array (H, W, 3) in its sensor's
-        coordinates: its pixels without a return (NaN, infinite or all zero) are dropped and
-        its sensor, the origin, is the default viewpoint.
+        (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are sampled);
+        `target` also an organised frame (H, W, 3), pixels without a return dropped.
     %(voxel_size)s
     %(cloud_config)s
     %(cloud_seed)s
