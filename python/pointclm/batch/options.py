@@ -49,6 +49,7 @@ OPTION_NAMES = (
     "heap_rank",
     "flips",
     "scene",
+    "proposals",
 )
 
 
@@ -105,6 +106,10 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
         out["viewpoint"] = pp.as_point(np.asarray(view, dtype=np.float64), "viewpoint")
     if "scene" in out:
         out["scene"] = SceneRules.resolve(out["scene"])
+    if "proposals" in out:
+        from ..point_clouds import _proposals
+
+        out["proposals"] = _proposals(out["proposals"])
     out["model"] = _model_spec(out.get("model"))
     return out
 

@@ -65,6 +65,8 @@ class CoreCall:
     #: The model's symmetries as given (:func:`pointclm.symmetry.resolve`); checked: "auto",
     #: the core's symmetry dict, or None.
     symmetry: Any = None
+    #: Which poses verification judges: "auto", "descriptors" or "faces" (checked).
+    proposals: str = "auto"
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -109,6 +111,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         k=call.k,
         mutual_window=call.mutual_window,
         symmetry=call.symmetry,
+        proposals=call.proposals,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
