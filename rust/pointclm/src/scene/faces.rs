@@ -271,24 +271,27 @@ pub fn face_poses(
         .map(|(p, patch)| {
             let mut out = Vec::new();
             for (f, face) in faces.iter().enumerate() {
-                on_patch(face, patch, size_tolerance, |pose, tiles| {
+                on_patch(face, patch, size_tolerance, |pose, residual| {
                     out.push((
                         FacePose {
                             pose,
                             patch: p,
                             face: f,
-                            tiled: tiles.is_some(),
+                            tiled: residual.is_some(),
                         },
-                        tiles,
+                        residual,
                     ))
                 });
             }
-            // The fewest faces that tile the patch: where one face fills it, two smaller
-            // faces side by side fill it too but would put a copy's body through what holds
-            // it up (hidden from the sensor, so verification could not tell).
-            let fewest = out.iter().filter_map(|o| o.1).min();
+            // Only the faces that tile the patch best: where one face fills it, two narrower
+            // faces side by side may fill it within the tolerance too, but would put a copy's
+            // body through what holds it up (hidden from the sensor, so verification could
+            // not tell). Within twice the best residual (or half the tolerance) both faces of
+            // a pair (measured a little apart) stay.
+            let best = out.iter().filter_map(|o| o.1).fold(f64::INFINITY, f64::min);
+            let worst = (2.0 * best).max(size_tolerance / 2.0);
             out.into_iter()
-                .filter(|o| o.1.is_none() || o.1 == fewest)
+                .filter(|o| o.1.is_none_or(|r| r <= worst))
                 .map(|o| o.0)
                 .collect::<Vec<_>>()
         })
@@ -307,15 +310,16 @@ fn tiles(patch: f64, face: f64, tol: f64) -> Option<f64> {
     (n >= 1.0 && (patch - n * face).abs() <= tol * n.sqrt()).then_some(n)
 }
 
-/// Calls `emit(pose, tiles)` for each pose laying `face` on `patch`: every tile when the
-/// patch is a whole number of faces each way (the face itself, or flush copies of it; `tiles`
-/// their count), otherwise, when the patch fits in the face (a part of it seen), each corner
-/// of the face on the patch's corner on the same side (`tiles` None).
+/// Calls `emit(pose, residual)` for each pose laying `face` on `patch`: every tile when the
+/// patch is a whole number of faces each way (the face itself, or flush copies of it;
+/// `residual` how far the patch's sides are from those whole numbers of faces, summed),
+/// otherwise, when the patch fits in the face (a part of it seen), each corner of the face on
+/// the patch's corner on the same side (`residual` None).
 fn on_patch(
     face: &Patch,
     patch: &Patch,
     tol: f64,
-    mut emit: impl FnMut(RigidTransform, Option<usize>),
+    mut emit: impl FnMut(RigidTransform, Option<f64>),
 ) {
     let [m1, m2] = face.extents;
     let [l1, l2] = patch.extents;
@@ -356,6 +360,7 @@ fn on_patch(
                 )
             };
             if let Some((n1, n2)) = tiling {
+                let residual = (l1 - n1 * along[0]).abs() + (l2 - n2 * along[1]).abs();
                 // Tile (i, j) from the (-, -) corner, each `l / n` long.
                 let (w1, w2) = (l1 / n1, l2 / n2);
                 for i in 0..n1 as usize {
@@ -364,7 +369,7 @@ fn on_patch(
                             scale(patch.axes[0], (i as f64 + 0.5) * w1 - l1 / 2.0),
                             scale(patch.axes[1], (j as f64 + 0.5) * w2 - l2 / 2.0),
                         );
-                        emit(place(add(patch.centre, shift)), Some((n1 * n2) as usize));
+                        emit(place(add(patch.centre, shift)), Some(residual));
                     }
                 }
                 continue;
