@@ -218,8 +218,7 @@ def register_point_clouds(
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
-    proposals = _proposals(proposals)
+    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips, proposals)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, tgt, view = _loaded(source, target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
@@ -278,9 +277,11 @@ def _checked_arguments(
     model: Any,
     viewpoint: ArrayLike | None,
     flips: bool = False,
+    proposals: str = "auto",
 ) -> tuple[Embedding | None, tuple[float, float, float] | None]:
     """What of `register_point_clouds`' arguments can be checked before the files are read:
     the model resolved (a bad model fails before the work) and the viewpoint as a point."""
+    _proposals(proposals)
     as_threads(num_threads)
     pp.as_flag(refine, "refine")
     pp.as_flag(mutual, "mutual")
