@@ -171,6 +171,7 @@ def _pass(p: dict[str, Any]) -> Pass:
         p["scan_points"],
         p["added"],
         voted=p["voted"],
+        faces=p["faces"],
         duplicates=p["duplicates"],
     )
 
@@ -179,8 +180,8 @@ def _instances(
     copies: dict[str, Any], out: dict[str, Any], passes: list[Pass], judged: _CoreJudged
 ) -> list[CloudInstance]:
     """Each of `copies` (the core's columns), with the correspondence stage's instance it
-    came from (None for a pose that point pair voting proposed), and its information and
-    covariance."""
+    came from (None for a pose that point pair voting or a face proposed), and its information
+    and covariance."""
     covariances = None
     if len(copies["transformations"]):
         covariances = pose_covariances(
