@@ -42,11 +42,14 @@ def _voter(model: Any, **kwargs: Any) -> _core.PpfModel:
 
 
 def _register(scene, **kwargs: Any) -> pointclm.PointCloudRegistration:
+    """The bin registered with the descriptors' proposals alone: a pose without matches is
+    then a voted one (the boxes would also get face proposals under "auto")."""
     return pointclm.register_point_clouds(
         scene.model_points,
         scene.scan,
         voxel_size=scene.voxel_size,
         viewpoint=scene.sensor,
+        proposals="descriptors",
         **kwargs,
     )
 

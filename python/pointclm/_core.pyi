@@ -341,19 +341,24 @@ def register_scan(
     k: int = 1,
     mutual_window: float | str | None = None,
     symmetry: str | dict[str, npt.NDArray[np.float64]] | None = None,
+    proposals: str = "auto",
 ) -> dict[str, Any]:
     """The core's scene pipeline; ``embed(correspondences, normals, similarity)`` computes
     each pass's learned embedding (the cues ``embed_inputs`` names given, else None);
     ``refine=False`` scores the correspondence stage's poses without ICP or verification;
     ``k`` model points matched per scan point; ``mutual_window`` a side in model diagonals
-    or ``"auto"`` (the windowed mutual check). Keys:
+    or ``"auto"`` (the windowed mutual check); ``proposals`` "auto", "descriptors" or
+    "faces" (model faces laid on the scan's planar patches join the proposals). Keys:
     ``transformations`` (M, 4, 4) surest first, and per copy ``confidence``, ``fitness``,
     ``inlier_rmse``, ``visible_fitness``, ``contradiction``, ``seen``, ``visible_rmse``
     (M,), ``pass_index`` and ``instance`` (lists); ``passes`` (dicts: ``correspondences``
-    (N, 6), ``result``, ``scan_points``, ``added``, ``voted`` and ``duplicates`` (K, 4, 4));
+    (N, 6), ``result``, ``scan_points``, ``added``, ``voted``, ``faces`` and ``duplicates``
+    (K, 4, 4));
     ``source_points``, ``source_normals``, ``target_points``, ``target_normals``; ``config``
     (a dict); ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``,
-    ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``; ``symmetry``
+    ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``;
+    ``face_proposals`` (whether faces were proposed) and ``planar_share`` (the model's share
+    in large flat faces, NaN with "descriptors"); ``symmetry``
     (the symmetry dict the poses were made canonical by, or None)."""
 
 def symmetry_group(

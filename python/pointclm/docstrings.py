@@ -141,6 +141,21 @@ PARAMETERS: dict[str, str] = _entries(
             points, the `top_k` most similar of these matches kept (only mutual ones if `mutual`),
             then `n_samples` sampled (None: all); see :func:`pointclm.preprocessing.match_features`.
         """,
+    proposals="""
+        proposals : {"auto", "descriptors", "faces"}, default "auto"
+            Which poses verification judges. "descriptors": the clusters of FPFH matches (and,
+            in a heap, point pair voting). "faces": those, and every model face laid on every
+            planar patch of the scan (region growing with tolerances from the scan's measured
+            noise; the face's normal on the patch's, its sides along the patch's rectangle,
+            centred on each tile of a patch that flush copies fill, else cornered in the
+            patch's corners): on a flat face every FPFH descriptor is the same, while its size
+            and outline are not. "auto": faces when at least ``scene.min_planar_share`` (0.5)
+            of the downsampled model lies in planar faces wider than a disc of the FPFH radius
+            (5 voxels), as on boxes (0.89-0.99) and the bracket (0.99); the fandisk (0.43),
+            the rocker arm (0.16), the bunny (0.03) and the dragon (0.00) keep the descriptors
+            alone. Either way every pose is judged by the same
+            verification; nothing is accepted for being proposed.
+        """,
     mutual_window="""
         mutual_window : float, "auto" or None, default None
             For heaps of identical parts (bin picking): the mutual check is made within

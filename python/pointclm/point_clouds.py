@@ -170,6 +170,7 @@ def register_point_clouds(
     num_threads: int | None = None,
     scene: SceneRules | Mapping[str, Any] | None = None,
     symmetry: Any = None,
+    proposals: str = "auto",
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
 
@@ -194,18 +195,19 @@ def register_point_clouds(
     %(num_threads)s
     %(scene)s
     %(symmetry)s
+    %(proposals)s
 
     %(cloud_returns)s
     """
     t0 = time.perf_counter()
-    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips)
+    emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips, proposals)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, scan = load_cloud(source, "source"), read_scan(target, view)
     tgt, view = scan.points, scan.viewpoint
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, tgt, voxel_size, sc)
     call = CoreCall(voxel, config, seed, view, top_k, mutual, n_samples, rank, heap, peel,
                     flips, sc, num_threads, scan.stated_by, emb, normals, refine, k,
-                    window, symmetry)  # fmt: skip
+                    window, symmetry, proposals)  # fmt: skip
     return _finished(register_in_core(src, tgt, call.checked()), t_load, t0)
 
 
@@ -249,9 +251,11 @@ def _checked_arguments(
     model: Any,
     viewpoint: ArrayLike | None,
     flips: bool = False,
+    proposals: str = "auto",
 ) -> tuple[Embedding | None, tuple[float, float, float] | None]:
     """What of `register_point_clouds`' arguments can be checked before the files are read:
     the model resolved (a bad model fails before the work) and the viewpoint as a point."""
+    _proposals(proposals)
     as_threads(num_threads)
     pp.as_flag(refine, "refine")
     pp.as_flag(mutual, "mutual")
@@ -259,6 +263,17 @@ def _checked_arguments(
     embedding = None if model is None else resolve(model)
     view = None if viewpoint is None else pp.as_point(viewpoint, "viewpoint")
     return embedding, view
+
+
+#: The values of ``proposals``.
+PROPOSALS = ("auto", "descriptors", "faces")
+
+
+def _proposals(value: Any) -> str:
+    """`proposals` checked before the files are read."""
+    if not isinstance(value, str) or value not in PROPOSALS:
+        raise InputError(f'proposals must be "auto", "descriptors" or "faces", got {value!r}')
+    return value
 
 
 def _heap_arguments(

@@ -63,6 +63,8 @@ class SceneRules:
     max_scene_turns: int = _default("max_scene_turns")
     max_relative_visible_rmse: float = _default("max_relative_visible_rmse")
     min_poses_to_compare: int = _default("min_poses_to_compare")
+    min_planar_share: float = _default("min_planar_share")
+    max_face_poses: int = _default("max_face_poses")
 
     def __post_init__(self) -> None:
         for name in _SCHEMA:

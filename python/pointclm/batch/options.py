@@ -52,6 +52,7 @@ OPTION_NAMES = (
     "flips",
     "scene",
     "symmetry",
+    "proposals",
 )
 
 #: The model's points, or with several models (judged together) each one's, in order.
@@ -118,6 +119,10 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
         out["viewpoint"] = pp.as_point(np.asarray(view, dtype=np.float64), "viewpoint")
     if "scene" in out:
         out["scene"] = SceneRules.resolve(out["scene"])
+    if "proposals" in out:
+        from ..point_clouds import _proposals
+
+        out["proposals"] = _proposals(out["proposals"])
     out["model"] = _model_spec(out.get("model"))
     if "symmetry" in out:
         out["symmetry"] = _symmetry(out["symmetry"])

@@ -288,6 +288,7 @@ def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -
         "normals": args.normals,
         "flips": not args.no_flips,
         "scene": dict(args.scene or ()),
+        "proposals": args.proposals,
     }
 
 
@@ -484,4 +485,11 @@ def _add_matching_flags(p: argparse.ArgumentParser) -> None:
         "--normals",
         action="store_true",
         help="give the correspondence stage the normals at both ends of each match",
+    )
+    p.add_argument(
+        "--proposals",
+        choices=("auto", "descriptors", "faces"),
+        default="auto",
+        help="poses verification judges: descriptor matches, or with model faces laid on the "
+        "scan's planar patches too (auto: faces for models mostly made of large flat faces)",
     )

@@ -67,6 +67,8 @@ class CoreCall:
     #: The model's symmetries as given (:func:`pointclm.symmetry.resolve`); checked: "auto",
     #: the core's symmetry dict, or None.
     symmetry: Any = None
+    #: Which poses verification judges: "auto", "descriptors" or "faces" (checked).
+    proposals: str = "auto"
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -111,6 +113,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         k=call.k,
         mutual_window=call.mutual_window,
         symmetry=call.symmetry,
+        proposals=call.proposals,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
@@ -170,6 +173,7 @@ def _pass(p: dict[str, Any]) -> Pass:
         p["scan_points"],
         p["added"],
         voted=p["voted"],
+        faces=p["faces"],
         duplicates=p["duplicates"],
     )
 
@@ -178,8 +182,8 @@ def _instances(
     copies: dict[str, Any], out: dict[str, Any], passes: list[Pass], judged: _CoreJudged
 ) -> list[CloudInstance]:
     """Each of `copies` (the core's columns), with the correspondence stage's instance it
-    came from (None for a pose that point pair voting proposed), and its information and
-    covariance."""
+    came from (None for a pose that point pair voting or a face proposed), and its information
+    and covariance."""
     covariances = None
     if len(copies["transformations"]):
         covariances = pose_covariances(

@@ -136,6 +136,10 @@ class Pass:
     #: `HEAP_VOTED_POSES`; empty otherwise), judged beside ``result``'s: an accepted pose's
     #: ``CloudInstance.matches`` is None when it came from here.
     voted: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
+    #: (F, 4, 4) poses laying a model face on a planar patch of ``scan_points``
+    #: (``proposals``), judged after ``voted``: an accepted pose's ``CloudInstance.matches``
+    #: is None when it came from here too.
+    faces: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
     #: (D, 4, 4) poses of this pass that passed verification on a copy already accepted
     #: (peeling's duplicate check); their rotations relative to that copy's pose are the
     #: scene's own alternatives for :func:`pointclm.refinement.resolve_flips`.

@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None)"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto"),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto')"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -128,7 +128,9 @@ pub fn register_scan<'py>(
     k: usize,
     mutual_window: Option<Bound<'py, PyAny>>,
     symmetry: Option<Bound<'py, PyAny>>,
+    proposals: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let proposals = scene::Proposals::from_name(proposals).map_err(crate::errors::to_py_err)?;
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
     let embedder = embed.map(|callback| {
@@ -160,6 +162,7 @@ pub fn register_scan<'py>(
         config: config.as_ref().map(|c| from_dict(Some(c))).transpose()?,
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         symmetry: crate::symmetry::model_symmetry(symmetry.as_ref())?,
+        proposals,
     };
     let threads = num_threads.map(pool).transpose()?;
     let inner = embedder.clone();
@@ -312,6 +315,7 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
         p.set_item("scan_points", indices(py, &pass.scan_points))?;
         p.set_item("added", pass.added)?;
         p.set_item("voted", poses(&pass.voted))?;
+        p.set_item("faces", poses(&pass.faces))?;
         p.set_item("duplicates", poses(&pass.duplicates))?;
         passes.append(p)?;
     }
@@ -342,6 +346,8 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
     )?;
     d.set_item("orientation", out.orientation)?;
     d.set_item("viewpoint_disputed", out.viewpoint_disputed)?;
+    d.set_item("face_proposals", out.face_proposals)?;
+    d.set_item("planar_share", out.planar_share)?;
     Ok(d)
 }
 

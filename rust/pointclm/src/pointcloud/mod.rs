@@ -12,6 +12,7 @@ pub mod describe;
 pub mod fpfh;
 pub mod icp;
 pub mod normals;
+pub mod planes;
 pub mod ppf;
 pub mod refine;
 pub mod search;
@@ -23,6 +24,7 @@ pub use covariance::{pose_covariances, PoseCovariance};
 pub use describe::{describe, DescribeParams, Described};
 pub use fpfh::{fpfh, FpfhVariant, FPFH_DIM};
 pub use normals::{edge_on_scores, estimate_normals, Orientation};
+pub use planes::{Patch, PlaneSegmenter, PlaneTolerances};
 pub use ppf::{PpfModel, PpfParams, PpfPose};
 pub use refine::{
     looks_like_one_view, nearest_rotation, refine_poses, RefineContext, RefineParams, Refined,

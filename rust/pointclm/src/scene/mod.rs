@@ -38,6 +38,7 @@
 //! ```
 
 pub mod embedder;
+pub mod faces;
 pub mod flips;
 pub mod joint;
 pub mod peeling;
@@ -49,6 +50,7 @@ pub mod voxel;
 mod window;
 
 pub use embedder::{similarity, Embedder, NetworkEmbedder};
+pub use faces::{FaceProposer, Proposals};
 pub use flips::{flip_turns, quarter_turns, resolve_flips, resolve_flips_with_symmetry};
 pub use joint::{judge_jointly, register_models, JointVerdict, ModelPoses};
 pub use register::{

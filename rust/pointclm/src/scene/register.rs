@@ -25,6 +25,7 @@ use nalgebra::Matrix3;
 use std::time::Instant;
 
 use super::embedder::{similarity, Embedder};
+use super::faces::{model_faces, FaceProposer, Proposals};
 use super::flips::resolve_flips_with_symmetry;
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
@@ -90,6 +91,10 @@ pub struct SceneOptions {
     /// equivalents ([`crate::symmetry::canonical_pose`]), and the turned-alternatives stage
     /// skips turns that are symmetries. `None`: none declared.
     pub symmetry: Option<ModelSymmetry>,
+    /// Which poses verification judges: the descriptors' clusters alone, or with each model
+    /// face laid on each planar patch of the scan ([`Proposals`]; `Auto` decides by the
+    /// model's share of large flat faces).
+    pub proposals: Proposals,
     /// The scene-wide rules.
     pub scene: SceneRules,
 }
@@ -113,6 +118,7 @@ impl Default for SceneOptions {
             flips: true,
             seed: 0,
             symmetry: None,
+            proposals: Proposals::Auto,
             scene: SceneRules::default(),
         }
     }
@@ -146,7 +152,8 @@ pub struct Candidate {
     /// The pass of the correspondence stage that proposed it (0: the whole scan).
     pub pass_index: usize,
     /// Its instance in that pass's [`Registration`]; from `instances.len()` on, the pose that
-    /// point pair voting proposed at `instance - instances.len()` in [`Pass::voted`].
+    /// point pair voting proposed at `instance - instances.len()` in [`Pass::voted`], and past
+    /// those, a face pose of [`Pass::faces`].
     pub instance: usize,
     /// How sure the pose is, in [0, 1] (surest first): verification's confidence times the
     /// ranking's tightness and stability factors.
@@ -182,6 +189,10 @@ pub struct Pass {
     pub added: usize,
     /// Poses proposed by point pair voting over `scan_points` (in a scan said to be a heap).
     pub voted: Vec<RigidTransform>,
+    /// Poses laying a model face on a planar patch of `scan_points`, refined after `voted`
+    /// ([`SceneOptions::proposals`]): a candidate's instance from `instances.len() +
+    /// voted.len()` on names one of these.
+    pub faces: Vec<RigidTransform>,
     /// Poses of this pass that passed verification on a copy already accepted (peeling's
     /// duplicate check): their rotations relative to that copy's pose are the scene's own
     /// alternatives for the turned-alternatives stage.
@@ -221,6 +232,12 @@ pub struct SceneRegistration {
     pub viewpoint_disputed: bool,
     /// How the scan's normals were oriented, in words.
     pub orientation: String,
+    /// Whether the model's faces were laid on the scan's planar patches
+    /// ([`SceneOptions::proposals`]).
+    pub face_proposals: bool,
+    /// The share of the downsampled model in planar faces wider than the FPFH disc (what
+    /// `Proposals::Auto` decides by); NaN with `Proposals::Descriptors`.
+    pub planar_share: f64,
     /// The model's symmetries the poses were made canonical by (declared, or detected).
     pub symmetry: Option<Symmetry>,
     /// Seconds spent in each stage after the clouds were described (theirs are in
@@ -356,13 +373,19 @@ pub fn register_point_clouds_with(
     let features = run.features(&corr, &distances)?;
     timings.embedding = lap();
     let registration = register(&corr, features.as_ref(), &config, options.seed)?;
+    let faces = match options.refine {
+        true => run.face_poses(None)?,
+        false => Vec::new(),
+    };
     timings.registration = lap();
+    let mut proposed = poses_of(&registration);
+    proposed.extend(faces.iter().copied());
     let first = if !options.refine {
-        run.scored(&poses_of(&registration))?
+        run.scored(&proposed)?
     } else if run.guessed {
-        run.confirm_viewpoint(&poses_of(&registration))?
+        run.confirm_viewpoint(&proposed)?
     } else {
-        run.refine(&poses_of(&registration), &run.rules.clone())?
+        run.refine(&proposed, &run.rules.clone())?
     };
     timings.refinement = lap();
     run.keep_sliding(&first, 0, |origin| origin);
@@ -374,6 +397,7 @@ pub fn register_point_clouds_with(
         scan_points: everything,
         added,
         voted: Vec::new(),
+        faces,
         duplicates: Vec::new(),
     });
     if options.refine && options.peel && !accepted.is_empty() {
@@ -404,6 +428,8 @@ pub fn register_point_clouds_with(
         unconfirmed_viewpoint: run.unconfirmed,
         viewpoint_disputed: run.disputed,
         orientation: run.orientation,
+        face_proposals: run.faces.is_some(),
+        planar_share: run.planar_share,
         symmetry,
         source: run.source,
         target: run.target,
@@ -421,6 +447,9 @@ struct Run<'o> {
     /// candidates), found on first use.
     targets_of_sources: Option<NearestSources>,
     voter: Option<PpfModel>,
+    /// Face proposals, when [`SceneOptions::proposals`] asks for them.
+    faces: Option<FaceProposer>,
+    planar_share: f64,
     context: RefineContext,
     rules: RefineParams,
     voxel: f64,
@@ -485,12 +514,36 @@ impl<'o> Run<'o> {
             viewpoint,
             &rules,
         )?;
+        let (faces, planar_share) = match options.proposals {
+            Proposals::Descriptors => (None, f64::NAN),
+            wanted => {
+                let (faces, share) = model_faces(&source.points, &source.normals, voxel)?;
+                let with = wanted == Proposals::Faces
+                    || share >= options.scene.min_planar_share && !faces.is_empty();
+                let proposer = with
+                    .then(|| {
+                        FaceProposer::new(
+                            &source.points,
+                            faces,
+                            &target.points,
+                            &target.normals,
+                            context.index(),
+                            voxel,
+                            &options.scene,
+                        )
+                    })
+                    .transpose()?;
+                (proposer, share)
+            }
+        };
         Ok(Self {
             source,
             target,
             nearest,
             targets_of_sources: None,
             voter: None,
+            faces,
+            planar_share,
             context,
             rules,
             voxel,
@@ -740,6 +793,19 @@ impl<'o> Run<'o> {
         Ok(poses?.into_iter().map(|p| handed(p.transform)).collect())
     }
 
+    /// Face poses over the scan rows where `free` is true (all when `None`); none unless
+    /// asked for.
+    fn face_poses(&self, free: Option<&[bool]>) -> Result<Vec<RigidTransform>> {
+        match &self.faces {
+            Some(proposer) => Ok(proposer
+                .poses(free, &self.context, self.rules.icp_radius_coarse)?
+                .into_iter()
+                .map(handed)
+                .collect()),
+            None => Ok(Vec::new()),
+        }
+    }
+
     /// The rows of `voted` worth refining: those already bringing `voted_min_relative_fitness`
     /// times the median accepted copy's share of the model within ICP's first radius.
     fn within_reach(&self, voted: &[RigidTransform], accepted: &Accepted) -> Result<Vec<usize>> {
@@ -841,24 +907,29 @@ impl<'o> Run<'o> {
             let registration = register(&corr, features.as_ref(), config, seed)?;
             let clustered = registration.instances.len();
             let reach = self.within_reach(&voted, &accepted)?;
+            let faces = self.face_poses(Some(&free))?;
             let mut candidates = poses_of(&registration);
             candidates.extend(reach.iter().map(|&i| voted[i]));
+            candidates.extend(faces.iter().copied());
+            let (reached, n_voted) = (clustered + reach.len(), voted.len());
             let every = RefineParams {
                 max_shared: 1.0,
                 ..self.rules.clone()
             };
             let mut new = self.refine(&candidates, &every)?;
-            // A voted pose's origin names its row of `voted`, past the clusters'.
-            let instance = |origin: usize| match origin >= clustered {
-                true => clustered + reach[origin - clustered],
-                false => origin,
+            // A voted pose's origin names its row of `voted`, past the clusters', and a face
+            // pose's its row of `faces`, past every voted one.
+            let instance = |origin: usize| match origin {
+                o if o >= reached => clustered + n_voted + (o - reached),
+                o if o >= clustered => clustered + reach[o - clustered],
+                o => o,
             };
             for pose in &mut new.poses {
                 pose.origin = instance(pose.origin);
             }
             self.keep_sliding(&new, round, instance);
-            let new =
-                self.without_weak_votes(Accepted::from_pass(new, round), clustered, &accepted);
+            let votes = clustered..clustered + n_voted;
+            let new = self.without_weak_votes(Accepted::from_pass(new, round), votes, &accepted);
             let mut duplicates = Vec::new();
             if !new.is_empty() && self.by_visibility {
                 let mut taken: Vec<bool> = free.iter().map(|f| !f).collect();
@@ -899,6 +970,7 @@ impl<'o> Run<'o> {
                 scan_points: rows,
                 added,
                 voted,
+                faces,
                 duplicates,
             });
             empty = if added > 0 { 0 } else { empty + 1 };
@@ -914,11 +986,17 @@ impl<'o> Run<'o> {
         Ok(accepted)
     }
 
-    /// `new` without the voted poses (instance at or past `clustered`) that explain less of
-    /// the model than `voted_min_relative_fitness` times the median copy (those accepted
-    /// before this round and this round's clustered ones; with none, the best voted).
-    fn without_weak_votes(&self, new: Accepted, clustered: usize, accepted: &Accepted) -> Accepted {
-        let voted: Vec<bool> = new.tags.iter().map(|t| t.1 >= clustered).collect();
+    /// `new` without the voted poses (instance in `votes`) that explain less of the model than
+    /// `voted_min_relative_fitness` times the median copy (those accepted before this round
+    /// and this round's others; with none, the best voted). Face poses are not votes: their
+    /// patch is evidence of the face, as a cluster of matches is.
+    fn without_weak_votes(
+        &self,
+        new: Accepted,
+        votes: std::ops::Range<usize>,
+        accepted: &Accepted,
+    ) -> Accepted {
+        let voted: Vec<bool> = new.tags.iter().map(|t| votes.contains(&t.1)).collect();
         if !voted.iter().any(|&v| v) {
             return new;
         }
