@@ -114,6 +114,13 @@ PARAMETERS: dict[str, str] = _entries(
             PointCLM proper (:func:`pointclm.embedding.resolve`). The correspondences are
             converted to the network's training units (by sigma_d) first.
         """,
+    clouds_in="""
+        source, target : array_like or path
+            (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are
+            sampled); `target` may also be an organised frame, a numpy array (H, W, 3) in its
+            sensor's coordinates: its pixels without a return (NaN, infinite or all zero)
+            are dropped and its sensor, the origin, is the default viewpoint.
+        """,
     viewpoint="""
         viewpoint : array_like, optional
             The scan's sensor position: scan normals point towards it, and verification judges

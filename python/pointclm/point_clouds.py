@@ -176,9 +176,7 @@ def register_point_clouds(
 
     Parameters
     ----------
-    source, target : array_like or path
-        (N, 3) points, or a file :func:`pointclm.io.load_points` reads (meshes are sampled);
-        `target` also an organised frame (H, W, 3), pixels without a return dropped.
+    %(clouds_in)s
     %(voxel_size)s
     %(cloud_config)s
     %(cloud_seed)s
