@@ -102,6 +102,7 @@ _KEEP_ALL: dict[str, Any] = {
     "max_contradiction": 1.0,
     "min_seen": 0.0,
     "max_slid_fitness": 1.0,
+    "min_normal_agreement": 0.0,
 }
 
 

@@ -59,6 +59,9 @@ _RULE_WORDS = {
     "max_slid_fitness": ("slid fitness", "the share still explained with the model slid along "
                          "its surface: it fits anywhere on a larger surface; these come back "
                          "under ambiguous", True),
+    "min_normal_agreement": ("normal agreement", "the share of the explained model points whose "
+                             "surface is turned like the scan's: a model cut by a surface "
+                             "meets it across", False),
     "max_shared": ("shared", "the share of its scan points a surer candidate explains", True),
     "explains_nothing": ("scan points explained", "a pose explaining no scan point", False),
 }  # fmt: skip

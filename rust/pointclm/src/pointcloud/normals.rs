@@ -52,6 +52,28 @@ pub fn estimate_normals(
         .collect())
 }
 
+/// Unit normals of `points` (the cloud `index` was built on) from each point's `k` nearest
+/// points whatever their distance, oriented by `orientation`: for comparing directions on a
+/// cloud whose spacing is not known (a radius may hold too few points on a sparse cloud).
+pub(crate) fn nearest_k_normals(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    k: usize,
+    orientation: Orientation,
+) -> Vec<[f64; 3]> {
+    points
+        .par_iter()
+        .map(|p| {
+            let hood: Vec<u32> = index
+                .nearest_k(p, k)
+                .into_iter()
+                .map(|(j, _)| j as u32)
+                .collect();
+            orient(pca_normal(points, &hood), p, orientation)
+        })
+        .collect()
+}
+
 /// For each eye of `eyes`, the `rank`-th smallest (from 0) `|cos|` of the angle between a
 /// normal of `normals` and its point's line of sight from the eye: how close to edge-on the
 /// eye sees the normals it sees worst, ignoring the `rank` worst. The eye that maximises it

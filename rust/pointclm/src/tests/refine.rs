@@ -604,3 +604,35 @@ fn a_scan_looks_like_one_view_only_from_its_sensor() {
     assert!(looks_like_one_view(&[[f64::INFINITY, 0.0, 0.0]], EYE, &p).is_err());
     assert!(looks_like_one_view(&scene, EYE, &RefineParams::for_voxel(-0.1)).is_err());
 }
+
+#[test]
+fn a_model_cut_by_a_surface_is_rejected_by_its_normals() {
+    // A copy standing on a floor, and a pose of the model sunk half into that floor: the
+    // floor explains the band where the model crosses it, whose surface meets it across.
+    let model = blob(24);
+    let on = motion([0.0, 0.0, 1.0], 30.0, [0.0, 0.0, 1.6]);
+    let mut scene = moved(&model, &on);
+    scene.extend(wall((-4.0, 8.0), (-4.0, 4.0), 0.0, 0.05));
+    let sunk = motion([1.0, 0.0, 0.0], 20.0, [5.0, 0.0, 0.0]);
+    let rules = RefineParams {
+        min_fitness: 0.0,
+        min_normal_agreement: 0.4,
+        ..params()
+    };
+    let out = refine_poses(&model, &scene, None, &[on, sunk], None, &rules).unwrap();
+    assert_eq!(
+        out.poses.iter().map(|r| r.origin).collect::<Vec<_>>(),
+        vec![0]
+    );
+    let rejected: Vec<_> = out.rejected.iter().map(|r| (r.origin, r.rule)).collect();
+    assert_eq!(rejected, vec![(1, "min_normal_agreement")]);
+    assert!(out.rejected[0].value < 0.2, "{:?}", out.rejected[0]);
+    // Off, the same pose passes (the slide test, which a band on a plane also fails, off).
+    let off = RefineParams {
+        min_normal_agreement: 0.0,
+        max_slid_fitness: 1.0,
+        ..rules
+    };
+    let out = refine_poses(&model, &scene, None, &[on, sunk], None, &off).unwrap();
+    assert_eq!(out.poses.len(), 2);
+}
