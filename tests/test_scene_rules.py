@@ -58,7 +58,11 @@ def test_refine_rules_pass_by_name_and_are_checked_by_the_core() -> None:
         _core.refine_poses(pts, pts, np.eye(4)[None], 0.05, False, None, {"min_seen": 2.0})
     with pytest.raises(ConfigError, match="unknown refine rule field"):
         _core.refine_poses(pts, pts, np.eye(4)[None], 0.05, False, None, {"nope": 0.0})
-    kept = refinement.refine_poses(pts, pts, np.eye(4)[None], 0.05, icp=False)
+    # A surface (a bumpy sheet) posed on itself is kept.
+    g = np.linspace(0.0, 1.0, 21)
+    u, v = np.meshgrid(g, g)
+    sheet = np.column_stack([u.ravel(), v.ravel(), 0.1 * np.sin(3 * u.ravel()) * v.ravel()])
+    kept = refinement.refine_poses(sheet, sheet, np.eye(4)[None], 0.05, icp=False)
     assert len(kept.origin) == 1
 
 

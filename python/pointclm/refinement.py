@@ -23,7 +23,10 @@ explained by a surer pose. With or without a viewpoint, a pose is rejected when 
 along the surface it explains (by that surface's spread, both ways along its two main
 directions) keeps more than `max_slid_fitness` of what it explains in place: a patch lying on a
 larger surface of its shape (a face of a part on a table or a wall) fits anywhere on it, so
-the fit does not say where the object is.
+the fit does not say where the object is. And a pose is rejected when fewer than
+`min_normal_agreement` (0.4) of the model points the scan explains have normals within 30
+degrees of the scan's there: a right pose lies along the surface it explains, while a model sunk
+into a floor or wall, whose noise band holds the cut, meets it across.
 
 Across a scene's poses, once peeling is done: `register_point_clouds` drops, among three or more
 poses judged by the sensor, those whose visible side lies on the scan more loosely than
@@ -58,6 +61,7 @@ __all__ = [
     "MAX_RELATIVE_VISIBLE_RMSE",
     "MAX_SHARED",
     "MAX_SLID_FITNESS",
+    "MIN_NORMAL_AGREEMENT",
     "MIN_FITNESS",
     "MIN_POSES_TO_COMPARE",
     "MIN_RELATIVE_FITNESS",
@@ -80,6 +84,7 @@ MIN_VISIBLE_FITNESS: float = _RULE_DEFAULTS["min_visible_fitness"]
 MAX_CONTRADICTION: float = _RULE_DEFAULTS["max_contradiction"]
 MIN_SEEN: float = _RULE_DEFAULTS["min_seen"]
 MAX_SLID_FITNESS: float = _RULE_DEFAULTS["max_slid_fitness"]
+MIN_NORMAL_AGREEMENT: float = _RULE_DEFAULTS["min_normal_agreement"]
 MAX_SHARED: float = _RULE_DEFAULTS["max_shared"]
 MIN_FITNESS: float = _RULE_DEFAULTS["min_fitness"]
 MIN_RELATIVE_FITNESS: float = _RULE_DEFAULTS["min_relative_fitness"]
@@ -163,6 +168,7 @@ def refine_poses(
     min_relative_fitness: float = MIN_RELATIVE_FITNESS,
     max_shared: float = MAX_SHARED,
     max_slid_fitness: float = MAX_SLID_FITNESS,
+    min_normal_agreement: float = MIN_NORMAL_AGREEMENT,
     target_normals: ArrayLike | None = None,
     num_threads: int | None = None,
     symmetry: Any = None,
@@ -187,12 +193,9 @@ def refine_poses(
     icp : bool
         False: verification only, the poses are kept as given.
     min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness : float
-        The acceptance rules, in [0, 1] (module documentation); all 0 (and `max_contradiction` 1):
-        nothing is rejected but duplicates.
-    max_shared, max_slid_fitness : float in [0, 1]
-        The share of a pose's explained scan points a surer pose may also explain (else it is
-        a duplicate; 1 keeps duplicates), and of what it explains that the model slid along
-        that surface may keep (module documentation; 1 turns the test off).
+        The acceptance rules, in [0, 1] (module documentation).
+    max_shared, max_slid_fitness, min_normal_agreement : float in [0, 1]
+        The duplicate, slide and normals rules (module documentation); 1, 1 and 0 turn them off.
     target_normals : (M, 3) array_like, optional
         Unit normals of `target_points` (either sign); estimated within 2 voxels if omitted.
     symmetry : dict, pointclm.symmetry.Symmetry or "auto", optional
@@ -205,7 +208,8 @@ def refine_poses(
         *clouds, viewpoint=viewpoint, target_normals=target_normals, num_threads=num_threads
     )
     rules = (min_visible_fitness, max_contradiction, min_seen, min_fitness, min_relative_fitness)
-    named = dict(zip(_RULES, (*rules, max_shared, max_slid_fitness), strict=True))
+    others = (max_shared, max_slid_fitness, min_normal_agreement)
+    named = dict(zip(_RULES, (*rules, *others), strict=True))
     refined = context.refine(transformations, icp=icp, num_threads=num_threads, **named)
     return _canonical(refined, declared, source_points, num_threads)
 
@@ -330,6 +334,7 @@ class RefinementContext:
         min_relative_fitness: float = MIN_RELATIVE_FITNESS,
         max_shared: float = MAX_SHARED,
         max_slid_fitness: float = MAX_SLID_FITNESS,
+        min_normal_agreement: float = MIN_NORMAL_AGREEMENT,
         num_threads: int | None = None,
     ) -> RefinedPoses:
         """:func:`refine_poses` of `transformations` against the context's clouds."""
@@ -341,6 +346,7 @@ class RefinementContext:
             min_relative_fitness,
             max_shared,
             max_slid_fitness,
+            min_normal_agreement,
         )
         named = dict(zip(_RULES, rules, strict=True))
         mats, columns, origin, by_visibility, _, sliding = self._judged(
@@ -393,6 +399,7 @@ _RULES = (
     "min_relative_fitness",
     "max_shared",
     "max_slid_fitness",
+    "min_normal_agreement",
 )
 
 
