@@ -40,7 +40,7 @@ def _agreement(src, ns, tree, tgt_normals, voxel: float, pose: np.ndarray) -> li
 def run(cells: list[str], seeds: list[int]) -> list[dict]:
     import pointclm
     import pointclm.preprocessing as pp
-    from pointclm.datasets.sensed import SensedSceneParams, make_sensed_scene
+    from pointclm.datasets.sensed import make_sensed_scene
     from pointclm.metrics import pose_match_matrix
     from scipy.spatial import cKDTree
 
@@ -48,14 +48,7 @@ def run(cells: list[str], seeds: list[int]) -> list[dict]:
     out: list[dict] = []
     for name in cells:
         cell = by_name[name]
-        params = SensedSceneParams(
-            parts=cell.parts,
-            layout=cell.layout,
-            copies=cell.copies,
-            camera=cell.camera,
-            sensor=cell.sensor,
-            form=cell.form,
-        )
+        params = cell.params()
         for seed in seeds:
             scene = make_sensed_scene(seed, params)
             for prod, model in enumerate(scene.models):

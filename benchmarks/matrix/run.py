@@ -85,6 +85,20 @@ class Cell:
     family: str = "clouds"  # or "correspondences"
     copies: tuple[int, int] = (5, 10)
 
+    def params(self, data_dir: str | None = None):  # type: ignore[no-untyped-def]
+        """The sensed-scene parameters of this cell's scenes."""
+        from pointclm.datasets.sensed import SensedSceneParams
+
+        return SensedSceneParams(
+            parts=self.parts,
+            layout=self.layout,
+            copies=self.copies,
+            camera=self.camera,
+            sensor=self.sensor,
+            form=self.form,
+            data_dir=data_dir,
+        )
+
     def axes(self) -> dict[str, str]:
         return {
             "camera": self.camera,
@@ -320,17 +334,9 @@ def run_cell(
 ) -> tuple[dict, dict]:
     """Every scene of `cell`: per row (default, heap) and the exact-pose test, per half;
     `organised`: organised frames handed over as such (:func:`_register_clouds`)."""
-    from pointclm.datasets.sensed import SensedSceneParams, make_sensed_scene
+    from pointclm.datasets.sensed import make_sensed_scene
 
-    params = SensedSceneParams(
-        parts=cell.parts,
-        layout=cell.layout,
-        copies=cell.copies,
-        camera=cell.camera,
-        sensor=cell.sensor,
-        form=cell.form,
-        data_dir=data_dir,
-    )
+    params = cell.params(data_dir)
     half = len(seeds) // 2 or 1
     rows = ["correspondences"] if cell.family == "correspondences" else ["default"]
     if cell.family == "clouds" and cell.layout in HEAPED:

@@ -306,7 +306,7 @@ impl RefineContext {
             Some(_) => unsigned_normals(source, &model_index, params)?,
             None => Vec::new(),
         };
-        let agreement_normals = nearest_normals(source, &model_index)?;
+        let agreement_normals = nearest_normals(source, &model_index);
         Ok(Self {
             source: source.to_vec(),
             target: target.to_vec(),
@@ -354,6 +354,7 @@ impl RefineContext {
         });
         let (source, target) = (&self.source[..], &self.target[..]);
         let radii = params.radii();
+        let agreement_cos = params.normal_agreement_deg.to_radians().cos();
         let fitted: Vec<(RigidTransform, Judged)> = poses
             .par_iter()
             .map(|pose| {
@@ -381,7 +382,7 @@ impl RefineContext {
                     normals,
                     &refined,
                     &judged.nearest,
-                    params.normal_agreement_deg.to_radians().cos(),
+                    agreement_cos,
                 );
                 (refined, judged)
             })
@@ -562,14 +563,9 @@ fn unsigned_normals(
 /// Normals from each point's `AGREEMENT_NN` nearest points, of either sign: a plane fit
 /// needs about a dozen whatever the model's spacing, which a model given to `refine_poses`
 /// need not share with the voxel (a sparse model's disc of `normal_radius` may hold three).
-fn nearest_normals(points: &[[f64; 3]], index: &PointIndex) -> Result<Vec<[f64; 3]>> {
+fn nearest_normals(points: &[[f64; 3]], index: &PointIndex) -> Vec<[f64; 3]> {
     let towards = Orientation::Towards([0.0; 3]);
-    Ok(super::normals::nearest_k_normals(
-        points,
-        index,
-        AGREEMENT_NN,
-        towards,
-    ))
+    super::normals::nearest_k_normals(points, index, AGREEMENT_NN, towards)
 }
 
 /// See [`nearest_normals`].
@@ -839,7 +835,7 @@ fn judge(
 
 /// The share of the model points with a nearest scan point (`nearest`, `u32::MAX`: none)
 /// whose normal, turned by `pose`, lies within `acos(min_cos)` of that scan point's, either
-/// sign (NaN without normals on either side or without such points).
+/// sign (NaN without scan normals or without such points).
 fn normal_agreement(
     model_normals: &[[f64; 3]],
     scan_normals: &[[f64; 3]],
@@ -847,7 +843,7 @@ fn normal_agreement(
     nearest: &[u32],
     min_cos: f64,
 ) -> f64 {
-    if model_normals.len() != nearest.len() || scan_normals.is_empty() {
+    if scan_normals.is_empty() {
         return f64::NAN;
     }
     let (mut pairs, mut agree) = (0usize, 0usize);
