@@ -154,12 +154,36 @@ def test_an_empty_result_says_which_rule_rejected_each_candidate() -> None:
     _assert_every_quote_misses(text)
 
 
+@pytest.mark.parametrize(
+    ("face_proposals", "faces", "says"),
+    [
+        (False, 0, "or proposals='faces' for a part made of large flat faces (a box)."),
+        (True, 4, "; verification rejected all 4 pose(s) laying a model face on the scan."),
+        (True, 0, "; no planar patch of the scan took a model face."),
+    ],
+)
+def test_too_few_matches_is_named_with_what_the_faces_did(face_proposals, faces, says) -> None:  # type: ignore[no-untyped-def]
+    run = SimpleNamespace(viewpoint=EYE, unconfirmed=None, voxel=0.1, num_threads=1,
+                          refiner=None, face_proposals=face_proposals)  # fmt: skip
+    first = _Pass(np.zeros((0, 4, 4)), matches=2, faces=faces)
+    text = _diagnose(run, 0, True, [first])  # type: ignore[arg-type]
+    assert text.startswith(
+        "nothing found: only 2 descriptor match(es) survived matching (3 needed for a pose)"
+    )
+    assert says in text and "try a smaller voxel_size or mutual=False" in text
+    assert ("proposals='faces'" in text) == (not face_proposals)
+    # A copy found (by a face) needs no explaining.
+    assert _diagnose(run, 1, True, [first]) == ""  # type: ignore[arg-type]
+
+
 class _Pass:
     """A first pass with candidate poses, as the diagnosis reads one."""
 
-    def __init__(self, poses: np.ndarray) -> None:
+    def __init__(self, poses: np.ndarray, matches: int | None = None, faces: int = 0) -> None:
         self.result = _Result(poses)
-        self.correspondences = np.zeros((10, 6))
+        self.correspondences = np.zeros((10 if matches is None else 0, 6))
+        self.matches = matches
+        self.faces = np.tile(np.eye(4), (faces, 1, 1))
 
 
 class _Result:

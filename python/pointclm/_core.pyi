@@ -352,8 +352,9 @@ def register_scan(
     ``transformations`` (M, 4, 4) surest first, and per copy ``confidence``, ``fitness``,
     ``inlier_rmse``, ``visible_fitness``, ``contradiction``, ``seen``, ``visible_rmse``
     (M,), ``pass_index`` and ``instance`` (lists); ``passes`` (dicts: ``correspondences``
-    (N, 6), ``result``, ``scan_points``, ``added``, ``voted``, ``faces`` and ``duplicates``
-    (K, 4, 4));
+    (N, 6), ``matches`` (N, or how few survived matching when under 3: then no
+    correspondences and an empty ``result``), ``result``, ``scan_points``, ``added``,
+    ``voted``, ``faces`` and ``duplicates`` (K, 4, 4));
     ``source_points``, ``source_normals``, ``target_points``, ``target_normals``; ``config``
     (a dict); ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``,
     ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``;

@@ -171,6 +171,7 @@ _FLAGS_FOR_ARGUMENTS = (
     ("voxel_size", "--voxel-size"),
     ("mutual=False", "--no-mutual"),
     ("n_samples=None", "--all-correspondences"),
+    ("proposals='faces'", "--proposals faces"),
 )
 
 

@@ -175,6 +175,7 @@ def _pass(p: dict[str, Any]) -> Pass:
         voted=p["voted"],
         faces=p["faces"],
         duplicates=p["duplicates"],
+        matches=int(p["matches"]),
     )
 
 
@@ -251,6 +252,7 @@ class _CoreJudged:
         self.voxel = float(out["voxel_size"])
         self.viewpoint = _point(out["viewpoint"])
         self.unconfirmed = _point(out["unconfirmed_viewpoint"])
+        self.face_proposals = bool(out["face_proposals"])
 
     @cached_property
     def refiner(self) -> RefinementContext:

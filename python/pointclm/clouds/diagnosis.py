@@ -9,6 +9,7 @@ from typing import Protocol
 import numpy as np
 
 from ..refinement import _RULE_DEFAULTS, RefinementContext, Rejection
+from ..registration import MIN_CORRESPONDENCES
 from .results import Pass, _xyz
 
 
@@ -26,6 +27,8 @@ class _Judged(Protocol):
     def num_threads(self) -> int | None: ...
     @property
     def refiner(self) -> RefinementContext: ...
+    @property
+    def face_proposals(self) -> bool: ...
 
 
 def _diagnose(run: _Judged, found: int, by_visibility: bool, passes: list[Pass]) -> str:
@@ -35,6 +38,9 @@ def _diagnose(run: _Judged, found: int, by_visibility: bool, passes: list[Pass])
     no_view = "" if run.viewpoint is not None else _no_viewpoint(run.unconfirmed)
     if found:
         return ""
+    matches = len(first.correspondences) if first.matches is None else first.matches
+    if matches < MIN_CORRESPONDENCES:
+        return _too_few_matches(run, matches, len(first.faces)) + no_view
     if len(first.result) == 0:
         return (
             f"nothing found: no consistent group among the {len(first.correspondences)} "
@@ -43,6 +49,27 @@ def _diagnose(run: _Judged, found: int, by_visibility: bool, passes: list[Pass])
             "voxel_size, mutual=False or n_samples=None." + no_view
         )
     return _rejected(run, first) + no_view
+
+
+def _too_few_matches(run: _Judged, matches: int, faces: int) -> str:
+    """Why nothing was found when matching left too few pairs for a pose: the descriptors
+    proposed nothing, and what became of the face proposals (which need no matches)."""
+    if not run.face_proposals:
+        tried = ""
+        boxes = ", or proposals='faces' for a part made of large flat faces (a box)"
+    elif faces:
+        tried = f"; verification rejected all {faces} pose(s) laying a model face on the scan"
+        boxes = ""
+    else:
+        tried = "; no planar patch of the scan took a model face"
+        boxes = ""
+    return (
+        f"nothing found: only {matches} descriptor match(es) survived matching "
+        f"({MIN_CORRESPONDENCES} needed for a pose), so the descriptors proposed no pose"
+        f"{tried}. The scan may not hold the model, or its local shapes differ at voxel "
+        f"{run.voxel:.3g} (a flat or featureless scan looks the same everywhere): try a "
+        f"smaller voxel_size or mutual=False{boxes}."
+    )
 
 
 #: How each rule reads in a diagnosis: what its value measures (short, then in words), and

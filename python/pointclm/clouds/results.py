@@ -144,6 +144,10 @@ class Pass:
     #: (peeling's duplicate check); their rotations relative to that copy's pose are the
     #: scene's own alternatives for :func:`pointclm.refinement.resolve_flips`.
     duplicates: np.ndarray = field(default_factory=lambda: np.empty((0, 4, 4)))
+    #: The mutual descriptor matches that survived matching: ``len(correspondences)``, or,
+    #: when fewer than 3 (too few for a pose), how few; ``correspondences`` is then empty and
+    #: ``result`` has no instance. None: not recorded (``len(correspondences)``).
+    matches: int | None = None
 
     def __repr__(self) -> str:
         return (

@@ -296,13 +296,14 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
     d.set_item("symmetry", symmetry)?;
     let passes = PyList::empty(py);
     for pass in out.passes {
-        let rows: Vec<[f64; 6]> = (0..pass.correspondences.len())
-            .map(|i| {
-                let (a, b) = (
-                    pass.correspondences.source(i),
-                    pass.correspondences.target(i),
-                );
-                [a[0], a[1], a[2], b[0], b[1], b[2]]
+        let rows: Vec<[f64; 6]> = pass
+            .correspondences
+            .iter()
+            .flat_map(|c| {
+                (0..c.len()).map(move |i| {
+                    let (a, b) = (c.source(i), c.target(i));
+                    [a[0], a[1], a[2], b[0], b[1], b[2]]
+                })
             })
             .collect();
         let poses = |p: &[RigidTransform]| {
@@ -311,6 +312,7 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
         };
         let p = PyDict::new(py);
         p.set_item("correspondences", rows_to_py(py, &rows)?)?;
+        p.set_item("matches", pass.matches)?;
         p.set_item("result", PyRegistration::new(py, pass.registration)?)?;
         p.set_item("scan_points", indices(py, &pass.scan_points))?;
         p.set_item("added", pass.added)?;

@@ -8,7 +8,9 @@ pub enum Error {
     #[error("need at least {min} correspondences, got {got}")]
     TooFewCorrespondences { got: usize, min: usize },
 
-    /// Descriptor matching between a model and a scan left too few pairs for a pose.
+    /// Descriptor matching between a model and a scan left too few pairs for a pose. The
+    /// scene pipeline does not return it (too few matches there is an empty result whose
+    /// first pass says how few); kept for callers that match descriptors themselves.
     #[error(
         "only {got} correspondences survived matching: the clouds share too few similar local \
          shapes (try mutual=False, a smaller voxel_size, or check the units)"

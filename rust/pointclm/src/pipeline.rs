@@ -32,8 +32,9 @@ pub struct StageTimings {
     pub poses: f64,
 }
 
-/// The result of registering one scene.
-#[derive(Debug, Clone, PartialEq)]
+/// The result of registering one scene; [`Registration::default`] is the empty one (no
+/// instances, nothing kept), as a scene pass without correspondences reports it.
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Registration {
     /// Registered instances, most inliers first.
     pub instances: Vec<Instance>,

@@ -179,9 +179,15 @@ pub struct Candidate {
 /// One pass of the correspondence stage.
 #[derive(Debug, Clone)]
 pub struct Pass {
-    /// Rows `(model point | scan point)` of the downsampled clouds.
-    pub correspondences: Correspondences,
-    /// The correspondence stage's result over them.
+    /// Rows `(model point | scan point)` of the downsampled clouds; `None` when matching left
+    /// fewer than 3, too few for a pose (pass 0 only: a later pass with so few is not kept,
+    /// peeling stops there).
+    pub correspondences: Option<Correspondences>,
+    /// The mutual descriptor matches that survived matching: the rows of `correspondences`,
+    /// or how few there were without them.
+    pub matches: usize,
+    /// The correspondence stage's result over them ([`Registration::default`], empty, without
+    /// them).
     pub registration: Registration,
     /// Indices into [`SceneRegistration::target`]'s points of the scan points matched.
     pub scan_points: Vec<usize>,
@@ -307,6 +313,11 @@ pub fn cloud_config(voxel: f64, cluster_level: Option<f64>) -> Config {
 
 /// Finds every copy of `model` (a complete object) in `scan`; see the module documentation.
 /// Parallel on the current rayon pool; the result depends only on the inputs and the seed.
+///
+/// Errors are for input it cannot use (non-finite or too few points, bad options). A scan
+/// whose descriptors leave fewer than 3 matches is an answer, not an error: no copy from
+/// the descriptors (pass 0 without correspondences, [`Pass::matches`] saying how few), though
+/// face proposals, which need no matches, may still find some.
 pub fn register_point_clouds(
     model: &[[f64; 3]],
     scan: &[[f64; 3]],
@@ -366,13 +377,21 @@ pub fn register_point_clouds_with(
         clock = Instant::now();
         seconds
     };
-    let (corr, distances) = run
-        .matched(&everything, options.seed, heap)?
-        .map_err(|got| Error::TooFewMatches { got })?;
+    let matched = run.matched(&everything, options.seed, heap)?;
     timings.matching = lap();
-    let features = run.features(&corr, &distances)?;
-    timings.embedding = lap();
-    let registration = register(&corr, features.as_ref(), &config, options.seed)?;
+    // Too few matches is what the data says (a scan without the model, or shapes the
+    // descriptors cannot tell apart), not bad input: an empty stage, and the face proposals,
+    // which need no matches, still run.
+    let (corr, matches, registration) = match matched {
+        Ok((corr, distances)) => {
+            let features = run.features(&corr, &distances)?;
+            timings.embedding = lap();
+            let registration = register(&corr, features.as_ref(), &config, options.seed)?;
+            let n = corr.len();
+            (Some(corr), n, registration)
+        }
+        Err(got) => (None, got, Registration::default()),
+    };
     let faces = match options.refine {
         true => run.face_poses(None)?,
         false => Vec::new(),
@@ -393,6 +412,7 @@ pub fn register_point_clouds_with(
     let added = accepted.len();
     run.passes.push(Pass {
         correspondences: corr,
+        matches,
         registration,
         scan_points: everything,
         added,
@@ -965,7 +985,8 @@ impl<'o> Run<'o> {
             }
             let added = accepted.tags.iter().filter(|t| t.0 == round).count();
             self.passes.push(Pass {
-                correspondences: corr,
+                matches: corr.len(),
+                correspondences: Some(corr),
                 registration,
                 scan_points: rows,
                 added,

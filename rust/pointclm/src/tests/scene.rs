@@ -350,3 +350,35 @@ fn the_shipped_network_embeds_every_pass_of_the_scene_pipeline() {
     };
     assert!(register_point_clouds_with(&model, &scan, &options, Some(&bad)).is_err());
 }
+
+#[test]
+fn a_scan_that_shares_no_shape_with_the_model_is_an_empty_result_not_an_error() {
+    use crate::scene::{register_point_clouds, SceneOptions};
+    let model: Vec<[f64; 3]> = (0..2000)
+        .map(|i| {
+            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
+            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
+            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
+            [r * d[0], r * d[1], r * d[2]]
+        })
+        .collect();
+    // A flat floor: every point's FPFH is the same, so the mutual check keeps at most a
+    // couple of pairs, too few for a pose.
+    let floor: Vec<[f64; 3]> = (0..3600)
+        .map(|i| [(i % 60) as f64 * 0.05, (i / 60) as f64 * 0.05, 0.0])
+        .collect();
+    for refine in [true, false] {
+        let options = SceneOptions {
+            voxel_size: Some(0.1),
+            refine,
+            ..SceneOptions::default()
+        };
+        let found = register_point_clouds(&model, &floor, &options).unwrap();
+        assert!(found.candidates.is_empty() && found.ambiguous.is_empty());
+        assert_eq!(found.passes.len(), 1);
+        let first = &found.passes[0];
+        assert!(first.correspondences.is_none() && first.matches < 3);
+        assert!(first.registration.instances.is_empty() && first.added == 0);
+    }
+}
