@@ -71,6 +71,8 @@ AXES = {
 #: Layouts where copies touch in heaps or packs: a second row with ``heap=True``.
 HEAPED = ("pile", "grid", "row")
 MIN_VISIBLE, HALF_VISIBLE = 0.3, 0.5
+#: Options every ``register_point_clouds`` call of the run adds (``--descriptor``).
+REGISTER_OPTIONS: dict[str, object] = {}
 MAX_ROTATION_DEG, MAX_TRANSLATION_DIAGONALS = 15.0, 0.1
 
 
@@ -303,7 +305,9 @@ def _register_clouds(
     delivers_frame = (SENSORS[sensor] if isinstance(sensor, str) else sensor).organised
     scan = scene.frame if organised and delivers_frame else scene.scan
     t = time.perf_counter()
-    res = pointclm.register_point_clouds(scene.models[product], scan, heap=True if heap else None)
+    res = pointclm.register_point_clouds(
+        scene.models[product], scan, heap=True if heap else None, **REGISTER_OPTIONS
+    )
     seconds = time.perf_counter() - t
     both = [c.transformation for c in [*res.instances, *res.ambiguous]]
     every = np.stack(both) if both else np.zeros((0, 4, 4))
@@ -483,6 +487,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", default="benchmarks/results/matrix/matrix.json")
     ap.add_argument("--table", help="also write the markdown table here")
     ap.add_argument("--data-dir", default=None)
+    ap.add_argument("--descriptor", default="fpfh", help="fpfh, learned or a descriptor file")
     ap.add_argument(
         "--organised",
         action="store_true",
@@ -490,6 +495,7 @@ def main(argv: list[str] | None = None) -> dict:
         "(judged from its sensor, the origin); default: the frame's returns as (N, 3)",
     )
     args = ap.parse_args(argv)
+    REGISTER_OPTIONS["descriptor"] = args.descriptor
     cells = all_cells(args.random)
     if args.quick:
         cells = [c for c in cells if c.name in QUICK]

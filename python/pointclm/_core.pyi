@@ -55,6 +55,7 @@ __all__ = [
     "estimate_normals",
     "compute_fpfh",
     "describe",
+    "learned_descriptors",
     "match_features",
     "nearest_descriptors",
     "nearest_neighbours",
@@ -342,8 +343,10 @@ def register_scan(
     mutual_window: float | str | None = None,
     symmetry: str | dict[str, npt.NDArray[np.float64]] | None = None,
     proposals: str = "auto",
+    descriptor: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
-    """The core's scene pipeline; ``embed(correspondences, normals, similarity)`` computes
+    """The core's scene pipeline; ``descriptor`` a learned descriptor's weights file (None:
+    FPFH); ``embed(correspondences, normals, similarity)`` computes
     each pass's learned embedding (the cues ``embed_inputs`` names given, else None);
     ``refine=False`` scores the correspondence stage's poses without ICP or verification;
     ``k`` model points matched per scan point; ``mutual_window`` a side in model diagonals
@@ -417,6 +420,13 @@ def compute_fpfh(
     radius: float,
     max_nn: int = 100,
     variant: str = "open3d",
+    num_threads: int | None = None,
+) -> npt.NDArray[np.float64]: ...
+def learned_descriptors(
+    points: npt.NDArray[np.float64],
+    normals: npt.NDArray[np.float64],
+    voxel_size: float,
+    weights: str | os.PathLike[str],
     num_threads: int | None = None,
 ) -> npt.NDArray[np.float64]: ...
 def describe(

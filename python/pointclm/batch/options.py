@@ -53,6 +53,7 @@ OPTION_NAMES = (
     "scene",
     "symmetry",
     "proposals",
+    "descriptor",
 )
 
 #: The model's points, or with several models (judged together) each one's, in order.
@@ -123,6 +124,11 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
         from ..point_clouds import _proposals
 
         out["proposals"] = _proposals(out["proposals"])
+    if "descriptor" in out:
+        from ..descriptors import descriptor_weights
+
+        descriptor_weights(out["descriptor"])  # checked here, resolved again by the worker
+        out["descriptor"] = str(out["descriptor"])
     out["model"] = _model_spec(out.get("model"))
     if "symmetry" in out:
         out["symmetry"] = _symmetry(out["symmetry"])

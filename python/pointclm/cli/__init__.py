@@ -14,6 +14,7 @@ from typing import TextIO
 from .. import __version__
 from .args import _add_config_flags, _int_at_least, _one_line, _Parser, flag_names
 from .commands import _add_batch_parser, _add_eval_parser, _add_train_parser, cmd_demo
+from .descriptor import _add_train_descriptor_parser
 from .register import _add_register_parser, _method_options
 
 __all__ = ["_method_options", "build_parser", "flag_names", "main"]
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_register_parser(sub)
     _add_batch_parser(sub)
     _add_train_parser(sub)
+    _add_train_descriptor_parser(sub)
     return p
 
 

@@ -185,3 +185,21 @@ def flag_names(text: str) -> str:
 
 def _one_line(text: str) -> str:
     return " ".join(text.split())
+
+
+def _add_proposal_flags(p: Any) -> None:
+    """`--proposals` and `--descriptor`: what proposes the poses verification judges."""
+    p.add_argument(
+        "--proposals",
+        choices=("auto", "descriptors", "faces"),
+        default="auto",
+        help="poses verification judges: descriptor matches, or with model faces laid on the "
+        "scan's planar patches too (auto: faces for models mostly made of large flat faces)",
+    )
+    p.add_argument(
+        "--descriptor",
+        default="fpfh",
+        metavar="fpfh|learned|FILE",
+        help="the local descriptor clouds are matched by: FPFH (default), the shipped learned "
+        "one, or a .safetensors file from `pointclm train-descriptor`",
+    )

@@ -18,6 +18,7 @@ from ..config import Config
 from ..io.files import atomic_path, check_output_path
 from .args import (
     _add_config_flags,
+    _add_proposal_flags,
     _config_overrides,
     _finite_float,
     _int_at_least,
@@ -289,6 +290,7 @@ def _method_options(args: argparse.Namespace, model: Callable[[], np.ndarray]) -
         "flips": not args.no_flips,
         "scene": dict(args.scene or ()),
         "proposals": args.proposals,
+        "descriptor": args.descriptor,
     }
 
 
@@ -486,10 +488,4 @@ def _add_matching_flags(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="give the correspondence stage the normals at both ends of each match",
     )
-    p.add_argument(
-        "--proposals",
-        choices=("auto", "descriptors", "faces"),
-        default="auto",
-        help="poses verification judges: descriptor matches, or with model faces laid on the "
-        "scan's planar patches too (auto: faces for models mostly made of large flat faces)",
-    )
+    _add_proposal_flags(p)

@@ -69,6 +69,9 @@ class CoreCall:
     symmetry: Any = None
     #: Which poses verification judges: "auto", "descriptors" or "faces" (checked).
     proposals: str = "auto"
+    #: The learned descriptor's weights file; None: FPFH (checked:
+    #: :func:`pointclm.descriptors.descriptor_weights`).
+    descriptor: str | None = None
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -114,6 +117,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         mutual_window=call.mutual_window,
         symmetry=call.symmetry,
         proposals=call.proposals,
+        descriptor=call.descriptor,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)

@@ -296,6 +296,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(scene::fit_tightness, m)?)?;
     m.add_function(wrap_pyfunction!(scene::stability_factor, m)?)?;
     m.add_function(wrap_pyfunction!(scene::register_scan, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::learned_descriptors, m)?)?;
     m.add_function(wrap_pyfunction!(scene::judge_jointly, m)?)?;
     m.add_function(wrap_pyfunction!(symmetry::symmetry_group, m)?)?;
     m.add_function(wrap_pyfunction!(symmetry::detect_symmetries, m)?)?;

@@ -158,6 +158,32 @@ pub fn compute_fpfh<'py>(
     rows_to_py(py, &out)
 }
 
+/// Learned descriptors (N, D) of `points` with their unit `normals`, described at `voxel`,
+/// by the descriptor network in `weights` (a `.safetensors` file with its `.json` beside it).
+#[pyfunction]
+#[pyo3(signature = (points, normals, voxel_size, weights, num_threads=None))]
+pub fn learned_descriptors<'py>(
+    py: Python<'py>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::normals)] normals: PyReadonlyArray2<'py, f64>,
+    #[pyo3(from_py_with = args::voxel_size)] voxel_size: f64,
+    weights: std::path::PathBuf,
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let p = rows3(&points, "points")?;
+    let n = rows3(&normals, "normals")?;
+    let threads = num_threads.map(pool).transpose()?;
+    let out = guarded(py, threads, move || {
+        let net = pointclm::network::LearnedDescriptor::from_file(&weights)?;
+        let index = PointIndex::new(&p)?;
+        net.describe(&p, &n, &index, voxel_size)
+    })?;
+    let flat: Vec<f64> = (0..out.len()).flat_map(|i| out.row(i).to_vec()).collect();
+    Array2::from_shape_vec((out.len(), out.dim()), flat)
+        .map(|a| a.into_pyarray(py))
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
 type MatchArrays<'py> = (
     Bound<'py, PyArray1<i64>>,
     Bound<'py, PyArray1<i64>>,

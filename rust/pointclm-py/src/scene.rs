@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto"),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto')"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto", descriptor=None),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto', descriptor=None)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -129,8 +129,17 @@ pub fn register_scan<'py>(
     mutual_window: Option<Bound<'py, PyAny>>,
     symmetry: Option<Bound<'py, PyAny>>,
     proposals: &str,
+    descriptor: Option<std::path::PathBuf>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let proposals = scene::Proposals::from_name(proposals).map_err(crate::errors::to_py_err)?;
+    // `descriptor`: the weights of a learned descriptor; None: FPFH.
+    let descriptor = match descriptor {
+        None => scene::Descriptor::Fpfh,
+        Some(path) => scene::Descriptor::Learned(Arc::new(
+            pointclm::network::LearnedDescriptor::from_file(path)
+                .map_err(crate::errors::to_py_err)?,
+        )),
+    };
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
     let embedder = embed.map(|callback| {
@@ -163,6 +172,7 @@ pub fn register_scan<'py>(
         scene: declared_from_dict(SceneRules::default(), scene.as_ref(), "scene")?,
         symmetry: crate::symmetry::model_symmetry(symmetry.as_ref())?,
         proposals,
+        descriptor,
     };
     let threads = num_threads.map(pool).transpose()?;
     let inner = embedder.clone();

@@ -61,12 +61,14 @@
 //! # }
 //! ```
 
+mod descriptor;
 mod forward;
 pub(crate) mod layers;
 mod scene_norm;
 pub(crate) mod sparse_attention;
 mod weights;
 
+pub use descriptor::{LearnedDescriptor, PAIR_FEATURES};
 pub use forward::MAX_DENSE_ATTENTION_ROWS;
 
 use std::fmt;

@@ -36,7 +36,7 @@ pub(crate) fn read_file(path: &Path) -> Result<Network> {
 
 /// The bytes of `path`, which must be a regular file of at most `max` bytes: a FIFO would
 /// block forever and a device such as `/dev/zero` never ends.
-fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
+pub(crate) fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
     use std::io::Read;
     let not_found = |reason: String| Error::WeightsNotFound {
         path: path.display().to_string(),
@@ -166,16 +166,16 @@ fn check_capacity(
 }
 
 /// Looks tensors up by name and checks their shape, dtype and values.
-struct Reader<'a, 'd> {
-    st: &'a SafeTensors<'d>,
-    name: &'a str,
-    used: BTreeSet<String>,
+pub(crate) struct Reader<'a, 'd> {
+    pub(crate) st: &'a SafeTensors<'d>,
+    pub(crate) name: &'a str,
+    pub(crate) used: BTreeSet<String>,
     /// Per-scene normalization: BatchNorms are kept apart rather than folded.
-    scene: bool,
+    pub(crate) scene: bool,
 }
 
 impl Reader<'_, '_> {
-    fn tensor(&mut self, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
+    pub(crate) fn tensor(&mut self, name: &str, shape: &[usize]) -> Result<Vec<f64>> {
         let view = self.st.tensor(name).map_err(|_| Error::TensorMissing {
             path: self.name.to_string(),
             name: name.to_string(),
@@ -211,7 +211,7 @@ impl Reader<'_, '_> {
         Ok(values)
     }
 
-    fn malformed(&self, reason: String) -> Error {
+    pub(crate) fn malformed(&self, reason: String) -> Error {
         Error::WeightsMalformed {
             path: self.name.to_string(),
             reason,

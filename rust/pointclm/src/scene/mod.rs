@@ -37,6 +37,7 @@
 //! # Ok::<(), pointclm::Error>(())
 //! ```
 
+pub mod descriptor;
 pub mod embedder;
 pub mod faces;
 pub mod flips;
@@ -49,6 +50,7 @@ pub mod sensor;
 pub mod voxel;
 mod window;
 
+pub use descriptor::Descriptor;
 pub use embedder::{similarity, Embedder, NetworkEmbedder};
 pub use faces::{FaceProposer, Proposals};
 pub use flips::{flip_turns, quarter_turns, resolve_flips, resolve_flips_with_symmetry};

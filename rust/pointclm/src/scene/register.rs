@@ -24,6 +24,7 @@ use crate::pointcloud::{
 use nalgebra::Matrix3;
 use std::time::Instant;
 
+use super::descriptor::Descriptor;
 use super::embedder::{similarity, Embedder};
 use super::faces::{model_faces, FaceProposer, Proposals};
 use super::flips::resolve_flips_with_symmetry;
@@ -95,6 +96,8 @@ pub struct SceneOptions {
     /// face laid on each planar patch of the scan ([`Proposals`]; `Auto` decides by the
     /// model's share of large flat faces).
     pub proposals: Proposals,
+    /// The local descriptor both clouds are matched by (FPFH, or a learned one).
+    pub descriptor: Descriptor,
     /// The scene-wide rules.
     pub scene: SceneRules,
 }
@@ -119,6 +122,7 @@ impl Default for SceneOptions {
             seed: 0,
             symmetry: None,
             proposals: Proposals::Auto,
+            descriptor: Descriptor::Fpfh,
             scene: SceneRules::default(),
         }
     }
@@ -513,7 +517,8 @@ impl<'o> Run<'o> {
         )?;
         let points = without_strays(voxel_downsample(scan, voxel)?, voxel, &options.scene)?;
         let scan = describe_scan(&points, voxel, options.viewpoint, &source, &options.scene)?;
-        let target = scan.cloud;
+        let source = options.descriptor.apply(source, voxel)?;
+        let target = options.descriptor.apply(scan.cloud, voxel)?;
         let k = options.matching.k;
         let nearest = nearest_sources(&source.descriptors, &target.descriptors, k)?;
         let rules = RefineParams::for_voxel(voxel);

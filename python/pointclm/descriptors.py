@@ -1,0 +1,81 @@
+"""Which local descriptor point clouds are matched by: FPFH or the learned one.
+
+``register_point_clouds(descriptor=...)`` and ``pointclm register --descriptor`` take a name
+or the path of a descriptor file:
+
+- ``"fpfh"`` (the default): Open3D's FPFH over 5 voxels, no training, the reference every
+  learned descriptor is measured against;
+- ``"learned"``: the descriptor network shipped with the package (``weights/descriptor``),
+  trained contrastively on partial views of the validation models and procedural shapes
+  (``pointclm train-descriptor``); see the model card in BENCHMARKS.md for where it wins and
+  where it does not;
+- a path to a ``.safetensors`` file written by ``pointclm train-descriptor`` (its ``.json``
+  beside it).
+
+The learned descriptor runs in the Rust core (no torch at run time), over the same points and
+oriented normals FPFH was computed on.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .errors import InputError
+
+__all__ = ["DESCRIPTORS", "descriptor_weights", "learned_descriptors"]
+
+#: Names ``descriptor=`` accepts besides a path.
+DESCRIPTORS: tuple[str, ...] = ("fpfh", "learned")
+_SHIPPED = Path(__file__).parent / "weights" / "descriptor.safetensors"
+
+
+def descriptor_weights(descriptor: str | os.PathLike[str] | None) -> str | None:
+    """The descriptor file `descriptor` names (None: FPFH).
+
+    Raises InputError for an unknown name or a path that is not a ``.safetensors`` file with
+    its ``.json`` beside it.
+    """
+    if descriptor is None or (isinstance(descriptor, str) and descriptor == "fpfh"):
+        return None
+    if isinstance(descriptor, str) and descriptor == "learned":
+        path = _SHIPPED
+    elif isinstance(descriptor, str | os.PathLike):
+        path = Path(descriptor)
+    else:
+        raise InputError(
+            f"descriptor must be one of {DESCRIPTORS} or a path to a descriptor file, "
+            f"got {descriptor!r}"
+        )
+    if path.suffix != ".safetensors" or not path.is_file():
+        raise InputError(
+            f"descriptor {str(descriptor)!r} is neither one of {DESCRIPTORS} nor an existing "
+            ".safetensors file (written by `pointclm train-descriptor`)"
+        )
+    if not path.with_suffix(".json").is_file():
+        raise InputError(
+            f"descriptor file {path} has no {path.with_suffix('.json').name} beside it"
+        )
+    return str(path)
+
+
+def learned_descriptors(
+    points: ArrayLike,
+    normals: ArrayLike,
+    voxel_size: float,
+    descriptor: str | os.PathLike[str] = "learned",
+    num_threads: int | None = None,
+) -> np.ndarray:
+    """Learned descriptors (N, D), unit length, of `points` with their unit `normals`, for
+    clouds described at `voxel_size` (the neighbourhood radius is the network's, in voxels)."""
+    from . import _core
+    from .preprocessing import as_points
+
+    path = descriptor_weights(descriptor)
+    if path is None:
+        raise InputError("learned_descriptors needs a learned descriptor, not 'fpfh'")
+    pts, nrm = as_points(points, "points"), as_points(normals, "normals")
+    return _core.learned_descriptors(pts, nrm, voxel_size, path, num_threads)
