@@ -21,11 +21,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common.report import command, hardware, utc_now
+from benchmarks.common.report import command, hardware, utc_now, write_report
 from benchmarks.matrix.run import (
     MAX_ROTATION_DEG,
     MAX_TRANSLATION_DIAGONALS,
@@ -135,11 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     layouts = [x.strip() for x in args.layouts.split(",") if x.strip()]
     results = run(args.seeds, layouts, args.heap)
-    text = report(results, argv)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    print(text)
+    write_report(args.out, report(results, argv))
 
 
 if __name__ == "__main__":

@@ -27,12 +27,11 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.common.report import command, hardware, utc_now
+from benchmarks.common.report import command, hardware, utc_now, write_report
 
 SENSED_PARTS = ("bunny", "fandisk", "rocker_arm", "box_120x52x50", "bracket")
 SENSORS = ("structured_light", "tof")
@@ -159,11 +158,7 @@ def main(argv: list[str] | None = None) -> None:
             print(name, {k: row[k] for k in ("fpfh", "learned", "t_fpfh", "t_learned")},
                   flush=True)  # fmt: skip
         results[family] = per_model
-    text = report(results, argv)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    print(text)
+    write_report(args.out, report(results, argv))
 
 
 if __name__ == "__main__":

@@ -74,3 +74,11 @@ def pointclm_env() -> dict[str, str]:
     folder = str(Path(pointclm.__file__).resolve().parents[1])
     path = os.pathsep.join(p for p in (folder, os.environ.get("PYTHONPATH", "")) if p)
     return {**os.environ, "PYTHONPATH": path}
+
+
+def write_report(path: str | os.PathLike[str], text: str) -> None:
+    """Write a report to `path` (its folder made when missing) and print it."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(text)

@@ -17,7 +17,7 @@ use safetensors::SafeTensors;
 use serde_json::Value;
 
 use super::layers::Dense;
-use super::weights::{read_regular, Reader, MAX_METADATA_BYTES, MAX_WEIGHTS_BYTES};
+use super::weights::{read_pair, Reader};
 use crate::correspondences::Features;
 use crate::error::{Error, Result};
 use crate::pointcloud::{check_index, check_normals, check_points, check_positive};
@@ -62,13 +62,7 @@ impl LearnedDescriptor {
     /// [`Network::from_file`](super::Network::from_file).
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let meta_path = path.with_extension("json");
-        let bytes = read_regular(path, MAX_WEIGHTS_BYTES)?;
-        let meta = read_regular(&meta_path, MAX_METADATA_BYTES)?;
-        let meta = String::from_utf8(meta).map_err(|_| Error::WeightsMalformed {
-            path: meta_path.display().to_string(),
-            reason: "the metadata is not UTF-8 text".into(),
-        })?;
+        let (bytes, meta) = read_pair(path)?;
         Self::from_bytes(&bytes, &meta, &path.display().to_string())
     }
 

@@ -24,6 +24,12 @@ pub const MAX_METADATA_BYTES: u64 = 16 << 20;
 const TENSORS_PER_BLOCK: usize = 26;
 
 pub(crate) fn read_file(path: &Path) -> Result<Network> {
+    let (bytes, meta) = read_pair(path)?;
+    from_bytes(&bytes, &meta, &path.display().to_string())
+}
+
+/// The bytes of a `.safetensors` file and the text of the `.json` beside it.
+pub(crate) fn read_pair(path: &Path) -> Result<(Vec<u8>, String)> {
     let meta_path = path.with_extension("json");
     let bytes = read_regular(path, MAX_WEIGHTS_BYTES)?;
     let meta = read_regular(&meta_path, MAX_METADATA_BYTES)?;
@@ -31,12 +37,12 @@ pub(crate) fn read_file(path: &Path) -> Result<Network> {
         path: meta_path.display().to_string(),
         reason: "the metadata is not UTF-8 text".into(),
     })?;
-    from_bytes(&bytes, &meta, &path.display().to_string())
+    Ok((bytes, meta))
 }
 
 /// The bytes of `path`, which must be a regular file of at most `max` bytes: a FIFO would
 /// block forever and a device such as `/dev/zero` never ends.
-pub(crate) fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
+fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>> {
     use std::io::Read;
     let not_found = |reason: String| Error::WeightsNotFound {
         path: path.display().to_string(),

@@ -33,14 +33,6 @@ impl PartialEq for Descriptor {
 }
 
 impl Descriptor {
-    /// The name reported with results.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Self::Fpfh => "fpfh",
-            Self::Learned(_) => "learned",
-        }
-    }
-
     /// `cloud` with this descriptor (FPFH: as it is), described at `voxel`.
     pub fn apply(&self, mut cloud: Described, voxel: f64) -> Result<Described> {
         if let Self::Learned(net) = self {

@@ -5,6 +5,21 @@ use crate::scene::peeling::{not_duplicates, unexplained};
 use crate::scene::ranking::{fit_tightness, loose_poses, relative_to_median, stability_factor};
 use crate::scene::SceneRules;
 
+/// A bumpy blob, distinctive for FPFH: `columns x rows` samples over the sphere's angles,
+/// the radius varied by a few low-frequency terms.
+fn bumpy_blob(columns: usize, rows: usize) -> Vec<[f64; 3]> {
+    (0..columns * rows)
+        .map(|i| {
+            let u = (i % columns) as f64 / columns as f64;
+            let v = (i / columns) as f64 / rows as f64;
+            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
+            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
+            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
+            [r * d[0], r * d[1], r * d[2]]
+        })
+        .collect()
+}
+
 #[test]
 fn every_declared_default_lies_in_its_range_and_every_field_is_named_once() {
     for fields in [SceneRules::FIELDS, RefineParams::FIELDS] {
@@ -104,15 +119,7 @@ fn the_scene_pipeline_finds_every_copy_of_a_distinctive_shape() {
     use crate::scene::{register_point_clouds, MutualWindow, SceneOptions};
     use nalgebra::{Rotation3, Vector3};
     // A bumpy blob (distinctive for FPFH), three copies side by side, turned.
-    let model: Vec<[f64; 3]> = (0..3000)
-        .map(|i| {
-            let (u, v) = ((i % 60) as f64 / 60.0, (i / 60) as f64 / 50.0);
-            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
-            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
-            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
-            [r * d[0], r * d[1], r * d[2]]
-        })
-        .collect();
+    let model: Vec<[f64; 3]> = bumpy_blob(60, 50);
     let truth: Vec<RigidTransform> = (0..3)
         .map(|k| RigidTransform {
             rotation: *Rotation3::from_euler_angles(0.3 * k as f64, 0.5, -0.2 * k as f64).matrix(),
@@ -271,15 +278,7 @@ fn an_embedder_sees_every_pass_with_the_cues_it_takes_and_its_errors_reach_the_c
             Features::new(vec![1.0; c.len()], 1)
         }
     }
-    let model: Vec<[f64; 3]> = (0..2000)
-        .map(|i| {
-            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
-            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
-            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
-            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
-            [r * d[0], r * d[1], r * d[2]]
-        })
-        .collect();
+    let model: Vec<[f64; 3]> = bumpy_blob(50, 40);
     let scan: Vec<[f64; 3]> = (0..2)
         .flat_map(|k| {
             model
@@ -314,15 +313,7 @@ fn the_shipped_network_embeds_every_pass_of_the_scene_pipeline() {
     let weights = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../python/pointclm/weights/default.safetensors");
     let network = Network::from_file(weights).unwrap();
-    let model: Vec<[f64; 3]> = (0..2000)
-        .map(|i| {
-            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
-            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
-            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
-            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
-            [r * d[0], r * d[1], r * d[2]]
-        })
-        .collect();
+    let model: Vec<[f64; 3]> = bumpy_blob(50, 40);
     let scan: Vec<[f64; 3]> = (0..2)
         .flat_map(|k| {
             model
@@ -354,15 +345,7 @@ fn the_shipped_network_embeds_every_pass_of_the_scene_pipeline() {
 #[test]
 fn a_scan_that_shares_no_shape_with_the_model_is_an_empty_result_not_an_error() {
     use crate::scene::{register_point_clouds, SceneOptions};
-    let model: Vec<[f64; 3]> = (0..2000)
-        .map(|i| {
-            let (u, v) = ((i % 50) as f64 / 50.0, (i / 50) as f64 / 40.0);
-            let (th, ph) = (u * std::f64::consts::TAU, v * std::f64::consts::PI);
-            let d = [ph.sin() * th.cos(), ph.sin() * th.sin(), ph.cos()];
-            let r = 1.0 + 0.3 * (3.0 * d[0]).sin() * (2.0 * d[1]).cos() + 0.2 * d[2];
-            [r * d[0], r * d[1], r * d[2]]
-        })
-        .collect();
+    let model: Vec<[f64; 3]> = bumpy_blob(50, 40);
     // A flat floor: every point's FPFH is the same, so the mutual check keeps at most a
     // couple of pairs, too few for a pose.
     let floor: Vec<[f64; 3]> = (0..3600)
