@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pointclm import register_point_clouds
-from pointclm.descriptors import descriptor_weights, learned_descriptors
+from pointclm.descriptors import descriptor_choice, descriptor_weights, learned_descriptors
 from pointclm.errors import InputError
 from scipy.spatial.transform import Rotation
 
@@ -113,6 +113,25 @@ def test_register_point_clouds_matches_by_the_learned_descriptor_when_asked() ->
         register_point_clouds(model, scan, descriptor="sift")
 
 
+def test_fpfh_and_learned_side_by_side_match_on_both() -> None:
+    shipped = descriptor_weights("learned")
+    assert descriptor_choice("fpfh+learned") == (shipped, True)
+    assert descriptor_choice("learned") == (shipped, False)
+    assert descriptor_choice("fpfh") == (None, False)
+    with pytest.raises(InputError, match="fpfh\\+learned"):
+        descriptor_choice("fpfh+fpfh")
+    model, scan, poses = _bunny_scene()
+    both = register_point_clouds(model, scan, seed=0, descriptor="fpfh+learned")
+    learned = register_point_clouds(model, scan, seed=0, descriptor="learned")
+    assert both.source_points.shape == learned.source_points.shape
+    assert not np.array_equal(both.correspondences, learned.correspondences)
+    assert len(both.instances) >= 1
+    diag = np.linalg.norm(model.max(0) - model.min(0))
+    for inst in both.instances:
+        err = [np.linalg.norm(inst.transformation[:3, 3] - p[:3, 3]) for p in poses]
+        assert min(err) < 0.1 * diag
+
+
 def test_the_command_line_takes_a_descriptor(tmp_path: Path) -> None:
     model, scan, _ = _bunny_scene()
     np.save(tmp_path / "model.npy", model)
@@ -141,3 +160,19 @@ def test_train_descriptor_writes_a_file_the_pipeline_takes_and_resumes(tmp_path:
     assert learned_descriptors(pts, nrm, 0.01, path).shape == (len(pts), 32)
     again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
+
+
+def test_described_by_gives_what_the_pipeline_matches() -> None:
+    from pointclm import preprocessing as pp
+    from pointclm.descriptors import described_by
+
+    pts, _ = _sphere()
+    d = pp.describe(pts, 0.01, away_from=np.zeros(3))
+    fpfh = described_by("fpfh", d.points, d.normals, d.descriptors, 0.01)
+    np.testing.assert_array_equal(fpfh, d.descriptors)
+    learned = described_by("learned", d.points, d.normals, d.descriptors, 0.01)
+    both = described_by("fpfh+learned", d.points, d.normals, d.descriptors, 0.01)
+    assert both.shape == (len(d.points), d.descriptors.shape[1] + learned.shape[1])
+    np.testing.assert_allclose(both[:, d.descriptors.shape[1] :], learned)
+    head = np.linalg.norm(both[:, : d.descriptors.shape[1]], axis=1)
+    np.testing.assert_allclose(head[head > 0], 1.0)

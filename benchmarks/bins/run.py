@@ -32,6 +32,10 @@ the same voxel and the sensor position, in the same run:
   ranked check from the round after the first accepted copy.
 - **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
   windowed mutual check in the rounds after ``HEAP_MIN_COPIES`` copies are accepted.
+- **pointclm (learned descriptor)**, **pointclm (heap + learned descriptor)**: the defaults and
+  ``heap=True`` with ``descriptor="learned"`` (matches by the shipped learned descriptor);
+  **pointclm (FPFH and learned)**, **pointclm (heap + FPFH and learned)**: the same with
+  ``descriptor="fpfh+learned"`` (both side by side).
 - **pointclm (one pass)**: the same with ``peel=False`` (one correspondence stage, the paper's).
 - **pointclm (all matches)**: the same with ``mutual=False, n_samples=None`` (:data:`ALL_MATCHES`):
   every scan point's best model match among the top 10,000, the setting for heaps.
@@ -114,6 +118,10 @@ MATCHING = {
     "pointclm (no flips)": {"flips": False},
     "pointclm (scene-wide mutual)": {"heap_rank": None},
     "pointclm (heap)": {"heap": True},
+    "pointclm (learned descriptor)": {"descriptor": "learned"},
+    "pointclm (heap + learned descriptor)": {"heap": True, "descriptor": "learned"},
+    "pointclm (FPFH and learned)": {"descriptor": "fpfh+learned"},
+    "pointclm (heap + FPFH and learned)": {"heap": True, "descriptor": "fpfh+learned"},
 }
 #: Sequential RANSAC stops at a pose explaining less of the model than this (see above).
 RANSAC_MIN_FITNESS = 0.2
@@ -123,6 +131,10 @@ METHODS = (
     "pointclm",
     "pointclm (scene-wide mutual)",
     "pointclm (heap)",
+    "pointclm (learned descriptor)",
+    "pointclm (heap + learned descriptor)",
+    "pointclm (FPFH and learned)",
+    "pointclm (heap + FPFH and learned)",
     "pointclm (one pass)",
     "pointclm (all matches)",
     "pointclm (windowed mutual)",

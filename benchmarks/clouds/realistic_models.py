@@ -28,6 +28,8 @@ layout) matched differently.
 **Correspondences.** N = 1000: the scenes' default (FPFH, mutual nearest neighbours, top
 10,000, at most 1000 drawn; a median of about 400 survive the mutual filter). N > 1000: the
 mutual filter off and the top N matches by descriptor distance kept, none drawn away.
+``--descriptor learned`` (or a descriptor file) matches by the learned descriptor instead, over
+the same points and normals (``SceneParams.descriptor``).
 An instance is registered when RE < 15 deg and TE < 10 % of the model's diagonal.
 
 **Methods**, all on the same correspondences of a scene, pointclm on one thread:
@@ -214,6 +216,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="leave out the peers that are not installed (default: stop, naming them)",
     )
+    ap.add_argument(
+        "--descriptor",
+        default="fpfh",
+        help="what the scenes are matched by: fpfh (default), learned, or a descriptor file",
+    )
     ap.add_argument("--quick", action="store_true", help="CI-sized: 2 scenes of 4 models")
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--data-dir", default=None, help="default: $POINTCLM_DATA_DIR or ../shared")
@@ -249,7 +256,9 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     pick = threshold_seeds if args.seeds == "threshold" else benchmark_seeds
     seeds = {m: pick(m, args.scenes_per_model) for m in models}
-    jobs = [(m, s, scene_params(m, args.n, data_dir)) for m in models for s in seeds[m]]
+    jobs = [
+        (m, s, scene_params(m, args.n, data_dir, args.descriptor)) for m in models for s in seeds[m]
+    ]
     scenes = load_scenes(jobs, cache, args.workers)
     configs = [
         (key, json.loads(text), refine)
@@ -271,6 +280,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     import pointclm
 
     held = [m for m in models if m in HELDOUT_MODELS]
+    desc_name = "FPFH" if args.descriptor == "fpfh" else f"the {args.descriptor} descriptor"
     val = [m for m in models if m in VALIDATION_MODELS]
     cmd = report.command(__spec__.name, argv)
     minutes = (time.perf_counter() - t_start) / 60
@@ -286,9 +296,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"{BENCHMARK_SEED_BASE} + 1000 i + 0..{args.scenes_per_model - 1} "
         "(disjoint from threshold and training scenes); "
         + (
-            f"FPFH, mutual nearest neighbours, top 10,000, at most {args.n} drawn"
+            f"{desc_name}, mutual nearest neighbours, top 10,000, at most {args.n} drawn"
             if args.n <= 1000
-            else f"FPFH, no mutual filter, the top {args.n} matches"
+            else f"{desc_name}, no mutual filter, the top {args.n} matches"
         )
         + ". An instance is registered when RE < 15 deg and TE < 10 % of the model's diagonal. "
         "pred / GT: predicted instances over true instances, totals over the scenes.",

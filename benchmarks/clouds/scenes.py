@@ -91,17 +91,24 @@ def cloud_scenes(split: str, scenes_per_model: int, cache: Path, data_dir: str) 
     return load_scenes(jobs, cache, 1)
 
 
-def scene_params(model: str, n: int, data_dir: str | None) -> Any:
-    """The benchmark's scene parameters for `model` at `n` correspondences."""
+def scene_params(model: str, n: int, data_dir: str | None, descriptor: str = "fpfh") -> Any:
+    """The benchmark's scene parameters for `model` at `n` correspondences of `descriptor`."""
     from pointclm.datasets.scenes import SceneParams
 
     if n < 1:
         raise ValueError(f"n must be positive, got {n}")
     if n <= 1000:
-        return SceneParams(model=model, data_dir=data_dir, n_correspondences=n)
+        return SceneParams(
+            model=model, data_dir=data_dir, n_correspondences=n, descriptor=descriptor
+        )
     # Past 1000 the mutual filter leaves too few: keep the top n of every scene point's match.
     return SceneParams(
-        model=model, data_dir=data_dir, mutual=False, top_k=n, n_correspondences=None
+        model=model,
+        data_dir=data_dir,
+        mutual=False,
+        top_k=n,
+        n_correspondences=None,
+        descriptor=descriptor,
     )
 
 

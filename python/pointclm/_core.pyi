@@ -344,10 +344,12 @@ def register_scan(
     symmetry: str | dict[str, npt.NDArray[np.float64]] | None = None,
     proposals: str = "auto",
     descriptor: str | os.PathLike[str] | None = None,
+    descriptor_with_fpfh: bool = False,
 ) -> dict[str, Any]:
     """The core's scene pipeline; ``descriptor`` a learned descriptor's weights file (None:
-    FPFH); ``embed(correspondences, normals, similarity)`` computes
-    each pass's learned embedding (the cues ``embed_inputs`` names given, else None);
+    FPFH), with ``descriptor_with_fpfh`` joined to FPFH (each of unit length);
+    ``embed(correspondences, normals, similarity)`` computes each pass's learned embedding
+    (the cues ``embed_inputs`` names given, else None);
     ``refine=False`` scores the correspondence stage's poses without ICP or verification;
     ``k`` model points matched per scan point; ``mutual_window`` a side in model diagonals
     or ``"auto"`` (the windowed mutual check); ``proposals`` "auto", "descriptors" or

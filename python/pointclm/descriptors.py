@@ -9,8 +9,10 @@ or the path of a descriptor file:
   trained contrastively on partial views of the validation models and procedural shapes
   (``pointclm train-descriptor``); see the model card in BENCHMARKS.md for where it wins and
   where it does not;
+- ``"fpfh+learned"``: both side by side, each of unit length, so a match must look alike to
+  both: nearly all the true matches the learned one finds, fewer of its look-alikes;
 - a path to a ``.safetensors`` file written by ``pointclm train-descriptor`` (its ``.json``
-  beside it).
+  beside it), or ``"fpfh+"`` and such a path.
 
 The learned descriptor runs in the Rust core (no torch at run time), over the same points and
 oriented normals FPFH was computed on.
@@ -26,10 +28,16 @@ from numpy.typing import ArrayLike
 
 from .errors import InputError
 
-__all__ = ["DESCRIPTORS", "descriptor_weights", "learned_descriptors"]
+__all__ = [
+    "DESCRIPTORS",
+    "described_by",
+    "descriptor_choice",
+    "descriptor_weights",
+    "learned_descriptors",
+]
 
 #: Names ``descriptor=`` accepts besides a path.
-DESCRIPTORS: tuple[str, ...] = ("fpfh", "learned")
+DESCRIPTORS: tuple[str, ...] = ("fpfh", "learned", "fpfh+learned")
 _SHIPPED = Path(__file__).parent / "weights" / "descriptor.safetensors"
 
 
@@ -62,6 +70,20 @@ def descriptor_weights(descriptor: str | os.PathLike[str] | None) -> str | None:
     return str(path)
 
 
+def descriptor_choice(descriptor: str | os.PathLike[str] | None) -> tuple[str | None, bool]:
+    """What `descriptor` names: the learned descriptor's file (None: FPFH alone) and whether
+    FPFH is kept beside it (``"fpfh+learned"``, ``"fpfh+PATH"``).
+
+    Raises InputError as :func:`descriptor_weights` does, and for ``"fpfh+fpfh"``.
+    """
+    if isinstance(descriptor, str) and descriptor.startswith("fpfh+"):
+        weights = descriptor_weights(descriptor.removeprefix("fpfh+"))
+        if weights is None:
+            raise InputError('"fpfh+" must be followed by a learned descriptor: "fpfh+learned"')
+        return weights, True
+    return descriptor_weights(descriptor), False
+
+
 def learned_descriptors(
     points: ArrayLike,
     normals: ArrayLike,
@@ -79,3 +101,27 @@ def learned_descriptors(
         raise InputError("learned_descriptors needs a learned descriptor, not 'fpfh'")
     pts, nrm = as_points(points, "points"), as_points(normals, "normals")
     return _core.learned_descriptors(pts, nrm, voxel_size, path, num_threads)
+
+
+def described_by(
+    descriptor: str | os.PathLike[str],
+    points: ArrayLike,
+    normals: ArrayLike,
+    fpfh: ArrayLike,
+    voxel_size: float,
+    num_threads: int | None = None,
+) -> np.ndarray:
+    """The descriptors `descriptor` names for a cloud already described by FPFH (`points`,
+    oriented `normals`, `fpfh` as :func:`pointclm.preprocessing.describe` returns them), as
+    ``register_point_clouds(descriptor=...)`` matches them: FPFH as given, the learned ones,
+    or, for ``"fpfh+..."``, FPFH scaled to unit length beside the learned ones."""
+    weights, with_fpfh = descriptor_choice(descriptor)
+    f = np.asarray(fpfh, dtype=np.float64)
+    if weights is None:
+        return f
+    learned = learned_descriptors(points, normals, voxel_size, weights, num_threads)
+    if not with_fpfh:
+        return learned
+    norm = np.linalg.norm(f, axis=1, keepdims=True)
+    unit = np.divide(f, norm, out=np.zeros_like(f), where=norm > 0)
+    return np.hstack([unit, learned])

@@ -162,10 +162,10 @@ PARAMETERS: dict[str, str] = _entries(
             the rocker arm (0.16), the bunny (0.03) and the dragon (0.00) keep the descriptors
             alone. Either way every pose is judged by the same
             verification; nothing is accepted for being proposed.
-        descriptor : {"fpfh", "learned"} or path, default "fpfh"
+        descriptor : {"fpfh", "learned", "fpfh+learned"} or path, default "fpfh"
             The local descriptor both clouds are matched by: FPFH, the learned descriptor
-            shipped with the package, or a descriptor file written by
-            ``pointclm train-descriptor`` (see :mod:`pointclm.descriptors`). Either is
+            shipped with the package, both side by side, or a descriptor file written by
+            ``pointclm train-descriptor`` (see :mod:`pointclm.descriptors`). Each is
             computed over the same points and normals; every later stage is the same.
         """,
     mutual_window="""

@@ -29,7 +29,7 @@ from .clouds.results import CloudInstance, Pass, PointCloudRegistration
 from .clouds.scans import file_viewpoint, load_cloud, read_scan
 from .clouds.sensor import _voxel_size, default_voxel_size
 from .config import Config
-from .descriptors import descriptor_weights
+from .descriptors import descriptor_choice
 from .docstrings import fill
 from .embedding import Embedding, resolve
 from .errors import InputError
@@ -199,14 +199,14 @@ def register_point_clouds(
 
     %(cloud_returns)s
     """
-    t0, weights = time.perf_counter(), descriptor_weights(descriptor)
+    t0, (weights, fpfh_too) = time.perf_counter(), descriptor_choice(descriptor)
     emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips, proposals)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, scan = load_cloud(source, "source"), read_scan(target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, scan.points, voxel_size, sc)
     call = CoreCall(voxel, config, seed, scan.viewpoint, top_k, mutual, n_samples, rank, heap,
                     peel, flips, sc, num_threads, scan.stated_by, emb, normals, refine, k,
-                    window, symmetry, proposals, weights)  # fmt: skip
+                    window, symmetry, proposals, weights, fpfh_too)  # fmt: skip
     return _finished(register_in_core(src, scan.points, call.checked()), t_load, t0)
 
 

@@ -125,9 +125,9 @@ def check_options(options: dict[str, Any]) -> dict[str, Any]:
 
         out["proposals"] = _proposals(out["proposals"])
     if "descriptor" in out:
-        from ..descriptors import descriptor_weights
+        from ..descriptors import descriptor_choice
 
-        descriptor_weights(out["descriptor"])  # checked here, resolved again by the worker
+        descriptor_choice(out["descriptor"])  # checked here, resolved again by the worker
         out["descriptor"] = str(out["descriptor"])
     out["model"] = _model_spec(out.get("model"))
     if "symmetry" in out:

@@ -199,7 +199,7 @@ def _add_proposal_flags(p: Any) -> None:
     p.add_argument(
         "--descriptor",
         default="fpfh",
-        metavar="fpfh|learned|FILE",
+        metavar="fpfh|learned|fpfh+learned|FILE",
         help="the local descriptor clouds are matched by: FPFH (default), the shipped learned "
-        "one, or a .safetensors file from `pointclm train-descriptor`",
+        "one, both side by side, or a .safetensors file from `pointclm train-descriptor`",
     )

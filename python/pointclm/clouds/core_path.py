@@ -72,6 +72,8 @@ class CoreCall:
     #: The learned descriptor's weights file; None: FPFH (checked:
     #: :func:`pointclm.descriptors.descriptor_weights`).
     descriptor: str | None = None
+    #: FPFH kept beside the learned descriptor (``descriptor="fpfh+learned"``).
+    descriptor_with_fpfh: bool = False
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -118,6 +120,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         symmetry=call.symmetry,
         proposals=call.proposals,
         descriptor=call.descriptor,
+        descriptor_with_fpfh=call.descriptor_with_fpfh,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)

@@ -31,7 +31,7 @@ registered when RE < 15 degrees and TE < 10 % of the diagonal.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -150,6 +150,9 @@ class SceneParams:
     mutual: bool = True
     inlier_voxels: float = 2.0
     data_dir: str | None = None
+    #: What the clouds are matched by: "fpfh", "learned" or a descriptor file (as
+    #: ``register_point_clouds(descriptor=...)``); the points and normals are FPFH's either way.
+    descriptor: str = "fpfh"
 
     def __post_init__(self) -> None:
         lo, hi = self.instances
@@ -369,7 +372,8 @@ def _describe_and_match(
     seed: int, params: SceneParams, model: _Model, scan: _Scan, sensor: _Sensor
 ) -> tuple[Any, Any, np.ndarray, Any, np.ndarray]:
     """Stages 3 and 4: FPFH of the scan (oriented towards the sensor) and of the complete
-    model (outwards), each downsampled scan point's owner, and the matched correspondences."""
+    model (outwards), each downsampled scan point's owner, and the matched correspondences
+    (by FPFH or, with ``params.descriptor``, a learned descriptor over the same points)."""
     from .. import preprocessing as pp
     from .._core import nearest_neighbours
 
@@ -377,6 +381,8 @@ def _describe_and_match(
     near, _ = nearest_neighbours(scan.cloud, target.points)
     target_ids = scan.owner[near]
     source = pp.describe(model.points, model.voxel, away_from=model.points.mean(0))
+    if params.descriptor != "fpfh":
+        target, source = (_learned(c, model.voxel, params.descriptor) for c in (target, source))
     matches = pp.match_features(
         source.descriptors,
         target.descriptors,
@@ -387,6 +393,19 @@ def _describe_and_match(
     )
     corr = matches.correspondences(source.points, target.points)
     return target, source, target_ids, matches, corr
+
+
+def _learned(cloud: Any, voxel: float, descriptor: str) -> Any:
+    """`cloud` (a ``DescribedCloud``) with its FPFH replaced by (or joined to) the learned
+    `descriptor`."""
+    import time
+
+    from ..descriptors import described_by
+
+    t0 = time.perf_counter()
+    desc = described_by(descriptor, cloud.points, cloud.normals, cloud.descriptors, voxel)
+    timings = {**cloud.timings, "learned": time.perf_counter() - t0}
+    return replace(cloud, descriptors=desc, timings=timings)
 
 
 def _inlier_labels(

@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto", descriptor=None),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto', descriptor=None)"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto", descriptor=None, descriptor_with_fpfh=false),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto', descriptor=None, descriptor_with_fpfh=False)"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -130,15 +130,23 @@ pub fn register_scan<'py>(
     symmetry: Option<Bound<'py, PyAny>>,
     proposals: &str,
     descriptor: Option<std::path::PathBuf>,
+    descriptor_with_fpfh: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let proposals = scene::Proposals::from_name(proposals).map_err(crate::errors::to_py_err)?;
     // `descriptor`: the weights of a learned descriptor; None: FPFH.
     let descriptor = match descriptor {
         None => scene::Descriptor::Fpfh,
-        Some(path) => scene::Descriptor::Learned(Arc::new(
-            pointclm::network::LearnedDescriptor::from_file(path)
-                .map_err(crate::errors::to_py_err)?,
-        )),
+        Some(path) => {
+            let net = Arc::new(
+                pointclm::network::LearnedDescriptor::from_file(path)
+                    .map_err(crate::errors::to_py_err)?,
+            );
+            if descriptor_with_fpfh {
+                scene::Descriptor::FpfhAndLearned(net)
+            } else {
+                scene::Descriptor::Learned(net)
+            }
+        }
     };
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
