@@ -240,3 +240,57 @@ fn a_packed_row_of_boxes_is_found_with_face_proposals() {
     assert!(!descriptors.face_proposals && descriptors.planar_share.is_nan());
     assert!(found(&descriptors) < 3);
 }
+
+/// A rectangle of `extents` (long side first) about `centre` with `normal`, its long side
+/// along `axis`, as the segmenter measures one.
+fn rectangle(extents: [f64; 2], centre: [f64; 3], normal: [f64; 3], axis: [f64; 3]) -> Patch {
+    Patch {
+        normal,
+        centroid: centre,
+        centre,
+        axes: [axis, cross(normal, axis)],
+        extents,
+        rows: Vec::new(),
+    }
+}
+
+/// The six faces of a box of `size` centred at the origin, measured exactly.
+fn exact_faces(size: [f64; 3]) -> Vec<Patch> {
+    let mut faces = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (long, short) = if size[u] >= size[v] { (u, v) } else { (v, u) };
+        for side in [-1.0, 1.0] {
+            let mut normal = [0.0; 3];
+            normal[axis] = side;
+            let mut along = [0.0; 3];
+            along[long] = 1.0;
+            let centre = scale(normal, size[axis] / 2.0);
+            faces.push(rectangle([size[long], size[short]], centre, normal, along));
+        }
+    }
+    faces
+}
+
+/// A box whose long side four times over is its top: the top laid on the top, not four of the
+/// long side standing on end (each a body through what holds the box up).
+#[test]
+fn a_face_that_divides_another_does_not_displace_it() {
+    let size = [0.2, 0.12, 0.03];
+    let faces = exact_faces(size);
+    let top = rectangle(
+        [0.2, 0.12],
+        [0.0, 0.0, 0.015],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0],
+    );
+    let poses = face_poses(&faces, &[top], 2.0 * VOXEL).unwrap();
+    assert!(!poses.is_empty());
+    for pose in &poses {
+        assert!(
+            pose.tiled && faces[pose.face].normal[2].abs() > 0.99,
+            "{pose:?}"
+        );
+        assert!(Vector3::from(pose.pose.translation).norm() < 1e-9);
+    }
+}
