@@ -131,7 +131,8 @@ pub fn model_faces(
         voxel,
         params.normal_radius,
         Some(0.0),
-    )?;
+    )?
+    .closed();
     let faces = segmenter.patches(None)?;
     let disc = std::f64::consts::PI * params.feature_radius.powi(2);
     let share = planar_share(&faces, points.len(), disc);
