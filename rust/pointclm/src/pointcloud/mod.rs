@@ -14,6 +14,7 @@ pub mod icp;
 pub mod normals;
 pub mod planes;
 pub mod ppf;
+mod rectangle;
 pub mod refine;
 pub mod search;
 pub mod sensor;

@@ -4,9 +4,12 @@
 //! Why: a flat face looks the same everywhere to a local descriptor, so faces are matched as
 //! wholes instead (their size and outline), by [`crate::scene::faces`].
 
+use std::collections::HashSet;
+
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
+use super::rectangle::min_area_rectangle;
 use super::search::{Neighbourhoods, PointIndex};
 use super::{check_index, check_normals, check_points, check_positive};
 use crate::error::{Error, Result};
@@ -61,6 +64,14 @@ impl PlaneTolerances {
     }
 }
 
+/// How many hops of the neighbour graph beyond the normals' agreement a patch of a closed
+/// surface reaches on its plane ([`PlaneSegmenter::ring`]): a normal within the normals'
+/// radius of an edge is bent, and where it is bent past the angle tolerance is up to that
+/// radius (one hop) from the edge, a little more on a grid of samples; the second hop
+/// reaches the edge all the same. One hop on an open surface (a scan), where a second would
+/// cross a narrow gap (between boxes packed side by side) onto a neighbour's face.
+const CLOSED_RING_HOPS: usize = 2;
+
 /// One planar patch.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Patch {
@@ -69,7 +80,8 @@ pub struct Patch {
     pub normal: [f64; 3],
     /// The points' mean.
     pub centroid: [f64; 3],
-    /// The centre of the minimum-area rectangle holding the points, in the plane.
+    /// The centre of the minimum-area rectangle holding the points and the patch's rim (the
+    /// points on its edges that a neighbouring patch took), in the plane.
     pub centre: [f64; 3],
     /// The rectangle's axes, long side first; `(axes[0], axes[1], normal)` is right-handed.
     pub axes: [[f64; 3]; 2],
@@ -96,6 +108,8 @@ pub struct PlaneSegmenter {
     order: Vec<usize>,
     tolerances: PlaneTolerances,
     min_points: usize,
+    /// Whether the cloud samples a closed surface ([`Self::closed`]).
+    closed: bool,
 }
 
 impl PlaneSegmenter {
@@ -152,7 +166,17 @@ impl PlaneSegmenter {
             order,
             tolerances,
             min_points,
+            closed: false,
         })
+    }
+
+    /// The segmenter of a cloud that samples a closed surface all round (a model's mesh),
+    /// where every face ends at an edge shared with another face: its patches' rings reach
+    /// [`CLOSED_RING_HOPS`] deep and its rectangles hold their rims ([`Self::ring`]), so that
+    /// each face measures its full extent, as the same face seen alone on a scan does.
+    pub fn closed(mut self) -> Self {
+        self.closed = true;
+        self
     }
 
     /// The patches among the rows where `free` is true (every row when `None`), largest
@@ -165,13 +189,13 @@ impl PlaneSegmenter {
         }
         let allowed = |i: usize| free.is_none_or(|f| f[i]);
         let mut taken = vec![false; n];
-        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut groups: Vec<(Vec<usize>, Vec<usize>)> = Vec::new();
         let cos = self.tolerances.angle.cos();
         for &seed in &self.order {
             if taken[seed] || !allowed(seed) {
                 continue;
             }
-            let rows = self.grow(seed, cos, &allowed, &mut taken);
+            let (rows, rim) = self.grow(seed, cos, &allowed, &mut taken);
             if rows.len() < self.min_points {
                 for &r in &rows {
                     taken[r] = false;
@@ -179,13 +203,13 @@ impl PlaneSegmenter {
                 // Tried as a seed once: it may still join a later patch.
                 continue;
             }
-            groups.push(rows);
+            groups.push((rows, rim));
         }
         let mut patches: Vec<Patch> = groups
             .into_par_iter()
-            .filter_map(|mut rows| {
+            .filter_map(|(mut rows, rim)| {
                 rows.sort_unstable();
-                fit_patch(&self.points, &self.normals, rows)
+                fit_patch(&self.points, &self.normals, rows, &rim)
             })
             .collect();
         patches.sort_by(|a, b| {
@@ -198,16 +222,15 @@ impl PlaneSegmenter {
     }
 
     /// The patch grown from `seed`: neighbours whose normal agrees with the plane's and that
-    /// lie on it join (the plane refitted each time the patch doubles), then one ring of
-    /// neighbours on the plane whatever their normal, as normals fitted across an edge are
-    /// bent while the points there still lie on the face.
+    /// lie on it join (the plane refitted each time the patch doubles), then one ring
+    /// ([`Self::ring`]). Its rows and its rim.
     fn grow(
         &self,
         seed: usize,
         cos: f64,
         allowed: &impl Fn(usize) -> bool,
         taken: &mut [bool],
-    ) -> Vec<usize> {
+    ) -> (Vec<usize>, Vec<usize>) {
         let mut plane = Plane {
             point: self.points[seed],
             normal: self.normals[seed],
@@ -242,17 +265,60 @@ impl PlaneSegmenter {
                 next_fit *= 2;
             }
         }
-        let core = rows.len();
-        for k in 0..core {
-            for &j in self.hoods.of(rows[k]).0 {
-                let j = j as usize;
-                if !taken[j] && allowed(j) && plane.distance(self.points[j]) <= tol {
-                    taken[j] = true;
-                    rows.push(j);
+        let rim = self.ring(&mut rows, plane, allowed, taken);
+        (rows, rim)
+    }
+
+    /// The rings of neighbours of `rows` on `plane` whatever their normal, as normals fitted
+    /// across an edge are bent while the points there still lie on the face: the free ones
+    /// join `rows`. One hop deep; on a closed surface ([`Self::closed`]) [`CLOSED_RING_HOPS`]
+    /// deep, and those another patch took already are returned (the rim). Why the rim: the
+    /// points along an edge lie on both faces, and a face measured without those its
+    /// neighbour took comes out up to a voxel short on that side, where the same face seen
+    /// alone (a box's top from above) keeps them; with them, each face measures the same
+    /// whichever grew first.
+    fn ring(
+        &self,
+        rows: &mut Vec<usize>,
+        plane: Plane,
+        allowed: &impl Fn(usize) -> bool,
+        taken: &mut [bool],
+    ) -> Vec<usize> {
+        let tol = self.tolerances.distance;
+        // The patch's own rows, told apart from the points other patches took (a rim).
+        let mut own: HashSet<usize> = match self.closed {
+            true => rows.iter().copied().collect(),
+            false => HashSet::new(),
+        };
+        let mut frontier = rows.clone();
+        let mut rim = Vec::new();
+        let hops = if self.closed { CLOSED_RING_HOPS } else { 1 };
+        for _ in 0..hops {
+            let mut next = Vec::new();
+            for &i in &frontier {
+                for &j in self.hoods.of(i).0 {
+                    let j = j as usize;
+                    if !allowed(j) || plane.distance(self.points[j]) > tol {
+                        continue;
+                    }
+                    if !taken[j] {
+                        taken[j] = true;
+                        rows.push(j);
+                    } else if self.closed && !own.contains(&j) {
+                        rim.push(j);
+                    } else {
+                        continue;
+                    }
+                    if self.closed {
+                        own.insert(j);
+                    }
+                    next.push(j);
                 }
             }
+            frontier = next;
         }
-        rows
+        rim.sort_unstable();
+        rim
     }
 }
 
@@ -325,8 +391,14 @@ fn lowest_axis(cov: &Matrix3<f64>) -> Option<[f64; 3]> {
 }
 
 /// The patch of `rows`: the least-squares plane (signed by the points' normals), and the
-/// minimum-area rectangle of the points projected on it.
-fn fit_patch(points: &[[f64; 3]], normals: &[[f64; 3]], rows: Vec<usize>) -> Option<Patch> {
+/// minimum-area rectangle of the points and the `rim` ([`PlaneSegmenter::ring`]) projected
+/// on it.
+fn fit_patch(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    rows: Vec<usize>,
+    rim: &[usize],
+) -> Option<Patch> {
     let mut moments = Moments::default();
     let mut side = [0.0; 3];
     for &r in &rows {
@@ -348,8 +420,7 @@ fn fit_patch(points: &[[f64; 3]], normals: &[[f64; 3]], rows: Vec<usize>) -> Opt
     let (_, major) = eigen_axes(&cov)?;
     let u = normalize(sub(major, scale(normal, dot(major, normal))))?;
     let v = cross(normal, u);
-    let flat: Vec<[f64; 2]> = rows
-        .iter()
+    let flat: Vec<[f64; 2]> = (rows.iter().chain(rim))
         .map(|&r| {
             let d = sub(points[r], centroid);
             [dot(d, u), dot(d, v)]
@@ -376,69 +447,6 @@ fn fit_patch(points: &[[f64; 3]], normals: &[[f64; 3]], rows: Vec<usize>) -> Opt
         extents,
         rows,
     })
-}
-
-/// The minimum-area rectangle holding `points` (2-D): its angle (its first axis
-/// `(cos, sin)`), and its low and high corners in its own axes. One of its sides lies along
-/// an edge of the convex hull, so only those directions are tried.
-fn min_area_rectangle(points: &[[f64; 2]]) -> Option<(f64, [f64; 2], [f64; 2])> {
-    let hull = convex_hull(points);
-    if hull.len() < 3 {
-        return None;
-    }
-    let mut best: Option<(f64, f64, [f64; 2], [f64; 2])> = None;
-    for k in 0..hull.len() {
-        let (p, q) = (hull[k], hull[(k + 1) % hull.len()]);
-        let angle = (q[1] - p[1]).atan2(q[0] - p[0]);
-        let (c, s) = (angle.cos(), angle.sin());
-        let mut lo = [f64::INFINITY; 2];
-        let mut hi = [f64::NEG_INFINITY; 2];
-        for h in &hull {
-            let a = [c * h[0] + s * h[1], -s * h[0] + c * h[1]];
-            for d in 0..2 {
-                lo[d] = lo[d].min(a[d]);
-                hi[d] = hi[d].max(a[d]);
-            }
-        }
-        let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
-        if best.is_none_or(|b| area < b.0) {
-            best = Some((area, angle, lo, hi));
-        }
-    }
-    best.map(|(_, angle, lo, hi)| (angle, lo, hi))
-}
-
-/// The convex hull of `points`, counter-clockwise, without collinear points (Andrew's
-/// monotone chain).
-fn convex_hull(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
-    let mut pts: Vec<[f64; 2]> = points.to_vec();
-    pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-    pts.dedup();
-    if pts.len() < 3 {
-        return pts;
-    }
-    let turn = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
-        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-    };
-    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * pts.len());
-    for pass in 0..2 {
-        let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
-            Box::new(pts.iter())
-        } else {
-            Box::new(pts.iter().rev())
-        };
-        for &p in iter {
-            while hull.len() >= start + 2
-                && turn(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
-            {
-                hull.pop();
-            }
-            hull.push(p);
-        }
-        hull.pop();
-    }
-    hull
 }
 
 pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {

@@ -131,7 +131,8 @@ pub fn model_faces(
         voxel,
         params.normal_radius,
         Some(0.0),
-    )?;
+    )?
+    .closed();
     let faces = segmenter.patches(None)?;
     let disc = std::f64::consts::PI * params.feature_radius.powi(2);
     let share = planar_share(&faces, points.len(), disc);
@@ -271,32 +272,52 @@ pub fn face_poses(
         .map(|(p, patch)| {
             let mut out = Vec::new();
             for (f, face) in faces.iter().enumerate() {
-                on_patch(face, patch, size_tolerance, |pose, residual| {
+                on_patch(face, patch, size_tolerance, |pose, tiling| {
                     out.push((
                         FacePose {
                             pose,
                             patch: p,
                             face: f,
-                            tiled: residual.is_some(),
+                            tiled: tiling.is_some(),
                         },
-                        residual,
+                        tiling,
                     ))
                 });
             }
-            // Only the faces that tile the patch best: where one face fills it, two narrower
-            // faces side by side may fill it within the tolerance too, but would put a copy's
-            // body through what holds it up (hidden from the sensor, so verification could
-            // not tell). Within twice the best residual (or half the tolerance) both faces of
-            // a pair (measured a little apart) stay.
-            let best = out.iter().filter_map(|o| o.1).fold(f64::INFINITY, f64::min);
-            let worst = (2.0 * best).max(size_tolerance / 2.0);
-            out.into_iter()
-                .filter(|o| o.1.is_none_or(|r| r <= worst))
-                .map(|o| o.0)
-                .collect::<Vec<_>>()
+            best_tilings(out, size_tolerance)
         })
         .collect();
     Ok(per_patch.into_iter().flatten().collect())
+}
+
+/// How a face tiles a patch: how far the patch's sides are from whole numbers of faces
+/// (summed), and how many faces fill it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Tiling {
+    residual: f64,
+    tiles: usize,
+}
+
+/// The proposals on one patch left after dropping the tilings that tile it worse: where one
+/// face fills it, narrower faces side by side may fill it within the tolerance too, but would
+/// put a copy's body through what holds it up (hidden from the sensor, so verification could
+/// not tell). Kept: the tilings within twice the best residual (or half the tolerance), so
+/// that both faces of a pair (measured a little apart) stay, and of those the ones of fewest
+/// tiles, as a face that divides another (a box of 0.2 x 0.12 x 0.03, whose 0.2 x 0.03 side
+/// four times over is its top) fills the larger face as well as the larger face itself does.
+/// Corner placements always stay.
+fn best_tilings(out: Vec<(FacePose, Option<Tiling>)>, size_tolerance: f64) -> Vec<FacePose> {
+    let fits = || out.iter().filter_map(|o| o.1);
+    let best = fits().map(|t| t.residual).fold(f64::INFINITY, f64::min);
+    let worst = (2.0 * best).max(size_tolerance / 2.0);
+    let fewest = (fits().filter(|t| t.residual <= worst))
+        .map(|t| t.tiles)
+        .min()
+        .unwrap_or(0);
+    out.into_iter()
+        .filter(|o| o.1.is_none_or(|t| t.residual <= worst && t.tiles == fewest))
+        .map(|o| o.0)
+        .collect()
 }
 
 /// A patch tiled by more copies of a face than this is no packing of them (the bin's floor).
@@ -310,16 +331,15 @@ fn tiles(patch: f64, face: f64, tol: f64) -> Option<f64> {
     (n >= 1.0 && (patch - n * face).abs() <= tol * n.sqrt()).then_some(n)
 }
 
-/// Calls `emit(pose, residual)` for each pose laying `face` on `patch`: every tile when the
+/// Calls `emit(pose, tiling)` for each pose laying `face` on `patch`: every tile when the
 /// patch is a whole number of faces each way (the face itself, or flush copies of it;
-/// `residual` how far the patch's sides are from those whole numbers of faces, summed),
-/// otherwise, when the patch fits in the face (a part of it seen), each corner of the face on
-/// the patch's corner on the same side (`residual` None).
+/// `tiling` how well and by how many), otherwise, when the patch fits in the face (a part of
+/// it seen), each corner of the face on the patch's corner on the same side (`tiling` None).
 fn on_patch(
     face: &Patch,
     patch: &Patch,
     tol: f64,
-    mut emit: impl FnMut(RigidTransform, Option<f64>),
+    mut emit: impl FnMut(RigidTransform, Option<Tiling>),
 ) {
     let [m1, m2] = face.extents;
     let [l1, l2] = patch.extents;
@@ -360,7 +380,10 @@ fn on_patch(
                 )
             };
             if let Some((n1, n2)) = tiling {
-                let residual = (l1 - n1 * along[0]).abs() + (l2 - n2 * along[1]).abs();
+                let fit = Tiling {
+                    residual: (l1 - n1 * along[0]).abs() + (l2 - n2 * along[1]).abs(),
+                    tiles: (n1 * n2) as usize,
+                };
                 // Tile (i, j) from the (-, -) corner, each `l / n` long.
                 let (w1, w2) = (l1 / n1, l2 / n2);
                 for i in 0..n1 as usize {
@@ -369,7 +392,7 @@ fn on_patch(
                             scale(patch.axes[0], (i as f64 + 0.5) * w1 - l1 / 2.0),
                             scale(patch.axes[1], (j as f64 + 0.5) * w2 - l2 / 2.0),
                         );
-                        emit(place(add(patch.centre, shift)), Some(residual));
+                        emit(place(add(patch.centre, shift)), Some(fit));
                     }
                 }
                 continue;

@@ -240,3 +240,117 @@ fn a_packed_row_of_boxes_is_found_with_face_proposals() {
     assert!(!descriptors.face_proposals && descriptors.planar_share.is_nan());
     assert!(found(&descriptors) < 3);
 }
+
+/// A box sampled coarser than the voxel (its edge voxels' normals bent over two voxels), seen
+/// from above by its top alone: the model's top measures as the scan's does, so it is laid on
+/// it, for boxes whose sides divide one another, of square section, and cubes.
+#[test]
+fn a_box_seen_by_its_top_alone_gets_its_top_laid_on_it() {
+    let voxel = 0.0059;
+    for size in [
+        [0.2, 0.12, 0.03],
+        [0.12, 0.04, 0.04],
+        [0.1, 0.05, 0.05],
+        [0.1, 0.1, 0.1],
+    ] {
+        let (coarse, _) = box_surface(size, 0.004);
+        let params = DescribeParams {
+            orientation: crate::pointcloud::Orientation::AwayFrom([0.0; 3]),
+            ..DescribeParams::for_voxel(voxel)
+        };
+        let model = crate::pointcloud::describe(&coarse, None, &params).unwrap();
+        let (faces, _) = model_faces(&model.points, &model.normals, voxel).unwrap();
+        let up = faces.iter().find(|f| f.normal[2] > 0.99).unwrap();
+        let sides = [size[0].max(size[1]), size[0].min(size[1])];
+        for (got, want) in up.extents.iter().zip(sides) {
+            assert!((got - want).abs() <= voxel, "{size:?}: {:?}", up.extents);
+        }
+        let (fine, _) = box_surface(size, 0.001);
+        let top: Vec<[f64; 3]> = (fine.into_iter())
+            .filter(|p| p[2] > size[2] / 2.0 - 1e-9)
+            .collect();
+        let scan = crate::pointcloud::voxel_downsample(&top, voxel).unwrap();
+        let index = PointIndex::new(&scan).unwrap();
+        let eye = [0.0, 0.0, 1.0];
+        let towards = crate::pointcloud::Orientation::Towards(eye);
+        let normals =
+            crate::pointcloud::estimate_normals(&scan, &index, 2.0 * voxel, 30, towards).unwrap();
+        let tol = PlaneTolerances::calibrated(voxel, 0.0, 2.0 * voxel).unwrap();
+        let segmenter =
+            PlaneSegmenter::new(&scan, &normals, &index, 2.0 * voxel, tol, MIN_PATCH_POINTS);
+        let patches = segmenter.unwrap().patches(None).unwrap();
+        let bias = EXTENT_BIAS_VOXELS * voxel;
+        let faces: Vec<Patch> = faces.into_iter().map(|f| unbiased(f, bias)).collect();
+        let patches: Vec<Patch> = patches.into_iter().map(|p| unbiased(p, bias)).collect();
+        let poses = face_poses(&faces, &patches, SIZE_TOLERANCE_VOXELS * voxel).unwrap();
+        // Where the box is, whatever its symmetries: its corners posed onto its corners.
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|k| [0, 1, 2].map(|a| if k >> a & 1 == 1 { size[a] } else { -size[a] } / 2.0))
+            .collect();
+        let on_box = |pose: &RigidTransform| {
+            corners.iter().all(|&c| {
+                let q = pose.apply(c);
+                (corners.iter()).any(|&d| dist(q, d) <= 2.0 * voxel)
+            })
+        };
+        assert!(
+            poses.iter().any(|p| p.tiled && on_box(&p.pose)),
+            "{size:?}: {} poses, none on the box",
+            poses.len()
+        );
+    }
+}
+
+/// A rectangle of `extents` (long side first) about `centre` with `normal`, its long side
+/// along `axis`, as the segmenter measures one.
+fn rectangle(extents: [f64; 2], centre: [f64; 3], normal: [f64; 3], axis: [f64; 3]) -> Patch {
+    Patch {
+        normal,
+        centroid: centre,
+        centre,
+        axes: [axis, cross(normal, axis)],
+        extents,
+        rows: Vec::new(),
+    }
+}
+
+/// The six faces of a box of `size` centred at the origin, measured exactly.
+fn exact_faces(size: [f64; 3]) -> Vec<Patch> {
+    let mut faces = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (long, short) = if size[u] >= size[v] { (u, v) } else { (v, u) };
+        for side in [-1.0, 1.0] {
+            let mut normal = [0.0; 3];
+            normal[axis] = side;
+            let mut along = [0.0; 3];
+            along[long] = 1.0;
+            let centre = scale(normal, size[axis] / 2.0);
+            faces.push(rectangle([size[long], size[short]], centre, normal, along));
+        }
+    }
+    faces
+}
+
+/// A box whose long side four times over is its top: the top laid on the top, not four of the
+/// long side standing on end (each a body through what holds the box up).
+#[test]
+fn a_face_that_divides_another_does_not_displace_it() {
+    let size = [0.2, 0.12, 0.03];
+    let faces = exact_faces(size);
+    let top = rectangle(
+        [0.2, 0.12],
+        [0.0, 0.0, 0.015],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0],
+    );
+    let poses = face_poses(&faces, &[top], 2.0 * VOXEL).unwrap();
+    assert!(!poses.is_empty());
+    for pose in &poses {
+        assert!(
+            pose.tiled && faces[pose.face].normal[2].abs() > 0.99,
+            "{pose:?}"
+        );
+        assert!(Vector3::from(pose.pose.translation).norm() < 1e-9);
+    }
+}
