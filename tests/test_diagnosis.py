@@ -33,6 +33,11 @@ def _shifted(x: float = 0.0, z: float = 0.0) -> np.ndarray:
 SPHERE = _sphere()
 CAP = SPHERE[SPHERE[:, 2] > 0]  # what a sensor above sees of the sphere
 QUARTER = SPHERE[(SPHERE[:, 2] > 0) & (SPHERE[:, 0] > 0)]
+# The quarter over a floor: the rest of the cap lies where the sensor looked (a scan that ended
+# at the quarter's edge would say nothing of it).
+_GRID = np.arange(-3.0, 3.05, 0.1)
+FLOOR = np.stack([*np.meshgrid(_GRID, _GRID), np.full((len(_GRID),) * 2, -1.5)], -1).reshape(-1, 3)
+QUARTER_ON_FLOOR = np.vstack([QUARTER, FLOOR])
 OFF = {"min_seen": 0.0, "min_visible_fitness": 0.0, "max_contradiction": 1.0}
 
 # (rule, scan, viewpoint, poses, forced rules): the rule that must reject the first pose.
@@ -43,7 +48,7 @@ CASES = [
     ("explains_nothing", SPHERE, None, [_shifted(x=10.0)],
      {"min_fitness": 0.0, "min_relative_fitness": 0.0}),
     ("min_seen", CAP, EYE, [np.eye(4)], {"min_seen": 0.9}),
-    ("min_visible_fitness", QUARTER, EYE, [np.eye(4)], {"min_visible_fitness": 0.8}),
+    ("min_visible_fitness", QUARTER_ON_FLOOR, EYE, [np.eye(4)], {"min_visible_fitness": 0.8}),
     ("max_contradiction", CAP, EYE, [_shifted(z=0.4)],
      {"min_seen": 0.0, "min_visible_fitness": 0.0, "max_contradiction": 0.05}),
 ]  # fmt: skip

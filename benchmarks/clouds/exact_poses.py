@@ -11,6 +11,12 @@ The clouds are described at the scene's voxel as `register_point_clouds` describ
 (normals and FPFH, the scan's normals towards the sensor; stray points are not dropped); the
 poses are refined by ICP and verified with the default rules (`RefinementContext.refine` and
 `.rejections`).
+
+A pose that would still fit slid along its face is not kept as a copy but returned apart, as an
+ambiguity (``RefinedPoses.sliding``, ``PointCloudRegistration.ambiguous``): the caller gets it,
+less sure, and the scan cannot say where along the face the copy lies. Such a pose is not lost:
+the keep rate counts copies kept or returned as ambiguous; the copies-only rate is shown beside
+it, and the rejections of ambiguous poses are named ``sliding (ambiguous)``.
 """
 
 from __future__ import annotations
@@ -48,7 +54,8 @@ def _realistic(seeds: int):
 def judged(
     model: np.ndarray, scan: np.ndarray, poses: np.ndarray, sensor: np.ndarray, voxel: float
 ):
-    """(kept, rejections) of the exact `poses` against the clouds described at `voxel`."""
+    """(kept, returned as ambiguous, rejections) of the exact `poses` against the clouds
+    described at `voxel`."""
     import pointclm.preprocessing as pp
     from pointclm.refinement import RefinementContext
 
@@ -58,7 +65,20 @@ def judged(
         src.points, tgt.points, voxel, viewpoint=sensor, target_normals=tgt.normals
     )
     kept = context.refine(poses)
-    return len(kept.origin), context.rejections(poses)
+    sliding = set() if kept.sliding is None else set(kept.sliding.origin.tolist())
+    rejected = [
+        r._replace(rule="sliding (ambiguous)") if r.origin in sliding else r
+        for r in context.rejections(poses)
+    ]
+    return len(kept.origin), len(sliding), rejected
+
+
+def _row(name: str, tally: list[int], rules: Counter) -> str:
+    """A table row: `tally` is (kept, ambiguous, copies)."""
+    kept, ambiguous, total = tally
+    why = ", ".join(f"{rule} {n}" for rule, n in rules.most_common()) or "-"
+    rate, copies = (kept + ambiguous) / max(total, 1), kept / max(total, 1)
+    return f"| {name} | {total} | {kept} | {ambiguous} | {rate:.3f} | {copies:.3f} | {why} |"
 
 
 def main() -> None:
@@ -71,25 +91,23 @@ def main() -> None:
     rules: dict[str, Counter] = {}
     jobs = [*_bins(args.seeds, args.min_visible), *_realistic(args.seeds)]
     for name, model, scan, poses, sensor, voxel in jobs:
-        kept, rejected = judged(model, scan, poses, sensor, voxel)
-        tally = cells.setdefault(name, [0, 0])
+        kept, ambiguous, rejected = judged(model, scan, poses, sensor, voxel)
+        tally = cells.setdefault(name, [0, 0, 0])
         tally[0] += kept
-        tally[1] += len(poses)
+        tally[1] += ambiguous
+        tally[2] += len(poses)
         rules.setdefault(name, Counter()).update(r.rule for r in rejected)
     lines = [
         f"# Exact poses kept by verification ({datetime.date.today()}, {platform.machine()})",
         "",
-        "| scenes | copies | kept | keep rate | rejected by |",
-        "|---|---|---|---|---|",
+        "| scenes | copies | kept | ambiguous | keep rate | copies only | rejected by |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for name, (kept, total) in cells.items():
-        why = ", ".join(f"{rule} {n}" for rule, n in rules[name].most_common()) or "-"
-        lines.append(f"| {name} | {total} | {kept} | {kept / max(total, 1):.3f} | {why} |")
-    kept = sum(k for k, _ in cells.values())
-    total = sum(t for _, t in cells.values())
-    pooled = sum(rules.values(), Counter())
-    why = ", ".join(f"{rule} {n}" for rule, n in pooled.most_common()) or "-"
-    lines.append(f"| pooled | {total} | {kept} | {kept / max(total, 1):.3f} | {why} |")
+    pooled = [0, 0, 0]
+    for name, tally in cells.items():
+        pooled = [a + b for a, b in zip(pooled, tally, strict=True)]
+        lines.append(_row(name, tally, rules[name]))
+    lines.append(_row("pooled", pooled, sum(rules.values(), Counter())))
     text = "\n".join(lines) + "\n"
     if args.out:
         Path(args.out).write_text(text)

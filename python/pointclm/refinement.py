@@ -11,10 +11,12 @@ Acceptance rules of :func:`refine_poses`
 ----------------------------------------
 With a viewpoint (the position of the sensor that took the scan, one view), each pose is
 judged by what the sensor could see of the model at that pose: the posed model points not
-hidden by the model itself or by the scan. A pose is kept when the scan explains at least
-`min_visible_fitness` of them, at most `max_contradiction` of them lie where the sensor saw
-through to something behind, and they are at least `min_seen` of the model. A partly hidden
-copy is thus judged on its visible part. Without a viewpoint, or when more than 12 % of the
+hidden by the model itself or by the scan, nor past the scan's edge (on a ray without a return
+where the scan has none on some side within the model's radius: its field of view, a crop). A
+pose is kept when the scan explains at least `min_visible_fitness` of them, at most
+`max_contradiction` of them lie where the sensor saw through to something behind, and they are
+at least `min_seen` of the model. A partly hidden copy is thus
+judged on its visible part. Without a viewpoint, or when more than 12 % of the
 scan lies 5 voxels behind other scan points seen from it (a merged or wrongly placed scan),
 the fallback is the share of the model explained: at least `min_fitness`, and at least
 `min_relative_fitness` times the best pose's (``RefinedPoses.by_visibility`` says which rule

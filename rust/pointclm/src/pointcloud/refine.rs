@@ -351,6 +351,7 @@ impl RefineContext {
             depth,
             model_normals: &self.model_normals,
             min_cos: params.max_incidence_deg.to_radians().cos(),
+            reach: radius(&self.source),
         });
         let (source, target) = (&self.source[..], &self.target[..]);
         let radii = params.radii();
@@ -773,6 +774,9 @@ struct Sensor<'a> {
     depth: &'a DepthMap,
     model_normals: &'a [[f64; 3]],
     min_cos: f64,
+    /// The model's radius about its centroid: how far around a ray without a return the
+    /// scan must have returns for the sensor to have looked there ([`DepthMap::judge`]).
+    reach: f64,
 }
 
 /// `paired`: each model point's scan point at ICP's last step
@@ -808,8 +812,7 @@ fn judge(
         };
     };
     let grazing = grazing(sensor, pose, &posed);
-    let (seen, contradicted, visible_sq) =
-        sensor_verdict(sensor.depth, &posed, &dist_sq, hits, &grazing);
+    let (seen, contradicted, visible_sq) = sensor_verdict(sensor, &posed, &dist_sq, hits, &grazing);
     let share = |k: usize| {
         if seen > 0 {
             k as f64 / seen as f64
@@ -965,11 +968,12 @@ fn explain(
 /// space, and the mean squared distance of the explained points (`dist_sq` not NaN; `hits`
 /// of them) its depth map does not hide (NaN: none). A point the scan explains was evidently
 /// seen, whatever its depth cell says (cells straddle occlusion edges), so it counts as seen;
-/// the others count by the sensor's verdict. Why the hidden explained points are left out of the distance: a
+/// the others count by the sensor's verdict (not at all where it did not look: past the
+/// scan's edge). Why the hidden explained points are left out of the distance: a
 /// model point behind the model's own front, or behind a nearer surface, is explained by
 /// whatever surface lies near it, not by the side of the copy the sensor saw.
 fn sensor_verdict(
-    depth: &DepthMap,
+    sensor: &Sensor,
     posed: &[[f64; 3]],
     dist_sq: &[f64],
     hits: usize,
@@ -977,10 +981,14 @@ fn sensor_verdict(
 ) -> (usize, usize, f64) {
     let (mut seen, mut contradicted) = (hits, 0usize);
     let (mut sum, mut visible) = (0.0, 0usize);
-    let verdicts = depth.judge(posed).into_iter().zip(grazing);
+    let verdicts = sensor
+        .depth
+        .judge(posed, sensor.reach)
+        .into_iter()
+        .zip(grazing);
     for ((sight, graze), &d_sq) in verdicts.zip(dist_sq) {
         match (sight, !d_sq.is_nan()) {
-            (Sight::Hidden, _) => {}
+            (Sight::Hidden, _) | (Sight::Unobserved, false) => {}
             (_, true) => {
                 sum += d_sq;
                 visible += 1;
@@ -999,6 +1007,19 @@ fn sensor_verdict(
         f64::NAN
     };
     (seen, contradicted, mean_sq)
+}
+
+/// The largest distance of `points` from their centroid.
+fn radius(points: &[[f64; 3]]) -> f64 {
+    let n = points.len().max(1) as f64;
+    let c = points
+        .iter()
+        .fold(Vector3::zeros(), |c, p| c + Vector3::from(*p))
+        / n;
+    points
+        .iter()
+        .map(|p| (Vector3::from(*p) - c).norm())
+        .fold(0.0, f64::max)
 }
 
 /// Which posed model points the sensor sees at grazing incidence (their surface within

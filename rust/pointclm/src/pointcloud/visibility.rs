@@ -16,6 +16,8 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
+use nalgebra::Vector3;
+
 /// A direction cell and the range along it.
 type Ray = ([i32; 3], f64);
 
@@ -71,6 +73,10 @@ pub enum Sight {
     Seen,
     /// The sensor saw past it: its first return lies clearly behind the point.
     Contradicted,
+    /// No return on its ray, and none on some side of it within the reach judged: the scan
+    /// ends there (the sensor's field of view, a crop, its range), so it says nothing of the
+    /// point.
+    Unobserved,
 }
 
 impl DepthMap {
@@ -182,23 +188,61 @@ impl DepthMap {
 
     /// The verdict on each point of `posed` (a model already moved by a pose): hidden by the
     /// model itself ([`DepthMap::self_hidden`]) or by the scan; else contradicted when the
-    /// scan's first return on that ray lies clearly behind it; else seen.
-    pub fn judge(&self, posed: &[[f64; 3]]) -> Vec<Sight> {
+    /// scan's first return on that ray lies clearly behind it; else seen, or unobserved where
+    /// its ray has no return and the scan has none on some side of it within `reach`
+    /// ([`DepthMap::covered`]).
+    pub fn judge(&self, posed: &[[f64; 3]], reach: f64) -> Vec<Sight> {
         self.own_view(posed)
             .into_iter()
-            .map(|ray| {
+            .zip(posed)
+            .map(|(ray, p)| {
                 let Some((key, range)) = ray else {
                     return Sight::Hidden;
                 };
                 match self.nearest.get(&key) {
                     Some(&scan) if scan < range - self.tolerance => Sight::Hidden,
                     Some(&scan) if scan > range + self.tolerance => Sight::Contradicted,
-                    _ => Sight::Seen,
+                    Some(_) => Sight::Seen,
+                    None if self.covered(p, range, reach) => Sight::Seen,
+                    None => Sight::Unobserved,
                 }
             })
             .collect()
     }
+
+    /// Whether the scan has a return on every side of the ray through `p` (at `range`):
+    /// along each of eight directions across the ray, one within `reach` of it at that
+    /// range (cell by cell). Why: a ray without a return inside the scan's coverage is a
+    /// hole (a dropout, which the surfaces around fill), where the sensor looked; past the
+    /// scan's edge (its field of view, a crop to a region of interest, its range) it did
+    /// not look, and a model point there says nothing. Copies cut by the bin camera's view
+    /// or crop lost up to a third of their visible points to it and were rejected. `reach`
+    /// is the object's radius: a hole wider than the object on some side is the scan's edge.
+    fn covered(&self, p: &[f64; 3], range: f64, reach: f64) -> bool {
+        let (d, _) = offset(p, self.viewpoint);
+        let u = Vector3::from(d) / range;
+        // Two directions across the ray: from the axis least along it.
+        let least = (0..3).min_by(|&a, &b| u[a].abs().total_cmp(&u[b].abs()));
+        let a = u.cross(&Vector3::ith(least.unwrap_or(0), 1.0)).normalize();
+        let b = u.cross(&a);
+        let steps = (reach / (range * self.cell))
+            .ceil()
+            .clamp(1.0, MAX_COVER_STEPS) as usize;
+        (0..8).all(|k| {
+            let turn = f64::from(k) * std::f64::consts::FRAC_PI_4;
+            let across = a * turn.cos() + b * turn.sin();
+            (1..=steps).any(|s| {
+                let dir = (u + across * (s as f64 * self.cell)).normalize();
+                let key = [0, 1, 2].map(|i| (dir[i] / self.cell).floor() as i32);
+                self.nearest.contains_key(&key)
+            })
+        })
+    }
 }
+
+/// The most cells [`DepthMap::covered`] walks on each side of a ray: a bound on its cost
+/// (eight walks per model point without a return) for a model of many cells across.
+const MAX_COVER_STEPS: f64 = 64.0;
 
 /// The offset of `p` from `viewpoint` and its length.
 fn offset(p: &[f64; 3], viewpoint: [f64; 3]) -> ([f64; 3], f64) {

@@ -419,6 +419,7 @@ fn model_points_seen_edge_on_are_not_judged() {
         depth,
         model_normals: &up,
         min_cos: 75f64.to_radians().cos(),
+        reach: 1.0,
     };
     let id = RigidTransform::identity();
     // From above the plane faces the sensor; from its side, at 0.5 degrees, it is edge-on.
@@ -635,4 +636,32 @@ fn a_model_cut_by_a_surface_is_rejected_by_its_normals() {
     };
     let out = refine_poses(&model, &scene, None, &[on, sunk], None, &off).unwrap();
     assert_eq!(out.poses.len(), 2);
+}
+
+#[test]
+fn a_copy_cut_by_the_scans_edge_is_judged_on_what_the_scan_covers() {
+    // A copy before a back wall, the scan cropped at x = 0.3 (a region of interest, the edge
+    // of a field of view) through the copy's visible side.
+    let model = blob(24);
+    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(wall((-3.0, 3.0), (-3.0, 3.0), 1.6, 0.05));
+    let seen = sensed(&surfaces, 0.06);
+    let cropped: Vec<[f64; 3]> = seen.iter().filter(|p| p[0] < 0.3).copied().collect();
+    // A pose past the scan's edge, where the sensor did not look.
+    let beyond = motion([0.0, 1.0, 0.0], 0.0, [3.0, 0.0, 0.0]);
+    let p = RefineParams {
+        icp: false,
+        ..RefineParams::for_voxel(0.1)
+    };
+    let whole = refine_poses(&model, &seen, None, &[a], Some(EYE), &p).unwrap();
+    let out = refine_poses(&model, &cropped, None, &[a, beyond], Some(EYE), &p).unwrap();
+    assert_eq!(out.poses.len(), 1, "{out:?}");
+    let (cut, full) = (&out.poses[0], &whole.poses[0]);
+    assert_eq!(cut.origin, 0);
+    // Judged on the part the scan covers: as sure of it as of the whole copy.
+    assert!(cut.visible_fitness > 0.95, "{cut:?}");
+    assert!(cut.seen < 0.8 * full.seen, "{cut:?} {full:?}");
+    assert_eq!(out.rejected[0].origin, 1);
+    assert_eq!(out.rejected[0].rule, "min_seen");
 }

@@ -79,3 +79,27 @@ fn a_point_at_the_sensor_has_no_ray_and_is_hidden() {
     assert!(hidden[30]);
     assert_eq!(hidden, hidden_by_definition(&map, &posed));
 }
+
+/// A plane `z = z0` sampled every `step` over the x and y ranges, less the points `drop`
+/// takes.
+fn plane(x: (f64, f64), y: (f64, f64), z0: f64, drop: impl Fn(f64, f64) -> bool) -> Vec<[f64; 3]> {
+    let step = 0.05;
+    let (nx, ny) = (((x.1 - x.0) / step) as i32, ((y.1 - y.0) / step) as i32);
+    (0..=nx)
+        .flat_map(|i| (0..=ny).map(move |j| (x.0 + f64::from(i) * step, y.0 + f64::from(j) * step)))
+        .filter(|&(x, y)| !drop(x, y))
+        .map(|(x, y)| [x, y, z0])
+        .collect()
+}
+
+#[test]
+fn a_ray_without_a_return_is_seen_inside_the_scan_and_unobserved_past_its_edge() {
+    // A floor cut at x = 0 (the scan's edge: a crop, the field of view) with a hole of
+    // radius 0.15 at (-1, 0) (a dropout).
+    let hole = |x: f64, y: f64| (x + 1.0).hypot(y) < 0.15;
+    let scan = plane((-2.0, 0.0), (-2.0, 2.0), 0.0, hole);
+    let map = DepthMap::new(&scan, [0.0, 0.0, 20.0], 0.1, 0.3);
+    let posed = [[-1.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-0.5, 0.0, 0.0]];
+    let sights = map.judge(&posed, 1.0);
+    assert_eq!(sights, vec![Sight::Seen, Sight::Unobserved, Sight::Seen]);
+}
