@@ -58,3 +58,18 @@ def scene_with_inputs(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     normals = np.hstack([ns, nt])
     normals /= np.linalg.norm(normals.reshape(n, 2, 3), axis=2).repeat(3, axis=1)
     return scene.correspondences, normals, rng.uniform(0.05, 1.0, size=n)
+
+
+def box_surface(size: tuple[float, float, float], step: float = 0.004) -> np.ndarray:
+    """The surface of a box of `size` centred at the origin, on a grid of `step`."""
+    faces = []
+    for axis in range(3):
+        u, v = (a for a in range(3) if a != axis)
+        gu = np.arange(-size[u] / 2, size[u] / 2 + 1e-9, step)
+        gv = np.arange(-size[v] / 2, size[v] / 2 + 1e-9, step)
+        a, b = np.meshgrid(gu, gv)
+        for sign in (-1.0, 1.0):
+            face = np.zeros((a.size, 3))
+            face[:, u], face[:, v], face[:, axis] = a.ravel(), b.ravel(), sign * size[axis] / 2
+            faces.append(face)
+    return np.unique(np.vstack(faces).round(9), axis=0)

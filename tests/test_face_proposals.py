@@ -9,24 +9,10 @@ import itertools
 import numpy as np
 import pointclm
 import pytest
+from helpers import box_surface
 from pointclm.metrics import symmetric_errors
 
 SENSOR = (0.0, 0.0, 1.0)
-
-
-def _box(size: tuple[float, float, float], step: float = 0.004) -> np.ndarray:
-    """The surface of a box of `size` centred at the origin, on a grid of `step`."""
-    faces = []
-    for axis in range(3):
-        u, v = (a for a in range(3) if a != axis)
-        gu = np.arange(-size[u] / 2, size[u] / 2 + 1e-9, step)
-        gv = np.arange(-size[v] / 2, size[v] / 2 + 1e-9, step)
-        a, b = np.meshgrid(gu, gv)
-        for sign in (-1.0, 1.0):
-            face = np.zeros((a.size, 3))
-            face[:, u], face[:, v], face[:, axis] = a.ravel(), b.ravel(), sign * size[axis] / 2
-            faces.append(face)
-    return np.unique(np.vstack(faces).round(9), axis=0)
 
 
 def _symmetries(size: tuple[float, float, float]) -> np.ndarray:
@@ -66,7 +52,7 @@ def _pose(yaw: float, at: tuple[float, float, float]) -> np.ndarray:
 )
 @pytest.mark.parametrize("yaw", [0.0, 0.7])
 def test_a_box_seen_by_its_top_alone_is_found_where_it_is(size, yaw) -> None:  # type: ignore[no-untyped-def]
-    box = _box(size)
+    box = box_surface(size)
     truth = _pose(yaw, (0.03, -0.02, 0.01))
     top = box[box[:, 2] > size[2] / 2 - 1e-9] @ truth[:3, :3].T + truth[:3, 3]
     reg = pointclm.register_point_clouds(box, top, viewpoint=SENSOR, num_threads=1)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pointclm
 import pytest
+from helpers import box_surface
 from pointclm.datasets import load_shape
 from pointclm.errors import InputError
 
@@ -28,21 +29,6 @@ def _floor(extent: float, step: float) -> np.ndarray:
     return np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
 
 
-def _box(step: float = 0.004) -> np.ndarray:
-    """The surface of a box of `SIZE` centred at the origin, on a grid of `step`."""
-    faces = []
-    for axis in range(3):
-        u, v = (a for a in range(3) if a != axis)
-        gu = np.arange(-SIZE[u] / 2, SIZE[u] / 2 + 1e-9, step)
-        gv = np.arange(-SIZE[v] / 2, SIZE[v] / 2 + 1e-9, step)
-        a, b = np.meshgrid(gu, gv)
-        for sign in (-1.0, 1.0):
-            face = np.zeros((a.size, 3))
-            face[:, u], face[:, v], face[:, axis] = a.ravel(), b.ravel(), sign * SIZE[axis] / 2
-            faces.append(face)
-    return np.unique(np.vstack(faces).round(9), axis=0)
-
-
 @pytest.mark.parametrize("refine", [True, False])
 def test_a_flat_scan_of_no_bunny_is_an_empty_result_saying_why(bunny, refine) -> None:  # type: ignore[no-untyped-def]
     d = float(np.linalg.norm(np.ptp(bunny, axis=0)))
@@ -60,7 +46,7 @@ def test_a_flat_scan_of_no_bunny_is_an_empty_result_saying_why(bunny, refine) ->
 
 
 def test_a_box_with_too_few_matches_is_still_found_by_its_faces() -> None:
-    box = _box()
+    box = box_surface(SIZE)
     top = box[box[:, 2] > SIZE[2] / 2 - 1e-9]  # what the sensor above sees
     reg = pointclm.register_point_clouds(box, top, viewpoint=SENSOR, num_threads=1)
     assert reg.passes[0].matches < 3 and len(reg.passes[0].faces) > 0
@@ -78,7 +64,7 @@ def test_a_box_with_too_few_matches_is_still_found_by_its_faces() -> None:
 
 
 def test_several_models_answer_each_for_itself(bunny) -> None:  # type: ignore[no-untyped-def]
-    box = _box()
+    box = box_surface(SIZE)
     top = box[box[:, 2] > SIZE[2] / 2 - 1e-9]
     found = pointclm.register_models([bunny, box], top, viewpoint=SENSOR, num_threads=1)
     assert [len(r.instances) for r in found] == [0, 1]

@@ -111,35 +111,59 @@ fn unbiased(mut patch: Patch, bias: f64) -> Patch {
     patch
 }
 
-/// The model's planar faces (normals outward, as the model's are oriented) and the share of
-/// its points in faces wider than the FPFH disc, at the tolerances' floors
-/// ([`PlaneTolerances::calibrated`] without noise). Why not the model's measured noise: a
-/// model is a clean, complete object whose flat faces are flat to rounding, and what the
-/// noise measure reads on it is fine detail (0.2-0.5 voxel on the dragon, the rocker arm and
-/// the bracket's thin plates), at which curved or neighbouring faces would join.
+/// The model's planar segmentation at the tolerances' floors ([`PlaneTolerances::calibrated`]
+/// without noise), with the share of its points in faces wider than the FPFH disc; its faces
+/// are measured to their edges only when asked ([`ModelPlanes::faces`]), as most models (the
+/// curved ones) never need them. Why not the model's measured noise: a model is a clean,
+/// complete object whose flat faces are flat to rounding, and what the noise measure reads on
+/// it is fine detail (0.2-0.5 voxel on the dragon, the rocker arm and the bracket's thin
+/// plates), at which curved or neighbouring faces would join.
+pub struct ModelPlanes {
+    segmenter: PlaneSegmenter,
+    /// The share of the model's points in faces wider than the FPFH disc, measured on faces
+    /// grown as a scan's are (one ring, no rim): `SceneRules::min_planar_share` was chosen on
+    /// that measure (boxes 0.89-0.99, the fandisk 0.43), which the closed growth's wider
+    /// faces would move (the fandisk to 0.51) without any change of the part.
+    pub planar_share: f64,
+}
+
+impl ModelPlanes {
+    /// The model's `points` with their outward `normals`, described at `voxel`.
+    pub fn new(points: &[[f64; 3]], normals: &[[f64; 3]], voxel: f64) -> Result<Self> {
+        let index = PointIndex::new(points)?;
+        let params = DescribeParams::for_voxel(voxel);
+        let segmenter = segmenter(
+            points,
+            normals,
+            &index,
+            voxel,
+            params.normal_radius,
+            Some(0.0),
+        )?;
+        let disc = std::f64::consts::PI * params.feature_radius.powi(2);
+        let planar_share = planar_share(&segmenter.patches(None)?, points.len(), disc);
+        Ok(Self {
+            segmenter,
+            planar_share,
+        })
+    }
+
+    /// The model's planar faces (normals outward, as the model's are oriented), each grown
+    /// to the edges it shares with its neighbours (a closed surface).
+    pub fn faces(self) -> Result<Vec<Patch>> {
+        self.segmenter.closed().patches(None)
+    }
+}
+
+/// The model's planar faces and their planar share ([`ModelPlanes`]) at once.
 pub fn model_faces(
     points: &[[f64; 3]],
     normals: &[[f64; 3]],
     voxel: f64,
 ) -> Result<(Vec<Patch>, f64)> {
-    let index = PointIndex::new(points)?;
-    let params = DescribeParams::for_voxel(voxel);
-    let segmenter = segmenter(
-        points,
-        normals,
-        &index,
-        voxel,
-        params.normal_radius,
-        Some(0.0),
-    )?;
-    let disc = std::f64::consts::PI * params.feature_radius.powi(2);
-    // The share that decides whether faces are proposed is measured on faces grown as a
-    // scan's are (one ring, no rim): `SceneRules::min_planar_share` was chosen on that
-    // measure (boxes 0.89-0.99, the fandisk 0.43), which the closed growth's wider faces
-    // would move (the fandisk to 0.51) without any change of the part.
-    let share = planar_share(&segmenter.patches(None)?, points.len(), disc);
-    let faces = segmenter.closed().patches(None)?;
-    Ok((faces, share))
+    let planes = ModelPlanes::new(points, normals, voxel)?;
+    let share = planes.planar_share;
+    Ok((planes.faces()?, share))
 }
 
 /// The segmenter of a cloud described at `voxel`, calibrated on `noise`, else on the cloud's

@@ -26,7 +26,7 @@ use std::time::Instant;
 
 use super::descriptor::Descriptor;
 use super::embedder::{similarity, Embedder};
-use super::faces::{model_faces, FaceProposer, Proposals};
+use super::faces::{FaceProposer, ModelPlanes, Proposals};
 use super::flips::resolve_flips_with_symmetry;
 use super::peeling::{not_duplicates, unexplained};
 use super::ranking::{fit_tightness, loose_poses, pose_stability, stability_factor};
@@ -542,9 +542,15 @@ impl<'o> Run<'o> {
         let (faces, planar_share) = match options.proposals {
             Proposals::Descriptors => (None, f64::NAN),
             wanted => {
-                let (faces, share) = model_faces(&source.points, &source.normals, voxel)?;
-                let with = wanted == Proposals::Faces
-                    || share >= options.scene.min_planar_share && !faces.is_empty();
+                let planes = ModelPlanes::new(&source.points, &source.normals, voxel)?;
+                let share = planes.planar_share;
+                let forced = wanted == Proposals::Faces;
+                let faces = if forced || share >= options.scene.min_planar_share {
+                    planes.faces()?
+                } else {
+                    Vec::new()
+                };
+                let with = forced || !faces.is_empty();
                 let proposer = with
                     .then(|| {
                         FaceProposer::new(

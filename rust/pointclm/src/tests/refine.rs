@@ -258,6 +258,15 @@ fn wall(x: (f64, f64), y: (f64, f64), z0: f64, step: f64) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// Copy a of `blob(24)` (turned 20 degrees about y, at the origin) before a wall at depth
+/// `z` spanning `x` by `y`, seen from `EYE`: (a, scene).
+fn copy_before_wall(x: (f64, f64), y: (f64, f64), z: f64) -> (RigidTransform, Vec<[f64; 3]>) {
+    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
+    let mut surfaces = moved(&blob(60), &a);
+    surfaces.extend(wall(x, y, z, 0.05));
+    (a, sensed(&surfaces, 0.06))
+}
+
 /// Two copies of `blob(24)` at poses `a` and `b` seen from `EYE`, with a board in front of
 /// copy b that hides all of it but a strip on its right: (model, a, b, scene).
 fn hidden_copy_scene() -> (Vec<[f64; 3]>, RigidTransform, RigidTransform, Vec<[f64; 3]>) {
@@ -322,13 +331,10 @@ fn a_mostly_hidden_copy_is_kept_by_what_the_sensor_could_see() {
 #[test]
 fn a_pose_where_the_sensor_saw_free_space_is_rejected() {
     let model = blob(24);
-    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
     // Copy a stands before a back wall; the wrong pose floats in front of the wall beside
     // a, where the sensor saw the wall through empty space. It explains the wall where
     // it touches it, which the model share alone would accept at a low floor.
-    let mut surfaces = moved(&blob(60), &a);
-    surfaces.extend(wall((-3.0, 8.0), (-3.0, 3.0), 1.6, 0.05));
-    let scene = sensed(&surfaces, 0.06);
+    let (a, scene) = copy_before_wall((-3.0, 8.0), (-3.0, 3.0), 1.6);
     let wrong = motion([0.0, 1.0, 0.0], 0.0, [4.0, 0.0, 0.7]);
     let loose = RefineParams {
         icp: false,
@@ -363,10 +369,7 @@ fn a_pose_where_the_sensor_saw_free_space_is_rejected() {
 #[test]
 fn a_given_viewpoint_is_used_even_where_the_scan_disputes_it() {
     let model = blob(24);
-    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
-    let mut surfaces = moved(&blob(60), &a);
-    surfaces.extend(wall((-1.5, 1.5), (-2.0, 2.0), 2.0, 0.05));
-    let scene = sensed(&surfaces, 0.06);
+    let (a, scene) = copy_before_wall((-1.5, 1.5), (-2.0, 2.0), 2.0);
     let p = RefineParams::for_voxel(0.1);
     let side = [200.0, 0.0, 0.0];
     // From the side, the wall is seen edge-on: its points hide each other.
@@ -592,10 +595,7 @@ fn a_face_lying_on_a_larger_surface_fits_anywhere_and_comes_back_apart() {
 
 #[test]
 fn a_scan_looks_like_one_view_only_from_its_sensor() {
-    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
-    let mut surfaces = moved(&blob(60), &a);
-    surfaces.extend(wall((-1.5, 1.5), (-2.0, 2.0), 2.0, 0.05));
-    let scene = sensed(&surfaces, 0.06);
+    let (_, scene) = copy_before_wall((-1.5, 1.5), (-2.0, 2.0), 2.0);
     let p = RefineParams::for_voxel(0.1);
     assert!(looks_like_one_view(&scene, EYE, &p).unwrap());
     // From the side, the wall is seen edge-on: its points hide each other. (From behind, a
@@ -643,10 +643,7 @@ fn a_copy_cut_by_the_scans_edge_is_judged_on_what_the_scan_covers() {
     // A copy before a back wall, the scan cropped at x = 0.3 (a region of interest, the edge
     // of a field of view) through the copy's visible side.
     let model = blob(24);
-    let a = motion([0.0, 1.0, 0.0], 20.0, [0.0, 0.0, 0.0]);
-    let mut surfaces = moved(&blob(60), &a);
-    surfaces.extend(wall((-3.0, 3.0), (-3.0, 3.0), 1.6, 0.05));
-    let seen = sensed(&surfaces, 0.06);
+    let (a, seen) = copy_before_wall((-3.0, 3.0), (-3.0, 3.0), 1.6);
     let cropped: Vec<[f64; 3]> = seen.iter().filter(|p| p[0] < 0.3).copied().collect();
     // A pose past the scan's edge, where the sensor did not look.
     let beyond = motion([0.0, 1.0, 0.0], 0.0, [3.0, 0.0, 0.0]);
