@@ -1,5 +1,5 @@
 """`pointclm eval` and `pointclm demo`: the method flags override each path's own default
-config, as they do in `register` and `batch` (issue 15): on realistic scenes the thresholds for
+config, as they do in `register` and `batch`: on realistic scenes the thresholds for
 refined or raw poses, with a network its recommended thresholds; and `evaluate` takes them as
 ``config_overrides``."""
 

@@ -95,7 +95,7 @@ def test_register_several_models_reports_scores_and_writes_one_entry_per_model(
     assert f"\n{files['bunny']}:\n" in text and f"\n{files['box']}:\n" in text
     result = json.loads(out.read_text())
     assert list(_validator().iter_errors(result)) == []
-    assert result["format_version"] == "1.3" and result["scene"] == files["scan"]
+    assert result["format_version"] == "1.4" and result["scene"] == files["scan"]
     bunny, box = result["models"]
     assert (bunny["model"], box["model"]) == (files["bunny"], files["box"])
     assert bunny["ground_truth"]["found"] == [0, 1] and box["ground_truth"]["found"] == [0]

@@ -1,4 +1,4 @@
-"""Shared parameter descriptions (`pointclm.docstrings`) and short functions (issue 15): the
+"""Shared parameter descriptions (`pointclm.docstrings`) and short functions: the
 public functions' docstrings are filled at import and document every parameter, and no
 function in the package is over 60 lines, docstring included."""
 

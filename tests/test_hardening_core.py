@@ -1,4 +1,4 @@
-"""Hardening of the Rust core and its binding (issue 14): Ctrl-C, fork, bounded thread pools,
+"""Hardening of the Rust core and its binding: Ctrl-C, fork, bounded thread pools,
 absurd sizes, extreme magnitudes and one error family (ValueError naming the argument) for
 every argument of `pointclm._core`."""
 

@@ -1,4 +1,4 @@
-"""`register_point_clouds` in heaps: once the accepted copies show one (issue 18), the later
+"""`register_point_clouds` in heaps: once the accepted copies show one, the later
 passes relax the mutual check, by rank (``heap_rank``, the default) or within windows
 (``mutual_window="auto"``)."""
 

@@ -1,5 +1,5 @@
 """Hostile files: memory bombs, lying sizes, integers that do not fit, FIFOs and devices,
-pickles. Named cases for each class of issue 14, then hypothesis-generated malformed files of
+pickles. Named cases for each class of hostile file, then hypothesis-generated malformed files of
 every supported format.
 
 Every read runs under :func:`hardening.bounded`: a 10 s limit per case, an address-space cap

@@ -101,8 +101,9 @@ def _bunny_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def test_register_point_clouds_matches_by_the_learned_descriptor_when_asked() -> None:
     model, scan, poses = _bunny_scene()
-    fpfh = register_point_clouds(model, scan, seed=0)
+    fpfh = register_point_clouds(model, scan, seed=0, descriptor="fpfh")
     learned = register_point_clouds(model, scan, seed=0, descriptor="learned")
+    assert (fpfh.descriptor, learned.descriptor) == ("fpfh", "learned")
     assert fpfh.source_points.shape == learned.source_points.shape
     assert not np.array_equal(fpfh.correspondences, learned.correspondences)
     assert len(learned.instances) >= 1
@@ -115,9 +116,9 @@ def test_register_point_clouds_matches_by_the_learned_descriptor_when_asked() ->
 
 def test_fpfh_and_learned_side_by_side_match_on_both() -> None:
     shipped = descriptor_weights("learned")
-    assert descriptor_choice("fpfh+learned") == (shipped, True)
-    assert descriptor_choice("learned") == (shipped, False)
-    assert descriptor_choice("fpfh") == (None, False)
+    assert descriptor_choice("fpfh+learned") == (shipped, "fpfh+learned")
+    assert descriptor_choice("learned") == (shipped, "learned")
+    assert descriptor_choice("fpfh") == (None, "fpfh")
     with pytest.raises(InputError, match="fpfh\\+learned"):
         descriptor_choice("fpfh+fpfh")
     model, scan, poses = _bunny_scene()
@@ -132,15 +133,45 @@ def test_fpfh_and_learned_side_by_side_match_on_both() -> None:
         assert min(err) < 0.1 * diag
 
 
+def test_auto_matches_curved_parts_by_both_and_flat_faced_ones_by_fpfh() -> None:
+    from helpers import box_surface
+    from pointclm.descriptors import described_by
+
+    shipped = descriptor_weights("learned")
+    assert descriptor_choice("auto") == (shipped, "auto")
+    assert descriptor_choice("auto+learned") == (shipped, "auto")
+    with pytest.raises(InputError, match="auto\\+learned"):
+        descriptor_choice("auto+fpfh")
+    model, scan, _ = _bunny_scene()
+    auto = register_point_clouds(model, scan, seed=0)
+    both = register_point_clouds(model, scan, seed=0, descriptor="fpfh+learned")
+    assert (auto.descriptor, both.descriptor) == ("fpfh+learned", "fpfh+learned")
+    np.testing.assert_array_equal(auto.correspondences, both.correspondences)
+    np.testing.assert_array_equal(auto.transformations, both.transformations)
+    assert "matched by: fpfh+learned" in repr(auto)
+    # A box: six flat faces, nothing for a local descriptor to tell apart on them.
+    box = box_surface((0.12, 0.08, 0.05))
+    turn = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
+    copies = np.vstack([box @ turn.T + [x, 0.0, 0.5] for x in (-0.15, 0.15)])
+    auto = register_point_clouds(box, copies, seed=0)
+    fpfh = register_point_clouds(box, copies, seed=0, descriptor="fpfh")
+    assert (auto.descriptor, fpfh.descriptor) == ("fpfh", "fpfh")
+    np.testing.assert_array_equal(auto.correspondences, fpfh.correspondences)
+    np.testing.assert_array_equal(auto.transformations, fpfh.transformations)
+    with pytest.raises(InputError, match="per model"):
+        described_by("auto", scan[:10], scan[:10], np.ones((10, 33)), 0.01)
+
+
 def test_the_command_line_takes_a_descriptor(tmp_path: Path) -> None:
     model, scan, _ = _bunny_scene()
     np.save(tmp_path / "model.npy", model)
     np.save(tmp_path / "scan.npy", scan)
     run = [sys.executable, "-m", "pointclm", "register", str(tmp_path / "model.npy"),
            str(tmp_path / "scan.npy"), "--out", str(tmp_path / "out.json"), "--quiet"]  # fmt: skip
-    done = subprocess.run([*run, "--descriptor", "learned"], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
-    assert json.loads((tmp_path / "out.json").read_text())["instances"]
+    for name in ("learned", "auto"):
+        done = subprocess.run([*run, "--descriptor", name], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        assert json.loads((tmp_path / "out.json").read_text())["instances"]
     bad = subprocess.run([*run, "--descriptor", "sift"], capture_output=True, text=True)
     assert bad.returncode == 2 and "descriptor" in bad.stderr
 

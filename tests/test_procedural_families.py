@@ -1,4 +1,4 @@
-"""Random procedural shape families (issue 16): ``"superquadric-<seed>"``, ``"blend-<seed>"``
+"""Random procedural shape families: ``"superquadric-<seed>"``, ``"blend-<seed>"``
 and ``"extrusion-<seed>"`` are seeded, valid, asymmetric meshes that every path taking a model
 name accepts."""
 

@@ -347,7 +347,7 @@ EQUIVALENT: dict[str, tuple[Callable[..., Any], Callable[[Any], Any]]] = {
 @pytest.mark.parametrize("key", sorted(EQUIVALENT))
 def test_equivalent_representations_agree(key: str) -> None:
     if key == "network_embed":
-        pytest.xfail("Network.embed (Rust binding) takes only float64 ndarrays: issue 14, class 6")
+        pytest.xfail("Network.embed (Rust binding) takes only float64 ndarrays")
     fn, view = EQUIVALENT[key]
     base = CORR if key in ("register", "network_embed") else SRC
     expected = view(fn(base))

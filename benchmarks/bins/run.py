@@ -32,6 +32,9 @@ the same voxel and the sensor position, in the same run:
   ranked check from the round after the first accepted copy.
 - **pointclm (heap switch)**: the same with ``mutual_window="auto"`` (:data:`HEAP_SWITCH`): the
   windowed mutual check in the rounds after ``HEAP_MIN_COPIES`` copies are accepted.
+- **pointclm (FPFH)**, **pointclm (heap + FPFH)**: the defaults and ``heap=True`` matched by
+  FPFH alone (``descriptor="fpfh"``; the default ``"auto"`` adds the learned descriptor for
+  curved parts);
 - **pointclm (learned descriptor)**, **pointclm (heap + learned descriptor)**: the defaults and
   ``heap=True`` with ``descriptor="learned"`` (matches by the shipped learned descriptor);
   **pointclm (FPFH and learned)**, **pointclm (heap + FPFH and learned)**: the same with
@@ -118,6 +121,8 @@ MATCHING = {
     "pointclm (no flips)": {"flips": False},
     "pointclm (scene-wide mutual)": {"heap_rank": None},
     "pointclm (heap)": {"heap": True},
+    "pointclm (FPFH)": {"descriptor": "fpfh"},
+    "pointclm (heap + FPFH)": {"heap": True, "descriptor": "fpfh"},
     "pointclm (learned descriptor)": {"descriptor": "learned"},
     "pointclm (heap + learned descriptor)": {"heap": True, "descriptor": "learned"},
     "pointclm (FPFH and learned)": {"descriptor": "fpfh+learned"},
@@ -131,6 +136,8 @@ METHODS = (
     "pointclm",
     "pointclm (scene-wide mutual)",
     "pointclm (heap)",
+    "pointclm (FPFH)",
+    "pointclm (heap + FPFH)",
     "pointclm (learned descriptor)",
     "pointclm (heap + learned descriptor)",
     "pointclm (FPFH and learned)",

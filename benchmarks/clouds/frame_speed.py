@@ -65,6 +65,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2, help="scenes per layout")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default="out/frame_speed.md")
+    ap.add_argument("--descriptor", default="auto", help="auto, fpfh, fpfh+learned, ...")
     args = ap.parse_args()
 
     import pointclm
@@ -78,7 +79,12 @@ def main() -> None:
         for setting, heap in (("default", None), ("heap", True)):
             t0 = time.perf_counter()
             result = pointclm.register_point_clouds(
-                model, scan, heap=heap, num_threads=args.threads, seed=0
+                model,
+                scan,
+                heap=heap,
+                num_threads=args.threads,
+                seed=0,
+                descriptor=args.descriptor,
             )
             row[setting] = time.perf_counter() - t0
             row[f"{setting} copies"] = len(result.instances)
@@ -101,7 +107,8 @@ def write_report(rows: list[dict], args: argparse.Namespace) -> None:
         "",
         f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
         f"- Hardware: {report.hardware()}, {args.threads} threads on a shared machine; "
-        f"pointclm {pointclm.__version__} (git {report.git_commit()}).",
+        f"pointclm {pointclm.__version__} (git {report.git_commit()}), "
+        f"descriptor={args.descriptor!r}.",
         "",
         "| frame | points | default s | heap s | heap peeling s | copies default / heap "
         "| reference s | default / reference | heap / reference |",

@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--cache", default="out/realistic_scenes")
     ap.add_argument("--out")
+    ap.add_argument("--descriptor", default="auto", help="auto, fpfh, fpfh+learned, ...")
     args = ap.parse_args()
 
     import pointclm
@@ -61,6 +62,7 @@ def main() -> None:
             sc.voxel_size,
             viewpoint=sc.viewpoint,
             num_threads=args.threads,
+            descriptor=args.descriptor,
         )
 
     call(scenes[0])
@@ -83,7 +85,8 @@ def main() -> None:
         "",
         f"- Date: {report.utc_now()}. Command: `{report.command(__spec__.name)}`.",
         f"- Hardware: {report.hardware()}; pointclm {pointclm.__version__} "
-        f"(git {report.git_commit()}), {args.threads} threads.",
+        f"(git {report.git_commit()}), {args.threads} threads, "
+        f"descriptor={args.descriptor!r}.",
         f"- {len(scenes)} held-out scenes; median scan "
         f"{int(np.median([len(s.target_points) for s in scenes]))} raw points.",
         "",

@@ -487,7 +487,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--out", default="benchmarks/results/matrix/matrix.json")
     ap.add_argument("--table", help="also write the markdown table here")
     ap.add_argument("--data-dir", default=None)
-    ap.add_argument("--descriptor", default="fpfh", help="fpfh, learned or a descriptor file")
+    ap.add_argument(
+        "--descriptor", default="auto", help="auto, fpfh, learned, fpfh+learned or a file"
+    )
     ap.add_argument(
         "--organised",
         action="store_true",

@@ -344,10 +344,12 @@ def register_scan(
     symmetry: str | dict[str, npt.NDArray[np.float64]] | None = None,
     proposals: str = "auto",
     descriptor: str | os.PathLike[str] | None = None,
-    descriptor_with_fpfh: bool = False,
+    descriptor_kind: str = "learned",
 ) -> dict[str, Any]:
     """The core's scene pipeline; ``descriptor`` a learned descriptor's weights file (None:
-    FPFH), with ``descriptor_with_fpfh`` joined to FPFH (each of unit length);
+    FPFH), used as ``descriptor_kind`` says: "learned" alone, "fpfh+learned" joined to FPFH
+    (each of unit length), "auto" joined for a model below ``scene.min_planar_share``, FPFH
+    alone for a mostly planar one (the key ``descriptor`` says which ran);
     ``embed(correspondences, normals, similarity)`` computes each pass's learned embedding
     (the cues ``embed_inputs`` names given, else None);
     ``refine=False`` scores the correspondence stage's poses without ICP or verification;
@@ -364,7 +366,8 @@ def register_scan(
     (a dict); ``timings`` (seconds per stage); ``voxel_size``, ``by_visibility``,
     ``viewpoint``, ``unconfirmed_viewpoint`` (lists or None) and ``orientation``;
     ``face_proposals`` (whether faces were proposed) and ``planar_share`` (the model's share
-    in large flat faces, NaN with "descriptors"); ``symmetry``
+    in large flat faces, NaN when neither proposals nor the descriptor need it);
+    ``descriptor`` (the one matched by: "fpfh", "learned" or "fpfh+learned"); ``symmetry``
     (the symmetry dict the poses were made canonical by, or None)."""
 
 def symmetry_group(

@@ -1,10 +1,16 @@
-"""Which local descriptor point clouds are matched by: FPFH or the learned one.
+"""Which local descriptor point clouds are matched by: FPFH, the learned one, or both.
 
 ``register_point_clouds(descriptor=...)`` and ``pointclm register --descriptor`` take a name
 or the path of a descriptor file:
 
-- ``"fpfh"`` (the default): Open3D's FPFH over 5 voxels, no training, the reference every
-  learned descriptor is measured against;
+- ``"auto"`` (the default): decided by the model's shape, with the rule that switches face
+  proposals on: FPFH alone for a model with at least ``scene.min_planar_share`` (half) of its
+  points in large flat faces (boxes, brackets), ``"fpfh+learned"`` for any other (organic and
+  curved CAD parts). On a flat face every neighbourhood looks alike to any local descriptor,
+  and the learned one only adds look-alikes there; on curved parts it finds most of the true
+  matches FPFH misses. The result's ``descriptor`` says which ran;
+- ``"fpfh"``: Open3D's FPFH over 5 voxels, no training, the reference every learned
+  descriptor is measured against;
 - ``"learned"``: the descriptor network shipped with the package (``weights/descriptor``),
   trained contrastively on partial views of the validation models and procedural shapes
   (``pointclm train-descriptor``); see the model card in BENCHMARKS.md for where it wins and
@@ -12,7 +18,7 @@ or the path of a descriptor file:
 - ``"fpfh+learned"``: both side by side, each of unit length, so a match must look alike to
   both: nearly all the true matches the learned one finds, fewer of its look-alikes;
 - a path to a ``.safetensors`` file written by ``pointclm train-descriptor`` (its ``.json``
-  beside it), or ``"fpfh+"`` and such a path.
+  beside it), or ``"fpfh+"`` or ``"auto+"`` and such a path.
 
 The learned descriptor runs in the Rust core (no torch at run time), over the same points and
 oriented normals FPFH was computed on.
@@ -37,7 +43,7 @@ __all__ = [
 ]
 
 #: Names ``descriptor=`` accepts besides a path.
-DESCRIPTORS: tuple[str, ...] = ("fpfh", "learned", "fpfh+learned")
+DESCRIPTORS: tuple[str, ...] = ("auto", "fpfh", "learned", "fpfh+learned")
 _SHIPPED = Path(__file__).parent / "weights" / "descriptor.safetensors"
 
 
@@ -70,18 +76,26 @@ def descriptor_weights(descriptor: str | os.PathLike[str] | None) -> str | None:
     return str(path)
 
 
-def descriptor_choice(descriptor: str | os.PathLike[str] | None) -> tuple[str | None, bool]:
-    """What `descriptor` names: the learned descriptor's file (None: FPFH alone) and whether
-    FPFH is kept beside it (``"fpfh+learned"``, ``"fpfh+PATH"``).
+def descriptor_choice(descriptor: str | os.PathLike[str] | None) -> tuple[str | None, str]:
+    """What `descriptor` names: the learned descriptor's file (None: FPFH alone) and how it
+    is used, as the core takes it: ``"learned"`` (alone), ``"fpfh+learned"`` (beside FPFH:
+    ``"fpfh+learned"``, ``"fpfh+PATH"``) or ``"auto"`` (decided by the model's shape:
+    ``"auto"``, ``"auto+PATH"``).
 
     Raises InputError as :func:`descriptor_weights` does, and for ``"fpfh+fpfh"``.
     """
-    if isinstance(descriptor, str) and descriptor.startswith("fpfh+"):
-        weights = descriptor_weights(descriptor.removeprefix("fpfh+"))
-        if weights is None:
-            raise InputError('"fpfh+" must be followed by a learned descriptor: "fpfh+learned"')
-        return weights, True
-    return descriptor_weights(descriptor), False
+    if isinstance(descriptor, str) and descriptor == "auto":
+        descriptor = "auto+learned"
+    for kind in ("fpfh", "auto"):
+        if isinstance(descriptor, str) and descriptor.startswith(kind + "+"):
+            weights = descriptor_weights(descriptor.removeprefix(kind + "+"))
+            if weights is None:
+                raise InputError(
+                    f'"{kind}+" must be followed by a learned descriptor: "{kind}+learned"'
+                )
+            return weights, "fpfh+learned" if kind == "fpfh" else "auto"
+    weights = descriptor_weights(descriptor)
+    return weights, "fpfh" if weights is None else "learned"
 
 
 def learned_descriptors(
@@ -115,7 +129,13 @@ def described_by(
     oriented `normals`, `fpfh` as :func:`pointclm.preprocessing.describe` returns them), as
     ``register_point_clouds(descriptor=...)`` matches them: FPFH as given, the learned ones,
     or, for ``"fpfh+..."``, FPFH scaled to unit length beside the learned ones."""
-    weights, with_fpfh = descriptor_choice(descriptor)
+    weights, kind = descriptor_choice(descriptor)
+    if kind == "auto":
+        raise InputError(
+            f"descriptor {str(descriptor)!r} is decided per model by register_point_clouds; "
+            'name the one to use here: "fpfh", "learned" or "fpfh+learned"'
+        )
+    with_fpfh = kind == "fpfh+learned"
     f = np.asarray(fpfh, dtype=np.float64)
     if weights is None:
         return f

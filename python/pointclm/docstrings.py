@@ -162,11 +162,14 @@ PARAMETERS: dict[str, str] = _entries(
             the rocker arm (0.16), the bunny (0.03) and the dragon (0.00) keep the descriptors
             alone. Either way every pose is judged by the same
             verification; nothing is accepted for being proposed.
-        descriptor : {"fpfh", "learned", "fpfh+learned"} or path, default "fpfh"
+        descriptor : {"auto", "fpfh", "learned", "fpfh+learned"} or path, default "auto"
             The local descriptor both clouds are matched by: FPFH, the learned descriptor
             shipped with the package, both side by side, or a descriptor file written by
-            ``pointclm train-descriptor`` (see :mod:`pointclm.descriptors`). Each is
-            computed over the same points and normals; every later stage is the same.
+            ``pointclm train-descriptor`` (see :mod:`pointclm.descriptors`). "auto": FPFH
+            alone for a mostly planar model (the rule and threshold of `proposals` "auto"),
+            FPFH and the learned one for any other; the result's ``descriptor`` says which
+            ran. Each is computed over the same points and normals; every later stage is the
+            same.
         """,
     mutual_window="""
         mutual_window : float, "auto" or None, default None

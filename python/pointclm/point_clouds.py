@@ -172,7 +172,7 @@ def register_point_clouds(
     scene: SceneRules | Mapping[str, Any] | None = None,
     symmetry: Any = None,
     proposals: str = "auto",
-    descriptor: str | os.PathLike[str] = "fpfh",
+    descriptor: str | os.PathLike[str] = "auto",
 ) -> PointCloudRegistration:
     """Find every copy of `source` (a complete model) in `target` (a scan).
 
@@ -199,14 +199,14 @@ def register_point_clouds(
 
     %(cloud_returns)s
     """
-    t0, (weights, fpfh_too) = time.perf_counter(), descriptor_choice(descriptor)
+    t0, (weights, kind) = time.perf_counter(), descriptor_choice(descriptor)
     emb, view = _checked_arguments(num_threads, refine, mutual, model, viewpoint, flips, proposals)
     window, rank, sc = _heap_arguments(mutual_window, heap_rank, heap, mutual, k, scene)
     src, scan = load_cloud(source, "source"), read_scan(target, view)
     t_load, voxel = time.perf_counter() - t0, _voxel_size(src, scan.points, voxel_size, sc)
     call = CoreCall(voxel, config, seed, scan.viewpoint, top_k, mutual, n_samples, rank, heap,
                     peel, flips, sc, num_threads, scan.stated_by, emb, normals, refine, k,
-                    window, symmetry, proposals, weights, fpfh_too)  # fmt: skip
+                    window, symmetry, proposals, weights, kind)  # fmt: skip
     return _finished(register_in_core(src, scan.points, call.checked()), t_load, t0)
 
 

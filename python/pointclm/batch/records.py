@@ -17,7 +17,7 @@ __all__ = [
 #: The version of the JSON `register --out` and `batch` write, their first field:
 #: MAJOR.MINOR, the minor one raised when fields are added, the major one when a field is
 #: renamed, removed or changes meaning. `pointclm/schemas/result.schema.json` describes it.
-FORMAT_VERSION = "1.3"
+FORMAT_VERSION = "1.4"
 
 #: The fields of a batch line that change from run to run; everything else is fixed by the
 #: scan, the model, the options and the seed.
@@ -38,9 +38,10 @@ def _matrix(value: Any) -> list[list[float]] | None:
 def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
     """Voxel, config, instances (``T_target_source`` 4x4 lists, surest first, with their
     scores), the viewpoint verification judged from (given, recorded or guessed and confirmed;
-    null: none) and how the scan's normals were oriented, `diagnosis` ("" when there is
-    nothing to say) and timings of a :class:`pointclm.point_clouds.PointCloudRegistration`;
-    the poses that slide along a face apart, under ``ambiguous``."""
+    null: none), how the scan's normals were oriented, the descriptor matched by,
+    `diagnosis` ("" when there is nothing to say) and timings of a
+    :class:`pointclm.point_clouds.PointCloudRegistration`; the poses that slide along a face
+    apart, under ``ambiguous``."""
     return {
         "voxel_size": reg.voxel_size,
         "config": reg.config.to_dict(),
@@ -48,6 +49,7 @@ def registration_record(reg: Any, diagnosis: str) -> dict[str, Any]:
         "ambiguous": [_instance(inst) for inst in getattr(reg, "ambiguous", [])],
         "viewpoint": None if reg.viewpoint is None else [float(v) for v in reg.viewpoint],
         "scan_normals": reg.orientation,
+        "descriptor": getattr(reg, "descriptor", ""),
         "diagnosis": diagnosis,
         "timings_s": dict(reg.timings),
     }

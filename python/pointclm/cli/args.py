@@ -198,8 +198,9 @@ def _add_proposal_flags(p: Any) -> None:
     )
     p.add_argument(
         "--descriptor",
-        default="fpfh",
-        metavar="fpfh|learned|fpfh+learned|FILE",
-        help="the local descriptor clouds are matched by: FPFH (default), the shipped learned "
-        "one, both side by side, or a .safetensors file from `pointclm train-descriptor`",
+        default="auto",
+        metavar="auto|fpfh|learned|fpfh+learned|FILE",
+        help="the local descriptor clouds are matched by: FPFH, the shipped learned one, both "
+        "side by side, or a .safetensors file from `pointclm train-descriptor` (auto, the "
+        "default: FPFH for models mostly made of large flat faces, both for any other)",
     )

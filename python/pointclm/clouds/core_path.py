@@ -72,8 +72,9 @@ class CoreCall:
     #: The learned descriptor's weights file; None: FPFH (checked:
     #: :func:`pointclm.descriptors.descriptor_weights`).
     descriptor: str | None = None
-    #: FPFH kept beside the learned descriptor (``descriptor="fpfh+learned"``).
-    descriptor_with_fpfh: bool = False
+    #: How the learned descriptor is used: "learned" (alone), "fpfh+learned" (beside FPFH)
+    #: or "auto" (decided by the model's shape).
+    descriptor_kind: str = "learned"
 
     def checked(self) -> CoreCall:
         """The call with its seed and matching counts checked (the core takes unsigned
@@ -120,7 +121,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         symmetry=call.symmetry,
         proposals=call.proposals,
         descriptor=call.descriptor,
-        descriptor_with_fpfh=call.descriptor_with_fpfh,
+        descriptor_kind=call.descriptor_kind,
     )
     passes = [_pass(p) for p in out["passes"]]
     judged = _CoreJudged(out, call.num_threads)
@@ -142,6 +143,7 @@ def register_in_core(src: np.ndarray, tgt: np.ndarray, call: CoreCall) -> PointC
         diagnosis=_diagnose(judged, len(instances), out["by_visibility"], passes),
         ambiguous=ambiguous,
         symmetry=None if out["symmetry"] is None else Symmetry._from_core(out["symmetry"]),
+        descriptor=out["descriptor"],
     )
 
 

@@ -204,6 +204,9 @@ class PointCloudRegistration:
     #: The model's symmetries every pose was made canonical by (declared, or detected with
     #: ``symmetry="auto"``); None: none declared.
     symmetry: Symmetry | None = None
+    #: The descriptor the clouds were matched by: "fpfh", "learned" or "fpfh+learned"
+    #: (``descriptor="auto"`` decided for the model); "" when the clouds were not matched here.
+    descriptor: str = ""
 
     def __post_init__(self) -> None:
         clouds = (self.source_points, self.target_points, self.voxel_size)
@@ -259,6 +262,8 @@ class PointCloudRegistration:
             lines.append(f"  note: {self.diagnosis}")
         if self.orientation:
             lines.append(f"  scan normals: {self.orientation}")
+        if self.descriptor:
+            lines.append(f"  matched by: {self.descriptor}")
         judged = "none known" if self.viewpoint is None else _xyz(self.viewpoint)
         disputed = " (the scan disputes it)" if self.viewpoint_disputed else ""
         lines.append(f"  verification viewpoint: {judged}{disputed}")

@@ -100,8 +100,8 @@ pub fn stability_factor<'py>(
 /// `register_point_clouds`' stages without a learned model), as a dict (see `_core.pyi`).
 #[pyfunction]
 #[pyo3(
-    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto", descriptor=None, descriptor_with_fpfh=false),
-    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto', descriptor=None, descriptor_with_fpfh=False)"
+    signature = (model, scan, voxel_size=None, viewpoint=None, seed=0, peel=true, heap=None, heap_rank=64, flips=true, top_k=10_000, mutual=true, n_samples=Some(1000), config=None, scene=None, num_threads=None, pair_normals=false, embed=None, embed_inputs=Vec::new(), refine=true, k=1, mutual_window=None, symmetry=None, proposals="auto", descriptor=None, descriptor_kind="learned"),
+    text_signature = "(model, scan, voxel_size=None, viewpoint=None, seed=0, peel=True, heap=None, heap_rank=64, flips=True, top_k=10000, mutual=True, n_samples=1000, config=None, scene=None, num_threads=None, pair_normals=False, embed=None, embed_inputs=[], refine=True, k=1, mutual_window=None, symmetry=None, proposals='auto', descriptor=None, descriptor_kind='learned')"
 )]
 #[allow(clippy::too_many_arguments)]
 pub fn register_scan<'py>(
@@ -130,23 +130,13 @@ pub fn register_scan<'py>(
     symmetry: Option<Bound<'py, PyAny>>,
     proposals: &str,
     descriptor: Option<std::path::PathBuf>,
-    descriptor_with_fpfh: bool,
+    descriptor_kind: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let proposals = scene::Proposals::from_name(proposals).map_err(crate::errors::to_py_err)?;
     // `descriptor`: the weights of a learned descriptor; None: FPFH.
     let descriptor = match descriptor {
         None => scene::Descriptor::Fpfh,
-        Some(path) => {
-            let net = Arc::new(
-                pointclm::network::LearnedDescriptor::from_file(path)
-                    .map_err(crate::errors::to_py_err)?,
-            );
-            if descriptor_with_fpfh {
-                scene::Descriptor::FpfhAndLearned(net)
-            } else {
-                scene::Descriptor::Learned(net)
-            }
-        }
+        Some(path) => learned(path, descriptor_kind)?,
     };
     let m = rows3(&model, "model")?;
     let s = rows3(&scan, "scan")?;
@@ -193,6 +183,24 @@ pub fn register_scan<'py>(
         return Err(raised);
     }
     scene_dict(py, out?)
+}
+
+/// The learned descriptor in the weights file `path`, used as `kind` says: "learned" (alone),
+/// "fpfh+learned" (beside FPFH) or "auto" (decided by the model's shape).
+fn learned(path: std::path::PathBuf, kind: &str) -> PyResult<scene::Descriptor> {
+    let make: fn(Arc<_>) -> scene::Descriptor = match kind {
+        "learned" => scene::Descriptor::Learned,
+        "fpfh+learned" => scene::Descriptor::FpfhAndLearned,
+        "auto" => scene::Descriptor::Auto,
+        other => {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "descriptor_kind must be 'learned', 'fpfh+learned' or 'auto', got {other:?}"
+            )))
+        }
+    };
+    let net =
+        pointclm::network::LearnedDescriptor::from_file(path).map_err(crate::errors::to_py_err)?;
+    Ok(make(Arc::new(net)))
 }
 
 /// `mutual_window` as the core takes it: a side in model diagonals, or "auto".
@@ -368,6 +376,7 @@ fn scene_dict(py: Python<'_>, out: scene::SceneRegistration) -> PyResult<Bound<'
     d.set_item("viewpoint_disputed", out.viewpoint_disputed)?;
     d.set_item("face_proposals", out.face_proposals)?;
     d.set_item("planar_share", out.planar_share)?;
+    d.set_item("descriptor", out.descriptor)?;
     Ok(d)
 }
 

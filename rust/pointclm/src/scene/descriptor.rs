@@ -24,6 +24,13 @@ pub enum Descriptor {
     /// alike in a match's distance: a match must look alike to both. The learned one finds
     /// more true matches than FPFH, FPFH rejects some of its look-alikes.
     FpfhAndLearned(Arc<LearnedDescriptor>),
+    /// Decided by the model's shape: FPFH alone for a mostly planar model (at least
+    /// `SceneRules::min_planar_share` of it in large flat faces, the rule that switches face
+    /// proposals on), FPFH and the learned one beside it for any other. Why: on a flat face
+    /// every neighbourhood looks alike to any local descriptor, and the learned one only adds
+    /// look-alikes there (a box's copies with 3 true matches 0.12 -> 0.08), while on curved
+    /// parts it finds most of the true matches FPFH misses (BENCHMARKS.md, learned descriptor).
+    Auto(Arc<LearnedDescriptor>),
 }
 
 impl PartialEq for Descriptor {
@@ -33,18 +40,45 @@ impl PartialEq for Descriptor {
             (Self::Fpfh, Self::Fpfh) => true,
             (Self::Learned(a), Self::Learned(b)) => Arc::ptr_eq(a, b),
             (Self::FpfhAndLearned(a), Self::FpfhAndLearned(b)) => Arc::ptr_eq(a, b),
+            (Self::Auto(a), Self::Auto(b)) => Arc::ptr_eq(a, b),
             _ => false,
         }
     }
 }
 
 impl Descriptor {
-    /// `cloud` with this descriptor (FPFH: as it is), described at `voxel`.
+    /// What this descriptor is for a model with `planar_share` of its points in large flat
+    /// faces ([`Self::Auto`] decided at `min_planar_share`; the others as they are).
+    pub fn for_model(&self, planar_share: f64, min_planar_share: f64) -> Self {
+        match self {
+            Self::Auto(_) if planar_share >= min_planar_share => Self::Fpfh,
+            Self::Auto(net) => Self::FpfhAndLearned(Arc::clone(net)),
+            other => other.clone(),
+        }
+    }
+
+    /// Whether the model's planar share is needed to decide ([`Self::Auto`]).
+    pub fn by_shape(&self) -> bool {
+        matches!(self, Self::Auto(_))
+    }
+
+    /// Its name as `register_point_clouds(descriptor=...)` takes it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Fpfh => "fpfh",
+            Self::Learned(_) => "learned",
+            Self::FpfhAndLearned(_) => "fpfh+learned",
+            Self::Auto(_) => "auto",
+        }
+    }
+
+    /// `cloud` with this descriptor (FPFH: as it is), described at `voxel`; [`Self::Auto`]
+    /// must be decided first ([`Self::for_model`]).
     pub fn apply(&self, mut cloud: Described, voxel: f64) -> Result<Described> {
         let (net, join) = match self {
             Self::Fpfh => return Ok(cloud),
             Self::Learned(net) => (net, false),
-            Self::FpfhAndLearned(net) => (net, true),
+            Self::FpfhAndLearned(net) | Self::Auto(net) => (net, true),
         };
         let t0 = std::time::Instant::now();
         let index = PointIndex::new(&cloud.points)?;

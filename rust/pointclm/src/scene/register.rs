@@ -246,8 +246,11 @@ pub struct SceneRegistration {
     /// ([`SceneOptions::proposals`]).
     pub face_proposals: bool,
     /// The share of the downsampled model in planar faces wider than the FPFH disc (what
-    /// `Proposals::Auto` decides by); NaN with `Proposals::Descriptors`.
+    /// `Proposals::Auto` and `Descriptor::Auto` decide by); NaN when neither needs it.
     pub planar_share: f64,
+    /// The descriptor the clouds were matched by ([`Descriptor::name`]; `Descriptor::Auto`
+    /// decided for the model: "fpfh" or "fpfh+learned").
+    pub descriptor: &'static str,
     /// The model's symmetries the poses were made canonical by (declared, or detected).
     pub symmetry: Option<Symmetry>,
     /// Seconds spent in each stage after the clouds were described (theirs are in
@@ -454,6 +457,7 @@ pub fn register_point_clouds_with(
         orientation: run.orientation,
         face_proposals: run.faces.is_some(),
         planar_share: run.planar_share,
+        descriptor: run.descriptor,
         symmetry,
         source: run.source,
         target: run.target,
@@ -474,6 +478,8 @@ struct Run<'o> {
     /// Face proposals, when [`SceneOptions::proposals`] asks for them.
     faces: Option<FaceProposer>,
     planar_share: f64,
+    /// The descriptor the clouds were matched by, decided ([`Descriptor::for_model`]).
+    descriptor: &'static str,
     context: RefineContext,
     rules: RefineParams,
     voxel: f64,
@@ -517,8 +523,17 @@ impl<'o> Run<'o> {
         )?;
         let points = without_strays(voxel_downsample(scan, voxel)?, voxel, &options.scene)?;
         let scan = describe_scan(&points, voxel, options.viewpoint, &source, &options.scene)?;
-        let source = options.descriptor.apply(source, voxel)?;
-        let target = options.descriptor.apply(scan.cloud, voxel)?;
+        let needs_planes =
+            options.proposals != Proposals::Descriptors || options.descriptor.by_shape();
+        let planes = needs_planes
+            .then(|| ModelPlanes::new(&source.points, &source.normals, voxel))
+            .transpose()?;
+        let planar_share = planes.as_ref().map_or(f64::NAN, |p| p.planar_share);
+        let descriptor = options
+            .descriptor
+            .for_model(planar_share, options.scene.min_planar_share);
+        let source = descriptor.apply(source, voxel)?;
+        let target = descriptor.apply(scan.cloud, voxel)?;
         let k = options.matching.k;
         let nearest = nearest_sources(&source.descriptors, &target.descriptors, k)?;
         let rules = RefineParams::for_voxel(voxel);
@@ -539,32 +554,28 @@ impl<'o> Run<'o> {
             viewpoint,
             &rules,
         )?;
-        let (faces, planar_share) = match options.proposals {
-            Proposals::Descriptors => (None, f64::NAN),
-            wanted => {
-                let planes = ModelPlanes::new(&source.points, &source.normals, voxel)?;
-                let share = planes.planar_share;
+        let faces = match (options.proposals, planes) {
+            (Proposals::Descriptors, _) | (_, None) => None,
+            (wanted, Some(planes)) => {
                 let forced = wanted == Proposals::Faces;
-                let faces = if forced || share >= options.scene.min_planar_share {
+                let faces = if forced || planar_share >= options.scene.min_planar_share {
                     planes.faces()?
                 } else {
                     Vec::new()
                 };
                 let with = forced || !faces.is_empty();
-                let proposer = with
-                    .then(|| {
-                        FaceProposer::new(
-                            &source.points,
-                            faces,
-                            &target.points,
-                            &target.normals,
-                            context.index(),
-                            voxel,
-                            &options.scene,
-                        )
-                    })
-                    .transpose()?;
-                (proposer, share)
+                with.then(|| {
+                    FaceProposer::new(
+                        &source.points,
+                        faces,
+                        &target.points,
+                        &target.normals,
+                        context.index(),
+                        voxel,
+                        &options.scene,
+                    )
+                })
+                .transpose()?
             }
         };
         Ok(Self {
@@ -575,6 +586,7 @@ impl<'o> Run<'o> {
             voter: None,
             faces,
             planar_share,
+            descriptor: descriptor.name(),
             context,
             rules,
             voxel,

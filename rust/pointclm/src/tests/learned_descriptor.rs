@@ -144,3 +144,23 @@ fn points_without_normals_or_with_bad_values_are_refused() {
     assert!(net.describe(&points, &normals, &index, 0.0).is_err());
     assert!(net.describe(&points, &normals, &index, f64::NAN).is_err());
 }
+
+#[test]
+fn auto_is_fpfh_for_a_mostly_planar_model_and_both_for_any_other() {
+    use crate::scene::Descriptor;
+    use std::sync::Arc;
+
+    let net =
+        Arc::new(LearnedDescriptor::from_bytes(&weights(6, None), &metadata(8), "test").unwrap());
+    let auto = Descriptor::Auto(Arc::clone(&net));
+    assert!(auto.by_shape() && auto.name() == "auto");
+    assert_eq!(auto.for_model(0.9, 0.5), Descriptor::Fpfh);
+    assert_eq!(auto.for_model(0.5, 0.5), Descriptor::Fpfh);
+    let both = Descriptor::FpfhAndLearned(Arc::clone(&net));
+    assert_eq!(auto.for_model(0.2, 0.5), both);
+    // An unmeasured share is not a planar model.
+    assert_eq!(auto.for_model(f64::NAN, 0.5), both);
+    let learned = Descriptor::Learned(Arc::clone(&net));
+    assert_eq!(learned.for_model(0.9, 0.5), learned);
+    assert!(!learned.by_shape() && both.name() == "fpfh+learned");
+}
