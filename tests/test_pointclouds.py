@@ -13,6 +13,7 @@ import pointclm.preprocessing as pp
 import pytest
 from helpers import DATA, needs_data, needs_scene_data
 from pointclm.cli import main
+from pointclm.datasets import bunny_scan_pose
 from pointclm.datasets.scenes import SceneParams, _bunny_scans, make_realistic_scene
 from pointclm.io import read_open3d_feature, read_point_cloud, write_ply
 from pointclm.metrics import score_scene
@@ -248,22 +249,6 @@ def test_peeling_keeps_the_first_pass_and_records_every_pass() -> None:
 SCANS = DATA / "stanford/bunny/data"
 
 
-def _scan_truth(name: str) -> np.ndarray:
-    """T_scan_model of a Stanford range scan: ``bun.conf`` stores t and q (x, y, z, w) with
-    ``p_model = R(q)^T p_scan + t``, so ``p_scan = R (p_model - t)``."""
-    from pointclm.datasets.scenes import _quat_to_matrix
-
-    for line in (SCANS / "bun.conf").read_text().splitlines():
-        parts = line.split()
-        if parts[:2] == ["bmesh", name]:
-            tx, ty, tz, qx, qy, qz, qw = (float(v) for v in parts[2:9])
-            rot = _quat_to_matrix(qx, qy, qz, qw)
-            pose = np.eye(4)
-            pose[:3, :3], pose[:3, 3] = rot, -rot @ np.array([tx, ty, tz])
-            return pose
-    raise KeyError(name)
-
-
 @needs_data
 def test_real_bunny_scans_register_with_default_arguments() -> None:
     # Each range scan in its own frame, where its sensor is not at the origin: with no
@@ -278,7 +263,8 @@ def test_real_bunny_scans_register_with_default_arguments() -> None:
         diagonal = float(np.linalg.norm(model.max(0) - model.min(0)))
         for name in ("bun000.ply", "bun045.ply", "bun090.ply", "bun315.ply"):
             r = pointclm.register_point_clouds(path, SCANS / name)
-            s = score_scene(r.transformations[:1], _scan_truth(name)[None], 15.0, 0.1 * diagonal)
+            truth = bunny_scan_pose(SCANS, name)[None]
+            s = score_scene(r.transformations[:1], truth, 15.0, 0.1 * diagonal)
             correct += s.n_matched
             wrong += min(len(r.instances), 1) - s.n_matched
             assert r.viewpoint is None and r.orientation.startswith("no viewpoint")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pointclm
-from pointclm.datasets.scene_sensing import _quat_to_matrix
+from pointclm.datasets import bunny_scan_pose
 from pointclm.io import read_point_cloud
 from pointclm.metrics import score_scene
 
@@ -28,19 +28,6 @@ from benchmarks.common import report
 
 SCANS = ("bun000.ply", "bun045.ply", "bun090.ply", "bun315.ply")
 MODELS = ("res2", "res3", "res4")
-
-
-def scan_truth(folder: Path, name: str) -> np.ndarray:
-    """T_scan_model of one range scan, from ``bun.conf``."""
-    for line in (folder / "bun.conf").read_text().splitlines():
-        parts = line.split()
-        if parts[:2] == ["bmesh", name]:
-            tx, ty, tz, qx, qy, qz, qw = (float(v) for v in parts[2:9])
-            rot = _quat_to_matrix(qx, qy, qz, qw)
-            pose = np.eye(4)
-            pose[:3, :3], pose[:3, 3] = rot, -rot @ np.array([tx, ty, tz])
-            return pose
-    raise KeyError(name)
 
 
 def run(data: Path, descriptor: str, res: str) -> tuple[list[str], int, int, float]:
@@ -55,7 +42,7 @@ def run(data: Path, descriptor: str, res: str) -> tuple[list[str], int, int, flo
         t = time.perf_counter()
         r = pointclm.register_point_clouds(path, folder / name, descriptor=descriptor)
         times.append(time.perf_counter() - t)
-        truth = scan_truth(folder, name)[None]
+        truth = bunny_scan_pose(folder, name)[None]
         hit = score_scene(r.transformations[:1], truth, 15.0, 0.1 * diagonal).n_matched
         right += hit
         wrong += len(r.instances) - hit

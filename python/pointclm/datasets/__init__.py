@@ -17,6 +17,7 @@ from .procedural import (
     procedural_family_names,
     procedural_mesh,
 )
+from .scene_sensing import bunny_scan_pose
 from .sensed import SensedScene, SensedSceneParams, make_packed_boxes, make_sensed_scene
 from .shapes import (
     MESH_SUFFIXES,
@@ -45,6 +46,7 @@ __all__ = [
     "SensedSceneParams",
     "SyntheticScene",
     "available_shapes",
+    "bunny_scan_pose",
     "is_procedural",
     "label_correspondences",
     "load_mesh",

@@ -59,27 +59,39 @@ def _apply(t: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ t[:3, :3].T + t[:3, 3]
 
 
+def _scan_frame(folder: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of the Stanford bunny range scan `name` in `folder`: ``bun.conf`` stores, per
+    scan, a translation and a quaternion (x, y, z, w) with ``p_model = R^T p_scan + t``
+    (checked in the data's SOURCES.md)."""
+    for line in (folder / "bun.conf").read_text().splitlines():
+        parts = line.split()
+        if parts[:2] == ["bmesh", name]:
+            tx, ty, tz, qx, qy, qz, qw = (float(v) for v in parts[2:9])
+            return _quat_to_matrix(qx, qy, qz, qw), np.array([tx, ty, tz])
+    raise KeyError(f"{name} is not in {folder / 'bun.conf'}")
+
+
+def bunny_scan_pose(folder: str | Path, name: str) -> np.ndarray:
+    """T_scan_model (4 x 4) of the Stanford bunny range scan `name` in `folder` (the folder
+    of ``bun.conf``): ``p_scan = R (p_model - t)``."""
+    rot, shift = _scan_frame(Path(folder), name)
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rot, -rot @ shift
+    return pose
+
+
 @lru_cache(maxsize=1)
 def _bunny_scans(data_dir: str) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-    """Each real scan in the reconstruction's frame, with its scanner direction there.
-
-    ``bun.conf`` stores, per scan, a translation and a quaternion (x, y, z, w) with
-    ``p_model = R(q)^T p_scan + t`` (checked in the data's SOURCES.md); the scanner looked
-    along the scan frame's -z, so it sat towards ``R(q)^T (0, 0, 1)``.
-    """
+    """Each real scan in the reconstruction's frame (:func:`_scan_frame`), with its scanner
+    direction there: the scanner looked along the scan frame's -z, so it sat towards
+    ``R^T (0, 0, 1)``."""
     from ..io import load_points
 
     folder = Path(data_dir) / _BUNNY_SCAN_DIR
-    conf = {}
-    for line in (folder / "bun.conf").read_text().splitlines():
-        parts = line.split()
-        if parts and parts[0] == "bmesh":
-            conf[parts[1]] = np.array([float(v) for v in parts[2:9]])
     out = []
     for name in _BUNNY_SCANS:
-        tx, ty, tz, qx, qy, qz, qw = conf[name]
-        r = _quat_to_matrix(qx, qy, qz, qw)
-        pts = load_points(folder / name) @ r + np.array([tx, ty, tz])  # R^T p as rows
+        r, t = _scan_frame(folder, name)
+        pts = load_points(folder / name) @ r + t  # R^T p as rows
         out.append((pts, r.T @ np.array([0.0, 0.0, 1.0])))
     return tuple(out)
 
