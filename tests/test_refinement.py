@@ -542,3 +542,67 @@ def test_resolve_flips_rotations_are_checked() -> None:
     for wrong in (np.eye(3) * 1.01, np.diag([1.0, 1.0, -1.0])):
         with pytest.raises(ValueError, match=r"rotations\[1\] is not a rotation"):
             resolve_flips(src, scan, refined, 0.05, rotations=[np.eye(3), wrong])
+
+
+def _terraced_bunny() -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """A bunny 2 m from a structured-light camera (900 px focal length, 5 cm baseline,
+    disparity found to 1/8 pixel, so depth steps 11 mm deep there): the model, its visible
+    side as the camera returns it (each depth rounded to a disparity step), the true pose and
+    the part's diagonal."""
+    from pointclm.datasets.parts import load_part, model_form, surface_samples
+
+    part = load_part("bunny")
+    pts, normals = surface_samples(part, 60_000, seed=1)
+    a = np.deg2rad(30.0)
+    truth = np.eye(4)
+    truth[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
+    truth[:3, 3] = [0.0, 0.0, 2.0]
+    copy = pts @ truth[:3, :3].T + truth[:3, 3]
+    scan = copy[np.sum((normals @ truth[:3, :3].T) * -copy, axis=1) > 0]
+    fb = 900 * 0.05
+    depth = fb / (np.round(fb / scan[:, 2] * 8) / 8)
+    return model_form(part, "fine_mesh"), scan * (depth / scan[:, 2])[:, None], truth, part.diameter
+
+
+def test_a_copy_seen_through_depth_steps_is_kept_and_the_result_says_why() -> None:
+    """Within one 11 mm depth step the scan is a flat terrace facing the camera: its normals
+    over 2 voxels are the line of sight, and the exact pose fails the normals rule. Estimated
+    by pointclm, they are fitted over 4 voxels there, and the pose is kept."""
+    import pointclm.preprocessing as pp
+    from pointclm import RefinementContext
+
+    model, scan, truth, diagonal = _terraced_bunny()
+    voxel = diagonal / 40
+    src, tgt = pp.voxel_downsample(model, voxel), pp.voxel_downsample(scan, voxel)
+    fine = pp.estimate_normals(tgt, 2 * voxel)
+    given = RefinementContext(src, tgt, voxel, target_normals=fine)
+    assert [r.rule for r in given.rejections(truth[None])] == ["min_normal_agreement"]
+    kept = RefinementContext(src, tgt, voxel).refine(truth[None])
+    assert len(kept.transformations) == 1
+    assert rotation_error_deg(kept.transformations[0][:3, :3], truth[:3, :3]) < 5.0
+    # The pipeline describes the scan with the same normals, and says so.
+    reg = pointclm.register_point_clouds(model, scan, voxel_size=voxel)
+    assert "depth steps make flat terraces" in reg.orientation
+
+
+def test_terraced_share_sees_depth_steps_and_refuses_bad_input() -> None:
+    import pointclm.preprocessing as pp
+
+    model, scan, _, diagonal = _terraced_bunny()
+    voxel = diagonal / 40
+    steps = pp.terraced_share(pp.voxel_downsample(scan, voxel), 2 * voxel)
+    smooth = pp.terraced_share(pp.voxel_downsample(model + [0.0, 0.0, 2.0], voxel), 2 * voxel)
+    assert steps > 0.5 > pp.MAX_TERRACED_SHARE > abs(smooth), (steps, smooth)
+    # Seen from the side, the same terraces are not turned towards the line of sight.
+    side = pp.terraced_share(pp.voxel_downsample(scan, voxel), 2 * voxel, (5.0, 0.0, 2.0))
+    assert side <= pp.MAX_TERRACED_SHARE
+    given = scan.copy()
+    for bad, match in [
+        ((scan, -1.0), "radius"),
+        ((scan[:, :2], 0.01), "points"),
+        ((np.where(np.arange(len(scan))[:, None] == 3, np.nan, scan), 0.01), "NaN|finite"),
+        ((scan, 0.01, (0.0, np.inf, 0.0)), "viewpoint"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            pp.terraced_share(*bad)
+    assert np.array_equal(scan, given)

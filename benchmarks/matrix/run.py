@@ -263,8 +263,7 @@ def exact_pose_test(scene, product: int) -> tuple[Tally, Tally]:  # type: ignore
     voxel = default_voxel_size(model, scene.scan)
     src = pp.voxel_downsample(model, voxel)
     tgt = pp.voxel_downsample(scene.scan, voxel)
-    normals = pp.estimate_normals(tgt, 2 * voxel)
-    ctx = RefinementContext(src, tgt, voxel, viewpoint=np.zeros(3), target_normals=normals)
+    ctx = RefinementContext(src, tgt, voxel, viewpoint=np.zeros(3))
     truth = scene.poses[idx]
     t = time.perf_counter()
     kept = ctx.refine(truth)

@@ -74,6 +74,9 @@ MAX_ROTATION_DEVIATION: float
 SIGMA_D_VOXELS: float
 #: Config()'s inlier threshold on clouds, in voxels (``pointclm::scene::INLIER_VOXELS``).
 INLIER_VOXELS: float
+#: Above this terraced share the scan's normals are fitted within twice the radius
+#: (``pointclm::pointcloud::terraces::MAX_TERRACED_SHARE``).
+MAX_TERRACED_SHARE: float
 
 @final
 class Instance:
@@ -419,6 +422,12 @@ def estimate_normals(
     away_from: tuple[float, float, float] | None = None,
     num_threads: int | None = None,
 ) -> npt.NDArray[np.float64]: ...
+def terraced_share(
+    points: npt.NDArray[np.float64],
+    radius: float,
+    eye: tuple[float, float, float],
+    num_threads: int | None = None,
+) -> float: ...
 def compute_fpfh(
     points: npt.NDArray[np.float64],
     normals: npt.NDArray[np.float64],

@@ -93,7 +93,8 @@ PARAMETERS: dict[str, str] = _entries(
         voxel_size : float, optional
             Downsampling voxel, in the clouds' units; default: the model's bounding-box diagonal
             / 40, or 1.4 times the scan's point spacing or 2.5 times its noise where that is
-            larger (:func:`default_voxel_size`). Normals use 2 voxels, FPFH 5 voxels.
+            larger (:func:`default_voxel_size`). Normals use 2 voxels (4 on a scan whose depth
+            steps make flat terraces at 2), FPFH 5 voxels.
         """,
     cloud_config="""
         config : Config or dict, optional

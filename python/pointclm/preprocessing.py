@@ -36,6 +36,8 @@ __all__ = [
     "describe",
     "estimate_normals",
     "estimate_viewpoint",
+    "MAX_TERRACED_SHARE",
+    "terraced_share",
     "point_spacing",
     "noise_level",
     "scan_scales",
@@ -147,6 +149,38 @@ def estimate_normals(
         towards=t,
         away_from=a,
         num_threads=as_threads(num_threads),
+    )
+
+
+#: Above this :func:`terraced_share` pointclm fits a scan's normals within twice the radius.
+MAX_TERRACED_SHARE: float = _core.MAX_TERRACED_SHARE
+
+
+def terraced_share(
+    points: ArrayLike,
+    radius: float,
+    viewpoint: ArrayLike = (0.0, 0.0, 0.0),
+    *,
+    num_threads: int | None = None,
+) -> float:
+    """How far a range scan's depth steps make flat terraces at `radius`, seen from
+    `viewpoint` (its sensor; the origin for a scan in its sensor's frame).
+
+    A depth sensor quantises depth in steps that grow with the square of the range; on a
+    surface turned away from the sensor each step is a flat terrace facing it, and normals
+    fitted within one terrace are the line of sight. This is the share of the points whose
+    normals within `radius` turn towards the line of sight against those within twice it (by
+    more than 30 degrees), less the share turning away, as noise turns them: about 0 for a
+    scan without steps, up to 1. Above :data:`MAX_TERRACED_SHARE` (0.1) pointclm fits the
+    scan's normals within twice `radius` (docs/concepts/point-clouds.md).
+    """
+    return float(
+        _core.terraced_share(
+            as_points(points, "points"),
+            as_positive(radius, "radius"),
+            as_point(viewpoint, "viewpoint"),
+            num_threads=as_threads(num_threads),
+        )
     )
 
 

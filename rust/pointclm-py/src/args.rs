@@ -184,6 +184,7 @@ converters! {
     assignment -> String = |o| text(o, "assignment");
     variant -> String = |o| text(o, "variant");
     towards -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "towards"));
+    eye -> [f64; 3] = |o| point(o, "eye");
     away_from -> Option<[f64; 3]> = |o| optional(o, |o| point(o, "away_from"));
     optional_voxel_size -> Option<f64> = |o| optional(o, |o| real(o, "voxel_size"));
     normal_radius -> Option<f64> = |o| optional(o, |o| real(o, "normal_radius"));

@@ -321,6 +321,11 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(pointcloud::refine_poses, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::looks_like_one_view, m)?)?;
     m.add_function(wrap_pyfunction!(pointcloud::edge_on_scores, m)?)?;
+    m.add_function(wrap_pyfunction!(pointcloud::terraced_share, m)?)?;
+    m.add(
+        "MAX_TERRACED_SHARE",
+        pointclm::pointcloud::terraces::MAX_TERRACED_SHARE,
+    )?;
     m.add_function(wrap_pyfunction!(pointcloud::estimate_sensor, m)?)?;
     m.add_function(wrap_pyfunction!(validate_config, m)?)?;
     Ok(())

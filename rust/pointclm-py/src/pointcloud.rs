@@ -109,6 +109,30 @@ pub fn estimate_normals<'py>(
     rows_to_py(py, &out)
 }
 
+/// How far the scan's depth steps make flat terraces at `radius` seen from `eye`
+/// (`pointcloud::terraced_share`, over normals within `radius`, at most 30 points):
+/// above `MAX_TERRACED_SHARE` pointclm fits the scan's normals within twice `radius`.
+#[pyfunction]
+#[pyo3(signature = (points, radius, eye, num_threads=None))]
+pub fn terraced_share(
+    py: Python<'_>,
+    #[pyo3(from_py_with = args::points)] points: PyReadonlyArray2<'_, f64>,
+    #[pyo3(from_py_with = args::radius)] radius: f64,
+    #[pyo3(from_py_with = args::eye)] eye: [f64; 3],
+    #[pyo3(from_py_with = args::num_threads)] num_threads: Option<usize>,
+) -> PyResult<f64> {
+    let p = rows3(&points, "points")?;
+    let threads = num_threads.map(pool).transpose()?;
+    guarded(py, threads, move || {
+        let index = PointIndex::new(&p)?;
+        let towards = Orientation::Towards(eye);
+        let normals = pointcloud::estimate_normals(&p, &index, radius, 30, towards)?;
+        Ok(pointcloud::terraced_share(
+            &p, &index, &normals, radius, eye,
+        ))
+    })
+}
+
 /// For each eye (rows of `eyes`), the `rank`-th smallest |cos| between a normal and its
 /// point's line of sight from the eye (`pointclm.preprocessing.estimate_viewpoint`).
 #[pyfunction]

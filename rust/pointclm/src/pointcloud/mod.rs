@@ -18,6 +18,7 @@ mod rectangle;
 pub mod refine;
 pub mod search;
 pub mod sensor;
+pub mod terraces;
 pub mod visibility;
 pub mod voxel;
 
@@ -33,6 +34,7 @@ pub use refine::{
 };
 pub use search::{isolated_points, Neighbourhoods, PointIndex};
 pub use sensor::{estimate_sensor, estimate_viewpoint, SensorEstimate, VIEWPOINT_SAMPLE};
+pub use terraces::{scan_normal_radius, terraced_share};
 pub use voxel::voxel_downsample;
 
 use crate::error::{Error, Result};

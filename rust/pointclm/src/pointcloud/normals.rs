@@ -112,7 +112,8 @@ pub fn edge_on_scores(
         .collect())
 }
 
-fn pca_normal(points: &[[f64; 3]], neighbours: &[u32]) -> [f64; 3] {
+/// The unit normal of the plane fitted to `points[neighbours]` (+z with fewer than three).
+pub(super) fn pca_normal(points: &[[f64; 3]], neighbours: &[u32]) -> [f64; 3] {
     if neighbours.len() < 3 {
         return [0.0, 0.0, 1.0];
     }

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 
 use super::icp::{icp_paired, previous_pair};
 use super::normals::{estimate_normals, Orientation};
+use super::terraces::{coarse_max_nn, scan_normal_radius};
 use super::visibility::{DepthMap, Sight};
 use super::{check_normals, check_points, check_positive, PointIndex};
 use crate::config::{Declared, Unit};
@@ -48,7 +49,9 @@ crate::config::config! {
         /// moving).
         pub iterations: usize = 10 => Unit::Unitless, [1, 1000];
         /// The scan's normals for point-to-plane ICP are fitted to its points within this
-        /// distance (at most 30 of them): 2 voxels hold about 12 points of a surface.
+        /// distance (at most 30 of them): 2 voxels hold about 12 points of a surface. Within
+        /// twice it (at most 120) where the scan's depth steps make flat terraces at this
+        /// radius ([`super::terraces`]).
         pub normal_radius: f64 = 2.0 => Unit::Length, [f64::MIN_POSITIVE, f64::MAX];
         /// A model point is explained when a scan point lies within this distance: a
         /// downsampled point lies within about half a voxel of the surface on each side,
@@ -295,7 +298,7 @@ impl RefineContext {
             Some(given) => checked_normals(target, given)?.to_vec(),
             // Point-to-plane ICP needs them; without ICP, none.
             None if !params.icp => Vec::new(),
-            None => unsigned_normals(target, &index, params)?,
+            None => scan_normals(target, &index, params, viewpoint)?,
         };
         // A given viewpoint is the sensor's: the caller's word stands even where the scan
         // does not look like one view from it (`looks_like_one_view` tells the caller).
@@ -342,7 +345,7 @@ impl RefineContext {
         }
         let estimated;
         let normals: &[[f64; 3]] = if self.normals.is_empty() && params.icp {
-            estimated = unsigned_normals(&self.target, &self.index, params)?;
+            estimated = scan_normals(&self.target, &self.index, params, None)?;
             &estimated
         } else {
             &self.normals
@@ -457,7 +460,7 @@ impl RefineContext {
     ) -> Result<Vec<super::covariance::PoseCovariance>> {
         let estimated;
         let normals: &[[f64; 3]] = if self.normals.is_empty() {
-            estimated = unsigned_normals(&self.target, &self.index, &self.built)?;
+            estimated = scan_normals(&self.target, &self.index, &self.built, None)?;
             &estimated
         } else {
             &self.normals
@@ -559,6 +562,25 @@ fn unsigned_normals(
 ) -> Result<Vec<[f64; 3]>> {
     let towards = Orientation::Towards([0.0; 3]);
     estimate_normals(points, index, params.normal_radius, NORMAL_MAX_NN, towards)
+}
+
+/// The scan's normals within `normal_radius`, of either sign, or within twice it where its
+/// depth steps seen from `viewpoint` (else the origin) make terraces at `normal_radius`
+/// ([`scan_normal_radius`]).
+fn scan_normals(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    params: &RefineParams,
+    viewpoint: Option<[f64; 3]>,
+) -> Result<Vec<[f64; 3]>> {
+    let fine = unsigned_normals(points, index, params)?;
+    let eye = viewpoint.unwrap_or([0.0; 3]);
+    let radius = scan_normal_radius(points, index, &fine, params.normal_radius, eye);
+    if radius == params.normal_radius {
+        return Ok(fine);
+    }
+    let towards = Orientation::Towards([0.0; 3]);
+    estimate_normals(points, index, radius, coarse_max_nn(NORMAL_MAX_NN), towards)
 }
 
 /// Normals from each point's `AGREEMENT_NN` nearest points, of either sign: a plane fit

@@ -10,7 +10,8 @@ use crate::error::Result;
 use crate::matching::nearest_sources;
 use crate::pointcloud::{
     describe, estimate_normals, estimate_sensor, estimate_viewpoint, looks_like_one_view,
-    DescribeParams, Described, FpfhVariant, Orientation, PointIndex, RefineParams, SensorEstimate,
+    scan_normal_radius, terraces::coarse_max_nn, DescribeParams, Described, FpfhVariant,
+    Orientation, PointIndex, RefineParams, SensorEstimate,
 };
 
 use super::{mean_point, median, SceneRules};
@@ -53,25 +54,24 @@ pub fn describe_scan(
     scene: &SceneRules,
 ) -> Result<DescribedScan> {
     let params = scan_params(voxel, Orientation::Towards(viewpoint.unwrap_or([0.0; 3])));
+    let t0 = std::time::Instant::now();
+    let index = PointIndex::new(points)?;
     if let Some(view) = viewpoint {
+        let fine = fine_normals(points, &index, voxel, view)?;
+        let (normals, steps) = resolving_steps(points, &index, voxel, fine, view, view)?;
+        let normals_time = t0.elapsed().as_secs_f64();
+        let mut cloud = describe(points, Some(&normals), &params)?;
+        cloud.timings.normals += normals_time;
         return Ok(DescribedScan {
-            cloud: describe(points, None, &params)?,
-            orientation: format!("towards the viewpoint {}", xyz(view)),
+            cloud,
+            orientation: with_steps(format!("towards the viewpoint {}", xyz(view)), steps),
             viewpoint: Some(view),
             guessed: false,
         });
     }
-    let t0 = std::time::Instant::now();
-    let index = PointIndex::new(points)?;
-    let raw = estimate_normals(
-        points,
-        &index,
-        2.0 * voxel,
-        30,
-        Orientation::Towards([0.0; 3]),
-    )?;
-    let rules = RefineParams::for_voxel(voxel);
     let origin = [0.0; 3];
+    let fine = fine_normals(points, &index, voxel, origin)?;
+    let rules = RefineParams::for_voxel(voxel);
     // One view from the origin orients the normals consistently (up to one sign); with every
     // point in front of it, the sign too (see `in_front`).
     let one_view = looks_like_one_view(points, origin, &rules)?;
@@ -79,8 +79,9 @@ pub fn describe_scan(
     let eye = if one_view {
         origin
     } else {
-        estimate_viewpoint(points, &raw, 256)?
+        estimate_viewpoint(points, &fine, 256)?
     };
+    let (raw, steps) = resolving_steps(points, &index, voxel, fine, origin, eye)?;
     let normals: Vec<[f64; 3]> = points
         .iter()
         .zip(&raw)
@@ -94,7 +95,7 @@ pub fn describe_scan(
             "no viewpoint: towards the origin, a sensor's position (the scan is one view from it)";
         return Ok(DescribedScan {
             cloud,
-            orientation: orientation.into(),
+            orientation: with_steps(orientation.into(), steps),
             viewpoint: Some(origin),
             guessed: true,
         });
@@ -105,7 +106,7 @@ pub fn describe_scan(
         let (flipped, orientation) = signed_by_descriptors(model, &cloud, eye)?;
         return Ok(DescribedScan {
             cloud: if flipped { flipped_cloud(cloud) } else { cloud },
-            orientation,
+            orientation: with_steps(orientation, steps),
             viewpoint: None,
             guessed: false,
         });
@@ -137,10 +138,58 @@ pub fn describe_scan(
     let guess = one_view_from(side)?.then_some(sides[side].position);
     Ok(DescribedScan {
         cloud: if flipped { flipped_cloud(cloud) } else { cloud },
-        orientation,
+        orientation: with_steps(orientation, steps),
         viewpoint: guess,
         guessed: guess.is_some(),
     })
+}
+
+/// The scan's normals over 2 voxels (at most 30 points; FPFH's), signed towards `towards`.
+fn fine_normals(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    voxel: f64,
+    towards: [f64; 3],
+) -> Result<Vec<[f64; 3]>> {
+    estimate_normals(
+        points,
+        index,
+        2.0 * voxel,
+        30,
+        Orientation::Towards(towards),
+    )
+}
+
+/// `fine` ([`fine_normals`] signed towards `towards`), or the normals over 4 voxels (at most
+/// 120 points) where the scan's depth steps seen from `eye` make terraces at 2
+/// ([`scan_normal_radius`]); true for those.
+fn resolving_steps(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    voxel: f64,
+    fine: Vec<[f64; 3]>,
+    towards: [f64; 3],
+    eye: [f64; 3],
+) -> Result<(Vec<[f64; 3]>, bool)> {
+    let radius = 2.0 * voxel;
+    let chosen = scan_normal_radius(points, index, &fine, radius, eye);
+    if chosen == radius {
+        return Ok((fine, false));
+    }
+    let sign = Orientation::Towards(towards);
+    Ok((
+        estimate_normals(points, index, chosen, coarse_max_nn(30), sign)?,
+        true,
+    ))
+}
+
+/// `orientation`, saying when the normals were fitted over 4 voxels.
+fn with_steps(orientation: String, steps: bool) -> String {
+    if steps {
+        orientation + "; fitted over 4 voxels, as the scan's depth steps make flat terraces at 2"
+    } else {
+        orientation
+    }
 }
 
 /// How a scan is described: normals over 2 voxels, FPFH over 5 (the points are downsampled

@@ -662,3 +662,34 @@ fn a_copy_cut_by_the_scans_edge_is_judged_on_what_the_scan_covers() {
     assert_eq!(out.rejected[0].origin, 1);
     assert_eq!(out.rejected[0].rule, "min_seen");
 }
+
+#[test]
+fn a_copy_seen_through_depth_steps_is_kept_by_its_normals() {
+    // A copy seen from the origin by a sensor whose depth steps (0.3, three voxels) make flat
+    // terraces facing it on every turned surface: normals fitted within one terrace are the
+    // line of sight, and the right pose seems to cross the scan.
+    let model = blob(24);
+    let truth = motion([0.3, 1.0, 0.0], 25.0, [0.0, 0.0, 5.0]);
+    let steps = 0.3;
+    let scan: Vec<[f64; 3]> = moved(&blob(60), &truth)
+        .into_iter()
+        .map(|[x, y, z]| [x, y, (z / steps).round() * steps])
+        .collect();
+    let rules = RefineParams {
+        min_fitness: 0.0,
+        min_normal_agreement: 0.4,
+        max_slid_fitness: 1.0,
+        icp: false,
+        ..params()
+    };
+    // Normals over the usual radius, given: the pose fails the rule.
+    let index = PointIndex::new(&scan).unwrap();
+    let towards = Orientation::Towards([0.0; 3]);
+    let fine = estimate_normals(&scan, &index, rules.normal_radius, 30, towards).unwrap();
+    let given = refine_poses(&model, &scan, Some(&fine), &[truth], None, &rules).unwrap();
+    assert_eq!(given.rejected[0].rule, "min_normal_agreement", "{given:?}");
+    // Estimated from the scan itself: the terraces are seen, the normals fitted over twice
+    // the radius, and the pose kept.
+    let kept = refine_poses(&model, &scan, None, &[truth], None, &rules).unwrap();
+    assert_eq!(kept.poses.len(), 1, "{kept:?}");
+}
