@@ -199,9 +199,8 @@ def refine_poses(
     max_shared, max_slid_fitness, min_normal_agreement : float in [0, 1]
         The duplicate, slide and normals rules (module documentation); 1, 1 and 0 turn them off.
     target_normals : (M, 3) array_like, optional
-        Unit normals of `target_points` (either sign); estimated within 2 voxels if omitted,
-        or 4 where the scan's depth steps make flat terraces at 2 (seen from `viewpoint`, else
-        the origin; see docs/concepts/point-clouds.md).
+        Unit normals of `target_points` (either sign); if omitted, estimated within 2 voxels,
+        or 4 where depth steps make flat terraces at 2 (`pointclm.preprocessing.terraced_share`).
     symmetry : dict, pointclm.symmetry.Symmetry or "auto", optional
         The model's symmetries, as :func:`pointclm.register_point_clouds` takes them: poses
         (kept and sliding) come back canonical among their equivalents; scores do not change.

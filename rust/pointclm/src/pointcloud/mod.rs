@@ -34,7 +34,7 @@ pub use refine::{
 };
 pub use search::{isolated_points, Neighbourhoods, PointIndex};
 pub use sensor::{estimate_sensor, estimate_viewpoint, SensorEstimate, VIEWPOINT_SAMPLE};
-pub use terraces::{scan_normal_radius, terraced_share};
+pub use terraces::{resolving_terraces, scan_normal_radius, terraced_share};
 pub use voxel::voxel_downsample;
 
 use crate::error::{Error, Result};

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::icp::{icp_paired, previous_pair};
 use super::normals::{estimate_normals, Orientation};
-use super::terraces::{coarse_max_nn, scan_normal_radius};
+use super::terraces::resolving_terraces;
 use super::visibility::{DepthMap, Sight};
 use super::{check_normals, check_points, check_positive, PointIndex};
 use crate::config::{Declared, Unit};
@@ -566,7 +566,7 @@ fn unsigned_normals(
 
 /// The scan's normals within `normal_radius`, of either sign, or within twice it where its
 /// depth steps seen from `viewpoint` (else the origin) make terraces at `normal_radius`
-/// ([`scan_normal_radius`]).
+/// ([`resolving_terraces`]).
 fn scan_normals(
     points: &[[f64; 3]],
     index: &PointIndex,
@@ -575,12 +575,9 @@ fn scan_normals(
 ) -> Result<Vec<[f64; 3]>> {
     let fine = unsigned_normals(points, index, params)?;
     let eye = viewpoint.unwrap_or([0.0; 3]);
-    let radius = scan_normal_radius(points, index, &fine, params.normal_radius, eye);
-    if radius == params.normal_radius {
-        return Ok(fine);
-    }
     let towards = Orientation::Towards([0.0; 3]);
-    estimate_normals(points, index, radius, coarse_max_nn(NORMAL_MAX_NN), towards)
+    let shape = (params.normal_radius, NORMAL_MAX_NN);
+    Ok(resolving_terraces(points, index, fine, shape, towards, eye)?.0)
 }
 
 /// Normals from each point's `AGREEMENT_NN` nearest points, of either sign: a plane fit

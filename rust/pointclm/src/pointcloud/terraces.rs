@@ -11,8 +11,9 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::normals::pca_normal;
+use super::normals::{estimate_normals, pca_normal, Orientation};
 use super::PointIndex;
+use crate::error::Result;
 
 /// At most this many scan points (a stride) measure the terracing: a share, settled long
 /// before every point is used.
@@ -83,7 +84,7 @@ const NEIGHBOURS: usize = 30;
 
 /// The neighbour cap for normals over twice a radius whose cap is `max_nn`: the disc holds
 /// four times the points.
-pub fn coarse_max_nn(max_nn: usize) -> usize {
+fn coarse_max_nn(max_nn: usize) -> usize {
     4 * max_nn
 }
 
@@ -102,6 +103,26 @@ pub fn scan_normal_radius(
     } else {
         radius
     }
+}
+
+/// A range scan's normals that describe its surfaces: `fine` (fitted within `radius` to at
+/// most `max_nn` points, signed by `orientation`), or, where the scan seen from `eye` is
+/// terraced at `radius` ([`scan_normal_radius`]), fitted within twice it to at most four
+/// times as many points, signed alike; true for those.
+pub fn resolving_terraces(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    fine: Vec<[f64; 3]>,
+    (radius, max_nn): (f64, usize),
+    orientation: Orientation,
+    eye: [f64; 3],
+) -> Result<(Vec<[f64; 3]>, bool)> {
+    let chosen = scan_normal_radius(points, index, &fine, radius, eye);
+    if chosen == radius {
+        return Ok((fine, false));
+    }
+    let coarse = estimate_normals(points, index, chosen, coarse_max_nn(max_nn), orientation)?;
+    Ok((coarse, true))
 }
 
 #[cfg(test)]

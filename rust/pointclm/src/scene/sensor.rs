@@ -10,8 +10,8 @@ use crate::error::Result;
 use crate::matching::nearest_sources;
 use crate::pointcloud::{
     describe, estimate_normals, estimate_sensor, estimate_viewpoint, looks_like_one_view,
-    scan_normal_radius, terraces::coarse_max_nn, DescribeParams, Described, FpfhVariant,
-    Orientation, PointIndex, RefineParams, SensorEstimate,
+    terraces::resolving_terraces, DescribeParams, Described, FpfhVariant, Orientation, PointIndex,
+    RefineParams, SensorEstimate,
 };
 
 use super::{mean_point, median, SceneRules};
@@ -162,7 +162,7 @@ fn fine_normals(
 
 /// `fine` ([`fine_normals`] signed towards `towards`), or the normals over 4 voxels (at most
 /// 120 points) where the scan's depth steps seen from `eye` make terraces at 2
-/// ([`scan_normal_radius`]); true for those.
+/// ([`resolving_terraces`]); true for those.
 fn resolving_steps(
     points: &[[f64; 3]],
     index: &PointIndex,
@@ -171,16 +171,8 @@ fn resolving_steps(
     towards: [f64; 3],
     eye: [f64; 3],
 ) -> Result<(Vec<[f64; 3]>, bool)> {
-    let radius = 2.0 * voxel;
-    let chosen = scan_normal_radius(points, index, &fine, radius, eye);
-    if chosen == radius {
-        return Ok((fine, false));
-    }
     let sign = Orientation::Towards(towards);
-    Ok((
-        estimate_normals(points, index, chosen, coarse_max_nn(30), sign)?,
-        true,
-    ))
+    resolving_terraces(points, index, fine, (2.0 * voxel, 30), sign, eye)
 }
 
 /// `orientation`, saying when the normals were fitted over 4 voxels.

@@ -93,3 +93,26 @@ fn over_twice_the_radius_the_normals_of_a_terraced_surface_are_the_surfaces() {
     );
     assert!(fine < 0.1 && wide > 0.9, "{fine} {wide}");
 }
+
+#[test]
+fn resolving_terraces_refits_only_a_terraced_scan() {
+    let (voxel, radius) = (0.1, 0.2);
+    let towards = crate::pointcloud::Orientation::Towards([0.0; 3]);
+    for (pts, terraced) in [
+        (sensed_slope(45.0, 5.0, voxel, 0.3, 0.0), true),
+        (sensed_slope(45.0, 5.0, voxel, 0.0, 0.15), false),
+    ] {
+        let index = PointIndex::new(&pts).unwrap();
+        let fine = normals_of(&pts, &index, radius);
+        let shape = (radius, 30);
+        let (got, refitted) =
+            resolving_terraces(&pts, &index, fine.clone(), shape, towards, [0.0; 3]).unwrap();
+        assert_eq!(refitted, terraced);
+        let want = if terraced {
+            crate::pointcloud::estimate_normals(&pts, &index, 2.0 * radius, 120, towards).unwrap()
+        } else {
+            fine
+        };
+        assert_eq!(got, want);
+    }
+}
