@@ -127,9 +127,7 @@ pub fn terraced_share(
         let index = PointIndex::new(&p)?;
         let towards = Orientation::Towards(eye);
         let normals = pointcloud::estimate_normals(&p, &index, radius, 30, towards)?;
-        Ok(pointcloud::terraced_share(
-            &p, &index, &normals, radius, eye,
-        ))
+        pointcloud::terraced_share(&p, &index, &normals, radius, eye)
     })
 }
 

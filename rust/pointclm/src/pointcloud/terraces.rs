@@ -12,7 +12,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::normals::{estimate_normals, pca_normal, Orientation};
-use super::PointIndex;
+use super::{check_index, check_normals, check_positive, PointIndex};
 use crate::error::Result;
 
 /// At most this many scan points (a stride) measure the terracing: a share, settled long
@@ -37,15 +37,19 @@ pub const MAX_TERRACED_SHARE: f64 = 0.1;
 /// The share of `points` whose normals (`normals`, fitted within `radius`, either sign) turn
 /// towards the line of sight to `eye` against the normals fitted within twice `radius`,
 /// less the share turning away (see [`MAX_TERRACED_SHARE`]); 0 for fewer than 3 points.
+/// Errors: an index not built on `points`, normals not one per point, a radius not positive.
 pub fn terraced_share(
     points: &[[f64; 3]],
     index: &PointIndex,
     normals: &[[f64; 3]],
     radius: f64,
     eye: [f64; 3],
-) -> f64 {
-    if points.len() < 3 || normals.len() != points.len() {
-        return 0.0;
+) -> Result<f64> {
+    check_index(index, points)?;
+    check_normals(normals, points.len(), "normals", "normals (one per point)")?;
+    check_positive("normal radius", radius)?;
+    if points.len() < 3 {
+        return Ok(0.0);
     }
     let stride = (points.len() / TERRACE_SAMPLE).max(1);
     let rows: Vec<usize> = (0..points.len()).step_by(stride).collect();
@@ -76,7 +80,7 @@ pub fn terraced_share(
             }
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    (toward as f64 - away as f64) / rows.len() as f64
+    Ok((toward as f64 - away as f64) / rows.len() as f64)
 }
 
 /// Neighbours a normal within the usual radius is fitted to (the scan's description's).
@@ -97,12 +101,9 @@ pub fn scan_normal_radius(
     normals: &[[f64; 3]],
     radius: f64,
     eye: [f64; 3],
-) -> f64 {
-    if terraced_share(points, index, normals, radius, eye) > MAX_TERRACED_SHARE {
-        2.0 * radius
-    } else {
-        radius
-    }
+) -> Result<f64> {
+    let terraced = terraced_share(points, index, normals, radius, eye)? > MAX_TERRACED_SHARE;
+    Ok(if terraced { 2.0 * radius } else { radius })
 }
 
 /// A range scan's normals that describe its surfaces: `fine` (fitted within `radius` to at
@@ -117,7 +118,7 @@ pub fn resolving_terraces(
     orientation: Orientation,
     eye: [f64; 3],
 ) -> Result<(Vec<[f64; 3]>, bool)> {
-    let chosen = scan_normal_radius(points, index, &fine, radius, eye);
+    let chosen = scan_normal_radius(points, index, &fine, radius, eye)?;
     if chosen == radius {
         return Ok((fine, false));
     }

@@ -57,8 +57,8 @@ pub fn describe_scan(
     let t0 = std::time::Instant::now();
     let index = PointIndex::new(points)?;
     if let Some(view) = viewpoint {
-        let fine = fine_normals(points, &index, voxel, view)?;
-        let (normals, steps) = resolving_steps(points, &index, voxel, fine, view, view)?;
+        let fine = fine_normals(points, &index, &params)?;
+        let (normals, steps) = resolving_steps(points, &index, &params, fine, view)?;
         let normals_time = t0.elapsed().as_secs_f64();
         let mut cloud = describe(points, Some(&normals), &params)?;
         cloud.timings.normals += normals_time;
@@ -70,7 +70,7 @@ pub fn describe_scan(
         });
     }
     let origin = [0.0; 3];
-    let fine = fine_normals(points, &index, voxel, origin)?;
+    let fine = fine_normals(points, &index, &params)?;
     let rules = RefineParams::for_voxel(voxel);
     // One view from the origin orients the normals consistently (up to one sign); with every
     // point in front of it, the sign too (see `in_front`).
@@ -81,7 +81,7 @@ pub fn describe_scan(
     } else {
         estimate_viewpoint(points, &fine, 256)?
     };
-    let (raw, steps) = resolving_steps(points, &index, voxel, fine, origin, eye)?;
+    let (raw, steps) = resolving_steps(points, &index, &params, fine, eye)?;
     let normals: Vec<[f64; 3]> = points
         .iter()
         .zip(&raw)
@@ -144,35 +144,28 @@ pub fn describe_scan(
     })
 }
 
-/// The scan's normals over 2 voxels (at most 30 points; FPFH's), signed towards `towards`.
-fn fine_normals(
-    points: &[[f64; 3]],
-    index: &PointIndex,
-    voxel: f64,
-    towards: [f64; 3],
-) -> Result<Vec<[f64; 3]>> {
-    estimate_normals(
-        points,
-        index,
-        2.0 * voxel,
-        30,
-        Orientation::Towards(towards),
-    )
-}
-
-/// `fine` ([`fine_normals`] signed towards `towards`), or the normals over 4 voxels (at most
-/// 120 points) where the scan's depth steps seen from `eye` make terraces at 2
-/// ([`resolving_terraces`]); true for those.
+/// The scan's normals as `params` fit them (over 2 voxels), or over 4 where its depth steps
+/// seen from `eye` make terraces at 2 ([`resolving_terraces`]); true for those. `fine`: the
+/// former, already fitted.
 fn resolving_steps(
     points: &[[f64; 3]],
     index: &PointIndex,
-    voxel: f64,
+    params: &DescribeParams,
     fine: Vec<[f64; 3]>,
-    towards: [f64; 3],
     eye: [f64; 3],
 ) -> Result<(Vec<[f64; 3]>, bool)> {
-    let sign = Orientation::Towards(towards);
-    resolving_terraces(points, index, fine, (2.0 * voxel, 30), sign, eye)
+    let shape = (params.normal_radius, params.normal_max_nn);
+    resolving_terraces(points, index, fine, shape, params.orientation, eye)
+}
+
+/// The scan's normals as `params` fit them: over 2 voxels, signed by its orientation.
+fn fine_normals(
+    points: &[[f64; 3]],
+    index: &PointIndex,
+    params: &DescribeParams,
+) -> Result<Vec<[f64; 3]>> {
+    let (radius, max_nn) = (params.normal_radius, params.normal_max_nn);
+    estimate_normals(points, index, radius, max_nn, params.orientation)
 }
 
 /// `orientation`, saying when the normals were fitted over 4 voxels.

@@ -44,7 +44,7 @@ fn depth_steps_on_a_turned_surface_are_terraces_and_noise_is_not() {
     for (k, (pts, terraced)) in cases.iter().enumerate() {
         let index = PointIndex::new(pts).unwrap();
         let normals = normals_of(pts, &index, radius);
-        let share = terraced_share(pts, &index, &normals, radius, [0.0; 3]);
+        let share = terraced_share(pts, &index, &normals, radius, [0.0; 3]).unwrap();
         // Far from the threshold either way: 0.72 against at most 0.04.
         let clear = if *terraced {
             share > 0.5
@@ -52,7 +52,7 @@ fn depth_steps_on_a_turned_surface_are_terraces_and_noise_is_not() {
             share.abs() < 0.05
         };
         assert!(clear, "case {k}: {share}");
-        let chosen = scan_normal_radius(pts, &index, &normals, radius, [0.0; 3]);
+        let chosen = scan_normal_radius(pts, &index, &normals, radius, [0.0; 3]).unwrap();
         assert_eq!(
             chosen,
             if *terraced { 2.0 * radius } else { radius },
@@ -63,13 +63,18 @@ fn depth_steps_on_a_turned_surface_are_terraces_and_noise_is_not() {
     let pts = &cases[0].0;
     let index = PointIndex::new(pts).unwrap();
     let normals = normals_of(pts, &index, radius);
-    let aside = terraced_share(pts, &index, &normals, radius, [40.0, 0.0, 5.0]);
+    let aside = terraced_share(pts, &index, &normals, radius, [40.0, 0.0, 5.0]).unwrap();
     assert!(aside <= MAX_TERRACED_SHARE, "{aside}");
     // Degenerate input: no share, no panic.
+    let two = PointIndex::new(&pts[..2]).unwrap();
     assert_eq!(
-        terraced_share(&pts[..2], &index, &normals[..2], radius, [0.0; 3]),
+        terraced_share(&pts[..2], &two, &normals[..2], radius, [0.0; 3]).unwrap(),
         0.0
     );
+    // Inputs that do not belong together are errors, not a share.
+    assert!(terraced_share(&pts[..2], &index, &normals[..2], radius, [0.0; 3]).is_err());
+    assert!(terraced_share(pts, &index, &normals[..2], radius, [0.0; 3]).is_err());
+    assert!(terraced_share(pts, &index, &normals, -radius, [0.0; 3]).is_err());
 }
 
 #[test]
