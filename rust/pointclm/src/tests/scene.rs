@@ -365,3 +365,49 @@ fn a_scan_that_shares_no_shape_with_the_model_is_an_empty_result_not_an_error() 
         assert!(first.registration.instances.is_empty() && first.added == 0);
     }
 }
+
+#[test]
+fn a_lone_view_seen_from_behind_the_origin_is_described_from_its_other_side() {
+    use crate::scene::{register_point_clouds, SceneOptions};
+    use nalgebra::Vector3;
+    // A bumpy blob and the side of it a sensor sees from `eye` (the samples whose outward
+    // direction faces it), moved by `at`.
+    let model: Vec<[f64; 3]> = bumpy_blob(120, 100);
+    let view = |eye: [f64; 3], at: [f64; 3]| -> Vec<[f64; 3]> {
+        model
+            .iter()
+            .filter(|p| Vector3::from(**p).dot(&(Vector3::from(eye) - Vector3::from(**p))) > 0.0)
+            .map(|p| [p[0] + at[0], p[1] + at[1], p[2] + at[2]])
+            .collect()
+    };
+    let right = |found: &crate::scene::SceneRegistration, at: [f64; 3]| {
+        found.candidates.first().is_some_and(|c| {
+            (c.pose.translation - Vector3::from(at)).norm() < 0.1 && c.pose.rotation.trace() > 2.9
+        })
+    };
+    // Seen from the origin (the blob 4 away along z, its near side in the scan): a sensor's
+    // frame, judged from the origin.
+    let front = view([0.0, 0.0, -4.0], [0.0, 0.0, 4.0]);
+    let found = register_point_clouds(&model, &front, &SceneOptions::default()).unwrap();
+    assert!(
+        found.orientation.contains("towards the origin"),
+        "{}",
+        found.orientation
+    );
+    assert!(right(&found, [0.0, 0.0, 4.0]));
+    // Its far side in the scan instead, seen from beyond it: one view from the origin and in
+    // front of it too, but its descriptors match the model's flipped.
+    let back = view([0.0, 0.0, 4.0], [0.0, 0.0, 4.0]);
+    let found = register_point_clouds(&model, &back, &SceneOptions::default()).unwrap();
+    assert!(
+        found.orientation.contains("away from the origin"),
+        "{}",
+        found.orientation
+    );
+    assert!(right(&found, [0.0, 0.0, 4.0]));
+    assert!(
+        found.viewpoint.is_none_or(|v| v[2] > 5.0),
+        "{:?}",
+        found.viewpoint
+    );
+}
