@@ -146,20 +146,14 @@ def test_quick_cells():
 def test_each_rule_read_alone_on_the_exact_poses_rejects_what_it_rejects_at_its_default():
     """`benchmarks.matrix.exact_rules` reads each rule's value at a threshold every pose
     fails; at the default threshold those values reject exactly the poses the rule alone does."""
-    import pointclm.preprocessing as pp
     import pointclm.refinement as rf
-    from pointclm import RefinementContext
-    from pointclm.clouds.sensor import default_voxel_size
 
     from benchmarks.matrix import exact_rules
 
     values = exact_rules.measure(["part=bracket"], [0])["part=bracket"]
     cell = {c.name: c for c in mx.all_cells()}["part=bracket"]
     scene = make_sensed_scene(0, cell.params())
-    idx = scene.copies_of(0, mx.MIN_VISIBLE)
-    voxel = default_voxel_size(scene.models[0], scene.scan)
-    src, tgt = pp.voxel_downsample(scene.models[0], voxel), pp.voxel_downsample(scene.scan, voxel)
-    ctx = RefinementContext(src, tgt, voxel, viewpoint=np.zeros(3))
+    idx, ctx = mx.exact_context(scene, 0)
     for rule, (_, floor) in exact_rules.RULES.items():
         v = np.asarray(values[rule])
         assert len(v) == len(idx)

@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 
 from benchmarks.common import report
-from benchmarks.matrix.run import MIN_VISIBLE, all_cells
+from benchmarks.matrix.run import MIN_VISIBLE, all_cells, exact_context
 
 #: Each rule, the threshold that makes every pose report its value, and whether its default
 #: is a floor (the value must reach it) or a ceiling.
@@ -47,9 +47,6 @@ OFF = {
 def measure(cells: list[str] | None, seeds: list[int]) -> dict[str, dict[str, list[float]]]:
     """Per cell and rule, the value each exact pose shows (a pose a rule does not name passes
     its extreme threshold: 1 for a floor, 0 for a ceiling)."""
-    import pointclm.preprocessing as pp
-    from pointclm import RefinementContext
-    from pointclm.clouds.sensor import default_voxel_size
     from pointclm.datasets.sensed import make_sensed_scene
 
     out: dict[str, dict[str, list[float]]] = {}
@@ -60,14 +57,10 @@ def measure(cells: list[str] | None, seeds: list[int]) -> dict[str, dict[str, li
         t = time.perf_counter()
         for seed in seeds:
             scene = make_sensed_scene(seed, cell.params())
-            for product, model in enumerate(scene.models):
-                idx = scene.copies_of(product, MIN_VISIBLE)
-                if len(idx) == 0:
+            for product in range(len(scene.models)):
+                if len(scene.copies_of(product, MIN_VISIBLE)) == 0:
                     continue
-                voxel = default_voxel_size(model, scene.scan)
-                src = pp.voxel_downsample(model, voxel)
-                tgt = pp.voxel_downsample(scene.scan, voxel)
-                ctx = RefinementContext(src, tgt, voxel, viewpoint=np.zeros(3))
+                idx, ctx = exact_context(scene, product)
                 for rule, (extreme, floor) in RULES.items():
                     got = np.full(len(idx), 1.0 if floor else 0.0)
                     for r in ctx.rejections(scene.poses[idx], **{**OFF, rule: extreme}):

@@ -247,23 +247,31 @@ def score_poses(
     )
 
 
-def exact_pose_test(scene, product: int) -> tuple[Tally, Tally]:  # type: ignore[no-untyped-def]
-    """Verification started from the truth (module documentation): the copies kept, and
-    those kept or returned apart as sliding along a face."""
+def exact_context(scene, product: int):  # type: ignore[no-untyped-def]
+    """The copies of `product` at least `MIN_VISIBLE` visible (indices) and the refinement
+    context the exact-pose test verifies them in: the model and scan downsampled at the
+    default voxel, the sensor at the origin (the scan is in the camera's frame)."""
     import pointclm.preprocessing as pp
     from pointclm import RefinementContext
     from pointclm.clouds.sensor import default_voxel_size
-    from pointclm.metrics import pose_match_matrix
 
-    idx = scene.copies_of(product, MIN_VISIBLE)
-    out, ambiguous = Tally(), Tally()
-    if len(idx) == 0:
-        return out, ambiguous
     model = scene.models[product]
     voxel = default_voxel_size(model, scene.scan)
     src = pp.voxel_downsample(model, voxel)
     tgt = pp.voxel_downsample(scene.scan, voxel)
     ctx = RefinementContext(src, tgt, voxel, viewpoint=np.zeros(3))
+    return scene.copies_of(product, MIN_VISIBLE), ctx
+
+
+def exact_pose_test(scene, product: int) -> tuple[Tally, Tally]:  # type: ignore[no-untyped-def]
+    """Verification started from the truth (module documentation): the copies kept, and
+    those kept or returned apart as sliding along a face."""
+    from pointclm.metrics import pose_match_matrix
+
+    out, ambiguous = Tally(), Tally()
+    if len(scene.copies_of(product, MIN_VISIBLE)) == 0:
+        return out, ambiguous
+    idx, ctx = exact_context(scene, product)
     truth = scene.poses[idx]
     t = time.perf_counter()
     kept = ctx.refine(truth)

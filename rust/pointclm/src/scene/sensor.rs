@@ -37,8 +37,9 @@ pub struct DescribedScan {
 /// towards `viewpoint` when given. Without one, the sensor is guessed: a scan in its sensor's
 /// frame (one view from the origin, [`looks_like_one_view`], and [`in_front`] of it) has its
 /// sensor at the origin, unless it is one object alone whose descriptors say it was seen from
-/// behind ([`seen_from_behind`]: then its sensor is estimated on its other side); otherwise the normals are oriented from the origin when the scan is
-/// one view from it, else from a point that orients them consistently
+/// behind ([`seen_from_behind`]: then its sensor is estimated on its other side); otherwise
+/// the normals are oriented from the origin when the scan is one view from it, else from a
+/// point that orients them consistently
 /// ([`estimate_viewpoint`]); either fixes them up to one global sign. Outside surfaces face
 /// the sensor, so the sign kept is the side the sensor stood on ([`side_by_sight`], for a scan
 /// that spans a scene), else the sign whose descriptors lie nearer the model's (the median
@@ -91,8 +92,8 @@ pub fn describe_scan(
     let normals_time = t0.elapsed().as_secs_f64();
     let mut cloud = describe(points, Some(&normals), &params)?;
     cloud.timings.normals += normals_time;
-    let alone = !spans_a_scene(points, &model.points, scene.scene_extent);
-    let behind = match sensor_frame && alone {
+    let alone = || !spans_a_scene(points, &model.points, scene.scene_extent);
+    let behind = match sensor_frame && alone() {
         true => seen_from_behind(model, &cloud)?,
         false => None,
     };
@@ -298,13 +299,9 @@ pub fn in_front(points: &[[f64; 3]]) -> bool {
 /// give 10-46 % of rows (never more than half), the Stanford bunny range scans, whose scanner
 /// stood on the far side of the origin, 79-88 % (17-23 standard errors), BENCHMARKS.md.
 fn seen_from_behind(model: &Described, scan: &Described) -> Result<Option<(usize, usize)>> {
-    let rows = strided(&scan.descriptors, SIGN_SAMPLE)?;
-    let towards = nearest_sources(&model.descriptors, &rows, 1)?;
-    let away = nearest_sources(&model.descriptors, &flip_fpfh_rows(&rows), 1)?;
-    let n = rows.len();
-    let nearer = (towards.dist2.iter().zip(&away.dist2))
-        .filter(|(t, a)| a < t)
-        .count();
+    let (towards, away) = both_signs(model, scan)?;
+    let n = towards.len();
+    let nearer = towards.iter().zip(&away).filter(|(t, a)| a < t).count();
     let excess = (nearer as f64 - n as f64 / 2.0) / ((n as f64).sqrt() / 2.0);
     Ok((excess > BEHIND_STANDARD_ERRORS).then_some((nearer, n)))
 }
@@ -320,9 +317,8 @@ fn signed_by_descriptors(
     scan: &Described,
     eye: [f64; 3],
 ) -> Result<(bool, String)> {
-    let rows = strided(&scan.descriptors, SIGN_SAMPLE)?;
-    let towards = median_distance(model, &rows)?;
-    let away = median_distance(model, &flip_fpfh_rows(&rows))?;
+    let (towards, away) = both_signs(model, scan)?;
+    let (towards, away) = (median_distance(&towards), median_distance(&away));
     let side = if away < towards {
         "away from"
     } else {
@@ -348,11 +344,20 @@ fn strided(features: &Features, most: usize) -> Result<Features> {
     Features::new(flat, features.dim())
 }
 
-/// The median distance from each of `rows` to its nearest model descriptor.
-fn median_distance(model: &Described, rows: &Features) -> Result<f64> {
-    let near = nearest_sources(&model.descriptors, rows, 1)?;
-    let mut d: Vec<f64> = near.dist2.iter().map(|&d2| d2.max(0.0).sqrt()).collect();
-    Ok(median(&mut d))
+/// For a stride of at most `SIGN_SAMPLE` of the scan's descriptors, the squared distance of
+/// each to its nearest model descriptor, as they are and with every normal flipped: the two
+/// signs' evidence, which [`signed_by_descriptors`] and [`seen_from_behind`] weigh.
+fn both_signs(model: &Described, scan: &Described) -> Result<(Vec<f64>, Vec<f64>)> {
+    let rows = strided(&scan.descriptors, SIGN_SAMPLE)?;
+    let towards = nearest_sources(&model.descriptors, &rows, 1)?.dist2;
+    let away = nearest_sources(&model.descriptors, &flip_fpfh_rows(&rows), 1)?.dist2;
+    Ok((towards, away))
+}
+
+/// The median of the distances whose squares are `dist2`.
+fn median_distance(dist2: &[f64]) -> f64 {
+    let mut d: Vec<f64> = dist2.iter().map(|&d2| d2.max(0.0).sqrt()).collect();
+    median(&mut d)
 }
 
 /// FPFH's 33 bins are three 11-bin histograms of the pair features (f1: the angle theta,
