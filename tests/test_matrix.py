@@ -161,3 +161,42 @@ def test_each_rule_read_alone_on_the_exact_poses_rejects_what_it_rejects_at_its_
         read = np.flatnonzero(v < default if floor else v > default)
         alone = ctx.rejections(scene.poses[idx], **{**exact_rules.OFF, rule: default})
         assert sorted(r.origin for r in alone) == read.tolist(), rule
+
+
+def _run_json(f1: dict[str, tuple[float, float]]) -> dict:
+    """A matrix run's JSON with `f1` (cell -> validation, test) on the default row."""
+    cells = {
+        name: {"rows": {"default": {"validation": {"f1": v}, "test": {"f1": t}}}}
+        for name, (v, t) in f1.items()
+    }
+    return {"cells": cells, "pooled": {"default": {"validation": {"f1": 0.5}, "test": {}}}}
+
+
+def test_choosing_a_rule_admits_the_values_within_the_tolerance_on_every_cell():
+    from benchmarks.matrix import choose
+
+    runs = {
+        "a": _run_json({"x": (0.90, 0.1), "y": (0.50, 0.2), "z": (0.7, 0.7)}),
+        "b": _run_json({"x": (0.88, 0.3), "y": (0.60, 0.4), "z": (0.7, 0.7)}),
+    }
+    out = choose.compare(runs, "default", 0.03)
+    assert out["cells"]["y"]["loss"] == pytest.approx({"a": 0.10, "b": 0.0})
+    # "a" loses 0.10 on y; "b" loses 0.02 on x only: admissible. The test half never decides.
+    assert out["labels"]["a"]["over"] == ["y"]
+    assert out["labels"]["b"]["over"] == []
+    assert out["labels"]["b"]["worst_loss"] == pytest.approx(0.02)
+    text = choose.report(out)
+    assert "| y | 0.50 / 0.20 | 0.60 / 0.40 | b |" in text
+    assert "| z |" not in text  # the same under every value
+    assert "none (admissible)" in text
+
+
+def test_a_run_can_change_a_scene_rule_and_a_bad_one_stops_it():
+    assert mx._scene_rules(["heap_min_copies=3", "max_peel_rounds = 5"]) == {
+        "heap_min_copies": 3,
+        "max_peel_rounds": 5,
+    }
+    with pytest.raises(SystemExit, match="RULE=VALUE"):
+        mx._scene_rules(["heap_min_copies"])
+    with pytest.raises(Exception, match="no_such_rule"):
+        mx._scene_rules(["no_such_rule=1"])

@@ -2,6 +2,7 @@
 camera, sensor, layout, part and model form.
 
     python -m benchmarks.matrix.run [--quick] [--cells SUBSTR,...] [--scenes 4] [--out FILE]
+                                    [--scene RULE=VALUE ...] [--descriptor D] [--table FILE]
 
 Every axis takes at least three values (``pointclm.datasets.cameras.CAMERAS``,
 ``sensor_effects.SENSORS``, ``layouts.LAYOUTS``, ``parts.PARTS``, ``parts.MODEL_FORMS``). The
@@ -28,7 +29,9 @@ product:
   and the rule that rejected each one lost.
 
 Results go to ``--out`` (JSON, per cell and pooled, validation and test halves apart);
-``--table`` writes the markdown table.
+``--table`` writes the markdown table. ``--scene RULE=VALUE`` changes one of
+:class:`pointclm.SceneRules` for every call: runs with several values of a rule are compared
+cell by cell by ``python -m benchmarks.matrix.choose``.
 """
 
 from __future__ import annotations
@@ -485,6 +488,23 @@ def _write(results: dict, pooled: dict, args, argv, seeds: list[int], t0: float)
         Path(args.out).write_text(json.dumps(_clean(results), indent=1) + "\n")
 
 
+def _scene_rules(pairs: list[str]) -> dict[str, object]:
+    """``["heap_min_copies=3"]`` -> ``{"heap_min_copies": 3}`` (literals), checked by
+    :class:`pointclm.SceneRules` before any scene is built."""
+    import ast
+
+    from pointclm import SceneRules
+
+    rules: dict[str, object] = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        if not sep:
+            raise SystemExit(f"--scene takes RULE=VALUE, got {pair!r}")
+        rules[name.strip()] = ast.literal_eval(value.strip())
+    SceneRules(**rules)  # type: ignore[arg-type]
+    return rules
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="a few cells, one scene each (CI)")
@@ -498,6 +518,14 @@ def main(argv: list[str] | None = None) -> dict:
         "--descriptor", default="auto", help="auto, fpfh, learned, fpfh+learned or a file"
     )
     ap.add_argument(
+        "--scene",
+        action="append",
+        default=[],
+        metavar="RULE=VALUE",
+        help="a scene-wide rule changed for every call (pointclm.SceneRules), e.g. "
+        "heap_min_copies=3; repeatable (benchmarks.matrix.choose compares such runs)",
+    )
+    ap.add_argument(
         "--organised",
         action="store_true",
         help="hand the scan over as the organised (H, W, 3) frame where the sensor gives one "
@@ -505,6 +533,8 @@ def main(argv: list[str] | None = None) -> dict:
     )
     args = ap.parse_args(argv)
     REGISTER_OPTIONS["descriptor"] = args.descriptor
+    if args.scene:
+        REGISTER_OPTIONS["scene"] = _scene_rules(args.scene)
     cells = all_cells(args.random)
     if args.quick:
         cells = [c for c in cells if c.name in QUICK]

@@ -56,7 +56,11 @@ crate::config::config! {
         /// Once peeling has accepted this many copies, the scan is taken for a heap of
         /// identical parts and later passes relax the mutual check. Chosen on the validation
         /// sets: realistic scenes (2 to 8 copies among clutter) accept at most 7; on the
-        /// validation bins 8, 10 and 12 found the same share of half-visible copies.
+        /// validation bins 8, 10 and 12 found the same share of half-visible copies. On the
+        /// validation matrix 3 and 1 find more copies in piles of curved parts (the narrow far
+        /// camera, the dragon, the rocker arm) and add wrong poses in the room, time-of-flight,
+        /// box-pile and bracket cells; no value is within 0.03 F1 of the best on every cell
+        /// (benchmarks/results/matrix/heap_switch.md).
         pub heap_min_copies: usize = 10 => Unit::Unitless, [1, 1_000_000];
         /// The windowed mutual check's cube side in model diagonals for a heap
         /// (`mutual_window="auto"`): the best of the sizes tried on the validation bins.
