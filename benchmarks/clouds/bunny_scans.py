@@ -81,10 +81,7 @@ def main() -> None:
     lines += ["", "| descriptor | right of 12 | wrong |", "|---|---|---|"]
     lines += [f"| {d} | {r} | {w} |" for d, (r, w) in totals.items()]
     text = "\n".join(lines) + "\n"
-    if args.out:
-        report.write_report(args.out, text)
-    else:
-        print(text)
+    report.write_report(args.out, text)
 
 
 if __name__ == "__main__":

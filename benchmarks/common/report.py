@@ -76,8 +76,11 @@ def pointclm_env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": path}
 
 
-def write_report(path: str | os.PathLike[str], text: str) -> None:
-    """Write a report to `path` (its folder made when missing) and print it."""
+def write_report(path: str | os.PathLike[str] | None, text: str) -> None:
+    """Print a report, and write it to `path` (its folder made when missing) when given."""
+    if path is None:
+        print(text)
+        return
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

@@ -18,6 +18,8 @@ import argparse
 import json
 from pathlib import Path
 
+from benchmarks.common.report import write_report
+
 
 def _f1(cell: dict, row: str, half: str) -> float | None:
     """The F1 of `row` (or of the correspondence row, for that family) on `half`."""
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> str:
     ap.add_argument("runs", nargs="+", metavar="LABEL=RUN.json")
     ap.add_argument("--row", default="default", help="default, heap, ... (the run's rows)")
     ap.add_argument("--tolerance", type=float, default=0.03)
-    ap.add_argument("--out", help="write the markdown here (default: print it)")
+    ap.add_argument("--out", help="also write the markdown here")
     args = ap.parse_args(argv)
     runs = {}
     for item in args.runs:
@@ -105,10 +107,7 @@ def main(argv: list[str] | None = None) -> str:
             raise SystemExit(f"give each run as LABEL=RUN.json, got {item!r}")
         runs[label] = json.loads(Path(path).read_text())
     text = report(compare(runs, args.row, args.tolerance))
-    if args.out:
-        Path(args.out).write_text(text)
-    else:
-        print(text, end="")
+    write_report(args.out, text)
     return text
 
 

@@ -122,10 +122,7 @@ def main(argv: list[str] | None = None) -> None:
             table(values),
         ]
     )
-    if args.out:
-        report.write_report(args.out, text)
-    else:
-        print(text)
+    report.write_report(args.out, text)
 
 
 if __name__ == "__main__":

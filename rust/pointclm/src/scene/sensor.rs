@@ -92,8 +92,8 @@ pub fn describe_scan(
     let normals_time = t0.elapsed().as_secs_f64();
     let mut cloud = describe(points, Some(&normals), &params)?;
     cloud.timings.normals += normals_time;
-    let alone = || !spans_a_scene(points, &model.points, scene.scene_extent);
-    let behind = match sensor_frame && alone() {
+    // Only a lone object (not a scene) seen from the origin can be seen from behind it.
+    let behind = match sensor_frame && !spans_a_scene(points, &model.points, scene.scene_extent) {
         true => seen_from_behind(model, &cloud)?,
         false => None,
     };
